@@ -1,0 +1,141 @@
+"""The small protocols every instrument driver implements, and the driver error types.
+
+Three instrument kinds (DESIGN §1, §4): an angle source, a torque source and a loader. Drivers are synchronous
+and blocking with timeouts everywhere; the acquisition layer runs them in worker threads. Every reading is
+stamped at the driver with the driver's clock (``time.monotonic`` for real instruments, the simulated clock
+for in-process simulated ones).
+
+Sign conventions: positive torque twists the output in the positive angle direction. Angles in arcsec,
+torque in N·m, times in s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from tcms_daq.errors import TcmsError
+
+Clock = Callable[[], float]
+
+
+class InstrumentError(TcmsError):
+    """Base of all driver failures; the message always names the instrument."""
+
+    def __init__(self, instrument: str, message: str):
+        super().__init__(f"{instrument}: {message}")
+        self.instrument = instrument
+
+
+class InstrumentTimeout(InstrumentError):
+    """No (complete) reply within the timeout."""
+
+
+class MalformedReply(InstrumentError):
+    """A reply arrived but does not match the protocol's framing."""
+
+
+class DeviceFault(InstrumentError):
+    """The instrument reports a fault (encoder '?' unit, drive FAULT state, EMCY …)."""
+
+    def __init__(self, instrument: str, message: str, code: int | None = None):
+        super().__init__(instrument, message)
+        self.code = code
+
+
+class Disconnected(InstrumentError):
+    """The link is down and the bounded reconnect did not bring it back."""
+
+
+class CommandRejected(InstrumentError):
+    """A command failed validation (limits, units) before any byte left, or the device refused it."""
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Readings of one channel: ``time_s`` stamped at the driver, ``value`` in the channel's unit."""
+
+    time_s: np.ndarray
+    value: np.ndarray
+
+    @staticmethod
+    def empty() -> Batch:
+        return Batch(np.empty(0), np.empty(0))
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+
+@dataclass(frozen=True)
+class LoaderStatus:
+    """A snapshot of the loader (CiA 402 drive) state.
+
+    state: CiA 402 state name ("SWITCH ON DISABLED", "OPERATION ENABLED", "FAULT", …);
+    torque_actual_nm: measured motor torque; error_code: 0x603F (0 = none).
+    """
+
+    state: str
+    torque_actual_nm: float
+    fault: bool
+    error_code: int = 0
+    position_counts: int = 0
+    time_s: float = 0.0
+
+
+@runtime_checkable
+class AngleSource(Protocol):
+    name: str
+
+    def connect(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def read(self) -> Batch:
+        """Readings (angle in arcsec) taken since the previous call; at least one for polled instruments."""
+        ...
+
+
+@runtime_checkable
+class TorqueSource(Protocol):
+    name: str
+
+    def connect(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def read(self) -> Batch:
+        """Readings (torque in N·m) taken since the previous call; at least one for polled instruments."""
+        ...
+
+    def tare(self) -> None:
+        """Zero the torque channel at the present load."""
+        ...
+
+
+@runtime_checkable
+class Loader(Protocol):
+    name: str
+    rated_torque_nm: float
+
+    def connect(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def enable(self) -> None:
+        """Walk the drive state machine to OPERATION ENABLED in profile torque mode (4)."""
+        ...
+
+    def disable(self) -> None:
+        """Target torque 0, then leave OPERATION ENABLED (disable voltage)."""
+        ...
+
+    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        """Command a target torque (validated against the limits before any byte leaves)."""
+        ...
+
+    def status(self) -> LoaderStatus: ...
+
+    def fault_reset(self) -> None: ...

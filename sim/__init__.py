@@ -1,0 +1,1 @@
+"""The simulated bench: physics (ground truth) and instrument simulators speaking the real protocols."""

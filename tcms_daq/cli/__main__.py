@@ -1,0 +1,5 @@
+import sys
+
+from tcms_daq.cli import main
+
+sys.exit(main())
