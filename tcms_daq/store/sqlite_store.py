@@ -1,0 +1,366 @@
+"""The run store: one SQLite database in WAL mode holding run records and their samples.
+
+A run record carries the request (reducer, profile parameters, operator …), the generated profile, the status,
+the evaluation results, a snapshot of the bench configuration and the compensator (TOML) used. Samples are
+stored in batches: each batch row is one little-endian float64 blob, channel-major, with the run's channel
+names kept on the run record. A committed batch survives a crash of the process (WAL, ``synchronous=NORMAL``).
+
+Opening the store marks runs left ``queued`` or ``running`` by a previous process as ``interrupted``; their
+samples are kept.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tcms_daq.errors import TcmsError
+from tcms_daq.samples import Samples, samples_from_columns
+
+RUN_STATUSES: tuple[str, ...] = ("queued", "running", "completed", "aborted", "failed", "interrupted")
+ACTIVE_STATUSES: tuple[str, ...] = ("queued", "running")
+FINAL_STATUSES: tuple[str, ...] = ("completed", "aborted", "failed", "interrupted")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    id TEXT PRIMARY KEY,
+    created_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    status TEXT NOT NULL,
+    request TEXT NOT NULL,
+    profile TEXT,
+    results TEXT,
+    error TEXT,
+    config_snapshot TEXT,
+    compensator_toml TEXT,
+    channels TEXT NOT NULL,
+    sample_count INTEGER NOT NULL DEFAULT 0
+);
+CREATE INDEX IF NOT EXISTS runs_created ON runs(created_at);
+CREATE TABLE IF NOT EXISTS sample_batches (
+    run_id TEXT NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+    batch_index INTEGER NOT NULL,
+    n_samples INTEGER NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (run_id, batch_index)
+);
+"""
+
+_LE_F64 = np.dtype("<f8")
+
+
+class StoreError(TcmsError):
+    """The run store cannot do what was asked (unknown run, bad channel set, closed store)."""
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """One run as read from the store. Times are UNIX seconds (UTC)."""
+
+    id: str
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    status: str
+    request: dict[str, Any]
+    profile: dict[str, Any] | None
+    results: dict[str, Any] | None
+    error: str | None
+    config_snapshot: dict[str, Any] | None
+    compensator_toml: str | None
+    channels: tuple[str, ...]
+    sample_count: int
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON view used by the REST API (everything but the large snapshot fields)."""
+        return {
+            "id": self.id,
+            "status": self.status,
+            "created_at": _iso(self.created_at),
+            "started_at": _iso(self.started_at),
+            "finished_at": _iso(self.finished_at),
+            "request": self.request,
+            "results": self.results,
+            "error": self.error,
+            "sample_count": self.sample_count,
+            "channels": list(self.channels),
+        }
+
+
+def _iso(t: float | None) -> str | None:
+    return None if t is None else datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
+
+
+def new_run_id() -> str:
+    """A time-sortable, human-readable run id: ``20261121-153012-1a2b3c``."""
+    return f"{datetime.now(UTC):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:6]}"
+
+
+def _dumps(obj: Any) -> str | None:
+    return None if obj is None else json.dumps(obj, allow_nan=False, default=_json_default)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def _loads(text: str | None) -> Any:
+    return None if text is None else json.loads(text)
+
+
+class RunStore:
+    """SQLite (WAL) store of runs and samples; safe to use from several threads.
+
+    Each thread gets its own connection (WAL lets readers run beside the one writer); writes are serialised
+    by a lock so batches of one run keep their order.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._connections: list[sqlite3.Connection] = []
+        self._conn_lock = threading.Lock()
+        self._write_lock = threading.Lock()
+        self._closed = False
+        conn = self._conn()
+        conn.executescript(_SCHEMA)
+        self.recovered_run_ids: list[str] = self._mark_interrupted()
+
+    # -- connections -----------------------------------------------------------------------------------------
+    def _conn(self) -> sqlite3.Connection:
+        if self._closed:
+            raise StoreError(f"run store {self.path} is closed")
+        conn = getattr(self._local, "conn", None)
+        if conn is None:
+            conn = sqlite3.connect(self.path, timeout=30.0, check_same_thread=False, isolation_level=None)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=NORMAL")
+            conn.execute("PRAGMA foreign_keys=ON")
+            self._local.conn = conn
+            with self._conn_lock:
+                self._connections.append(conn)
+        return conn
+
+    def close(self) -> None:
+        with self._conn_lock:
+            for conn in self._connections:
+                try:
+                    conn.close()
+                except sqlite3.ProgrammingError:
+                    pass
+            self._connections.clear()
+        self._closed = True
+
+    def __enter__(self) -> RunStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _write(self, sql: str, params: Sequence[Any] = ()) -> sqlite3.Cursor:
+        with self._write_lock:
+            return self._conn().execute(sql, params)
+
+    # -- runs ------------------------------------------------------------------------------------------------
+    def _mark_interrupted(self) -> list[str]:
+        conn = self._conn()
+        rows = conn.execute(
+            "SELECT id FROM runs WHERE status IN (?, ?) ORDER BY created_at", ACTIVE_STATUSES
+        ).fetchall()
+        ids = [r[0] for r in rows]
+        if ids:
+            with self._write_lock:
+                conn.execute(
+                    "UPDATE runs SET status='interrupted', finished_at=COALESCE(finished_at, ?), "
+                    "error=COALESCE(error, 'the service stopped while this run was active') "
+                    "WHERE status IN (?, ?)",
+                    (time.time(), *ACTIVE_STATUSES),
+                )
+        return ids
+
+    def create_run(
+        self,
+        run_id: str,
+        request: Mapping[str, Any],
+        channels: Sequence[str],
+        *,
+        profile: Mapping[str, Any] | None = None,
+        config_snapshot: Mapping[str, Any] | None = None,
+        compensator_toml: str | None = None,
+        status: str = "queued",
+    ) -> RunRecord:
+        if status not in RUN_STATUSES:
+            raise StoreError(f"unknown run status {status!r}")
+        if not channels or len(set(channels)) != len(channels):
+            raise StoreError(f"run {run_id}: channel names must be unique and non-empty, got {list(channels)}")
+        try:
+            self._write(
+                "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
+                "channels) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    run_id,
+                    time.time(),
+                    status,
+                    _dumps(dict(request)),
+                    _dumps(None if profile is None else dict(profile)),
+                    _dumps(None if config_snapshot is None else dict(config_snapshot)),
+                    compensator_toml,
+                    json.dumps(list(channels)),
+                ),
+            )
+        except sqlite3.IntegrityError:
+            raise StoreError(f"run {run_id} already exists") from None
+        return self.get_run(run_id)  # type: ignore[return-value]
+
+    def set_status(
+        self,
+        run_id: str,
+        status: str,
+        *,
+        error: str | None = None,
+        results: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Move a run to ``status``; ``running`` stamps the start time, a final status the finish time."""
+        if status not in RUN_STATUSES:
+            raise StoreError(f"unknown run status {status!r}")
+        now = time.time()
+        sets = ["status=?"]
+        params: list[Any] = [status]
+        if status == "running":
+            sets.append("started_at=COALESCE(started_at, ?)")
+            params.append(now)
+        if status in FINAL_STATUSES:
+            sets.append("finished_at=?")
+            params.append(now)
+        if error is not None:
+            sets.append("error=?")
+            params.append(error)
+        if results is not None:
+            sets.append("results=?")
+            params.append(_dumps(dict(results)))
+        params.append(run_id)
+        cur = self._write(f"UPDATE runs SET {', '.join(sets)} WHERE id=?", params)
+        if cur.rowcount == 0:
+            raise StoreError(f"unknown run {run_id!r}")
+
+    def set_profile(self, run_id: str, profile: Mapping[str, Any]) -> None:
+        self._write("UPDATE runs SET profile=? WHERE id=?", (_dumps(dict(profile)), run_id))
+
+    def get_run(self, run_id: str) -> RunRecord | None:
+        row = self._conn().execute(
+            "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
+            "config_snapshot, compensator_toml, channels, sample_count FROM runs WHERE id=?",
+            (run_id,),
+        ).fetchone()
+        return None if row is None else _record(row)
+
+    def list_runs(self, limit: int = 100, offset: int = 0) -> list[RunRecord]:
+        rows = self._conn().execute(
+            "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
+            "NULL, NULL, channels, sample_count FROM runs ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
+            (limit, offset),
+        ).fetchall()
+        return [_record(r) for r in rows]
+
+    def count_by_status(self) -> dict[str, int]:
+        counts = dict.fromkeys(RUN_STATUSES, 0)
+        for status, n in self._conn().execute("SELECT status, COUNT(*) FROM runs GROUP BY status"):
+            counts[status] = n
+        return counts
+
+    # -- samples ---------------------------------------------------------------------------------------------
+    def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int:
+        """Append column batches (each a mapping channel → array, the run's channels) in one transaction.
+
+        Returns the number of samples written.
+        """
+        if not batches:
+            return 0
+        channels = self._channels(run_id)
+        rows: list[tuple[int, bytes]] = []
+        for cols in batches:
+            try:
+                block = np.stack([np.asarray(cols[c], dtype=_LE_F64) for c in channels])
+            except KeyError as exc:
+                raise StoreError(f"run {run_id}: batch lacks channel {exc.args[0]!r}") from None
+            except ValueError:
+                raise StoreError(f"run {run_id}: batch columns differ in length") from None
+            if block.shape[1]:
+                rows.append((block.shape[1], block.tobytes()))
+        if not rows:
+            return 0
+        total = sum(n for n, _ in rows)
+        with self._write_lock:
+            conn = self._conn()
+            conn.execute("BEGIN IMMEDIATE")
+            try:
+                start = conn.execute(
+                    "SELECT COALESCE(MAX(batch_index) + 1, 0) FROM sample_batches WHERE run_id=?", (run_id,)
+                ).fetchone()[0]
+                conn.executemany(
+                    "INSERT INTO sample_batches (run_id, batch_index, n_samples, data) VALUES (?, ?, ?, ?)",
+                    [(run_id, start + i, n, blob) for i, (n, blob) in enumerate(rows)],
+                )
+                conn.execute("UPDATE runs SET sample_count = sample_count + ? WHERE id=?", (total, run_id))
+                conn.execute("COMMIT")
+            except BaseException:
+                conn.execute("ROLLBACK")
+                raise
+        return total
+
+    def _channels(self, run_id: str) -> tuple[str, ...]:
+        row = self._conn().execute("SELECT channels FROM runs WHERE id=?", (run_id,)).fetchone()
+        if row is None:
+            raise StoreError(f"unknown run {run_id!r}")
+        return tuple(json.loads(row[0]))
+
+    def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
+        """All samples of a run as float64 columns by channel name (empty arrays when none were recorded)."""
+        channels = self._channels(run_id)
+        blocks = [
+            np.frombuffer(blob, dtype=_LE_F64).reshape(len(channels), n)
+            for n, blob in self._conn().execute(
+                "SELECT n_samples, data FROM sample_batches WHERE run_id=? ORDER BY batch_index", (run_id,)
+            )
+        ]
+        data = np.concatenate(blocks, axis=1) if blocks else np.empty((len(channels), 0))
+        return {name: data[i].astype(float, copy=True) for i, name in enumerate(channels)}
+
+    def read_samples(self, run_id: str) -> Samples:
+        return samples_from_columns(self.read_columns(run_id))
+
+
+def _record(row: Sequence[Any]) -> RunRecord:
+    return RunRecord(
+        id=row[0],
+        created_at=row[1],
+        started_at=row[2],
+        finished_at=row[3],
+        status=row[4],
+        request=_loads(row[5]) or {},
+        profile=_loads(row[6]),
+        results=_loads(row[7]),
+        error=row[8],
+        config_snapshot=_loads(row[9]),
+        compensator_toml=row[10],
+        channels=tuple(json.loads(row[11])),
+        sample_count=row[12],
+    )
