@@ -46,3 +46,10 @@ def driver_class(name: str) -> type:
 def create(name: str, **options: Any):
     """Instantiate driver ``name`` with keyword options from config (url, timeouts, limits …)."""
     return driver_class(name)(**options)
+
+
+# Real-protocol drivers (issue 4, drivers engineer).
+declare("nd287", "drivers.nd287")
+declare("aed", "drivers.aed")
+declare("cia402-canopen", "drivers.cia402_canopen")
+declare("cia402-modbus", "drivers.cia402_modbus")

@@ -1,0 +1,160 @@
+"""HBM AED-style torque amplifier (ASCII over RS-232/RS-485): torque source.
+
+Command set used (protocols.md §2.2): a lone ``;`` clears the amplifier's input buffer (sent first after every
+connect); ``COF3;`` selects the ASCII measured-value format; ``NOV<n>;`` sets the nominal output value (0 = the
+factory scaling, 1 000 000 at nominal load); ``TAR;`` tares; ``MSV?;`` returns one measured value as
+``+0012345\\r\\n`` (10 bytes). Settings are answered ``0\\r\\n`` (accepted) or ``?\\r\\n`` (rejected).
+
+Scaling: torque_nm = value / NOV_effective × nominal_torque_nm (the sensor's nominal torque), NOV_effective =
+1 000 000 when NOV = 0. A value of ±9 999 999 is the amplifier's overflow marker (sensor error or overload,
+project convention [P]) and raises DeviceFault.
+
+Serial format 8 data bits, even parity, 1 stop bit (factory 9600 Bd). After a reconnect (e.g. the amplifier was
+power-cycled) the driver re-sends its configuration before the next measurement.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+import numpy as np
+import serial
+
+from drivers.base import Batch, Clock, CommandRejected, DeviceFault, MalformedReply
+from drivers.registry import register
+from drivers.transport import SerialLink, open_serial_url, require_terminated
+
+MSV_RE = re.compile(rb"^([+-]\d{7})\r\n$")
+MSV_REPLY_LENGTH = 10
+OVERFLOW_VALUE = 9_999_999
+FACTORY_NOMINAL_OUTPUT = 1_000_000
+MAX_NOV = 999_999  # NOV is a 6-digit setting; 0 selects the factory scaling
+
+
+def _read_line(port: serial.SerialBase) -> bytes:
+    return port.read_until(b"\r\n", 32)
+
+
+def parse_msv(reply: bytes, instrument: str = "AED") -> int:
+    """The signed integer of one COF3 ``MSV?`` reply; MalformedReply / DeviceFault (overflow)."""
+    if reply == b"?\r\n":
+        raise CommandRejected(instrument, "amplifier rejected MSV? (measurement not available)")
+    match = MSV_RE.match(reply)
+    if match is None:
+        raise MalformedReply(instrument, f"MSV? reply {reply!r} is not '+ddddddd\\r\\n'")
+    value = int(match.group(1))
+    if abs(value) >= OVERFLOW_VALUE:
+        raise DeviceFault(instrument, f"amplifier reports overflow/sensor error ({value:+d})")
+    return value
+
+
+@register("aed")
+class AED:
+    """TorqueSource over the AED ASCII command set. ``read()`` returns one reading (N·m) per call."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        name: str = "AED",
+        nominal_torque_nm: float = 2000.0,
+        nominal_output: int = 0,
+        baudrate: int = 9600,
+        timeout_s: float = 0.5,
+        reconnect_attempts: int = 3,
+        reconnect_delay_s: float = 0.2,
+        clock: Clock = time.monotonic,
+        opener=open_serial_url,
+    ):
+        if not nominal_torque_nm > 0:
+            raise ValueError(f"{name}: nominal_torque_nm must be > 0, got {nominal_torque_nm}")
+        if not (isinstance(nominal_output, int) and 0 <= nominal_output <= MAX_NOV):
+            raise ValueError(f"{name}: nominal_output (NOV) must be an integer 0…{MAX_NOV}, got {nominal_output!r}")
+        self.name = name
+        self.nominal_torque_nm = float(nominal_torque_nm)
+        self.nominal_output = nominal_output
+        self.clock = clock
+        self.link = SerialLink(
+            name,
+            url,
+            timeout_s=timeout_s,
+            reconnect_attempts=reconnect_attempts,
+            reconnect_delay_s=reconnect_delay_s,
+            opener=opener,
+            baudrate=baudrate,
+            bytesize=serial.EIGHTBITS,
+            parity=serial.PARITY_EVEN,
+            stopbits=serial.STOPBITS_ONE,
+            xonxoff=False,
+        )
+        self._configured_epoch: int | None = None
+
+    @property
+    def nm_per_count(self) -> float:
+        nov = self.nominal_output or FACTORY_NOMINAL_OUTPUT
+        return self.nominal_torque_nm / nov
+
+    # -- connection and configuration -------------------------------------------------------------------
+
+    def connect(self) -> None:
+        self.link.open()
+        self._configure()
+
+    def close(self) -> None:
+        self.link.close()
+        self._configured_epoch = None
+
+    def _configure(self) -> None:
+        for _ in range(2):  # once more if the link was re-opened half-way through
+            epoch = self.link.reconnects
+            self.link.send(b";")  # clear whatever half command the amplifier holds
+            self._setting(b"COF3;")
+            self._setting(b"NOV%d;" % self.nominal_output)
+            if epoch == self.link.reconnects:
+                break
+        self._configured_epoch = self.link.reconnects
+
+    def _setting(self, command: bytes) -> None:
+        reply = self.link.exchange(command, _read_line)
+        require_terminated(self.name, reply)
+        if reply == b"0\r\n":
+            return
+        if reply == b"?\r\n":
+            raise CommandRejected(self.name, f"amplifier rejected {command.decode('ascii')!r}")
+        raise MalformedReply(self.name, f"reply {reply!r} to {command.decode('ascii')!r} is neither '0' nor '?'")
+
+    def _query(self, command: bytes) -> bytes:
+        """A query on a configured link; re-configures and repeats once if the link was re-opened meanwhile."""
+        if self._configured_epoch != self.link.reconnects:
+            self._configure()
+        epoch = self.link.reconnects
+        reply = self.link.exchange(command, _read_line)
+        if epoch != self.link.reconnects:
+            self._configure()
+            reply = self.link.exchange(command, _read_line)
+        return require_terminated(self.name, reply)
+
+    # -- TorqueSource ------------------------------------------------------------------------------------
+
+    def read_one(self) -> tuple[float, float]:
+        """One ``MSV?;`` exchange -> (time_s at request, torque_nm)."""
+        time_s = self.clock()
+        value = parse_msv(self._query(b"MSV?;"), self.name)
+        return time_s, value * self.nm_per_count
+
+    def read(self) -> Batch:
+        time_s, torque_nm = self.read_one()
+        return Batch(np.array([time_s]), np.array([torque_nm]))
+
+    def tare(self) -> None:
+        if self._configured_epoch != self.link.reconnects:
+            self._configure()
+        self._setting(b"TAR;")
+
+    def __enter__(self) -> AED:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,141 @@
+"""Heidenhain ND 287 position display (RS-232): angle source.
+
+Protocol (protocols.md §1.3): the host sends STX (Ctrl-B, 0x02); the display latches the value at reception and
+answers one 17-byte frame::
+
+    sign  value(10 chars, leading blanks)  ' '  unit  sorting  series  CR LF
+    b'-   12.3456 G  \\r\\n'   -> -12.3456 deg
+
+Units: 'G' degrees (Grad), 'R' radians, 'M' degrees-minutes-seconds packed as ``D.MMSSs…`` (ND convention [U]:
+12.3015 = 12°30'15"), '?' = fault (encoder signal error). The reading is returned in arcsec, positive in the
+direction of positive torque (the display's counting direction is set up on the bench).
+
+Serial format 7 data bits, even parity, 2 stop bits (ND 281B/287 default), baud configurable (9600 … 115 200).
+The reading's time stamp is the driver clock at the moment the request byte is written (the display latches
+the value when it receives STX; its delay t1 ≤ 1 ms is neglected).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+import numpy as np
+import serial
+
+from drivers.base import Batch, Clock, DeviceFault, MalformedReply
+from drivers.registry import register
+from drivers.transport import SerialLink, open_serial_url, require_terminated
+from tcms_daq.units import ARCSEC_PER_DEG, ARCSEC_PER_RAD
+
+STX = b"\x02"
+FRAME_LENGTH = 17
+FRAME_RE = re.compile(rb"^([+-])([ 0-9.]{10}) (.)(.)(.)\r\n$")
+
+
+def dms_to_deg(packed: float) -> float:
+    """``D.MMSSs…`` (degrees, minutes, seconds packed in one decimal number) -> decimal degrees."""
+    sign = -1.0 if packed < 0 else 1.0
+    text = f"{abs(packed):.8f}"
+    deg_text, frac = text.split(".")
+    minutes = int(frac[0:2])
+    seconds = float(frac[2:4] + "." + frac[4:])
+    if minutes >= 60 or seconds >= 60.0:
+        raise ValueError(f"{packed!r} is not a valid D.MMSS angle")
+    return sign * (int(deg_text) + minutes / 60.0 + seconds / 3600.0)
+
+
+def parse_frame(frame: bytes, instrument: str = "ND 287") -> float:
+    """Angle in arcsec from one 17-byte frame; MalformedReply for bad framing, DeviceFault for unit '?'."""
+    if len(frame) != FRAME_LENGTH:
+        raise MalformedReply(instrument, f"frame of {len(frame)} bytes, expected {FRAME_LENGTH}: {frame!r}")
+    match = FRAME_RE.match(frame)
+    if match is None:
+        raise MalformedReply(instrument, f"frame does not match the ND 287 format: {frame!r}")
+    sign, field, unit, _sorting, _series = match.groups()
+    if unit == b"?":
+        raise DeviceFault(instrument, f"display reports an encoder fault (unit '?'): {frame!r}")
+    text = field.decode("ascii").strip()
+    if text.count(".") > 1 or not text.replace(".", "").isdigit():
+        raise MalformedReply(instrument, f"value field {field!r} is not a number: {frame!r}")
+    value = float(sign.decode("ascii") + text)
+    if unit == b"G":
+        return value * ARCSEC_PER_DEG
+    if unit == b"R":
+        return value * ARCSEC_PER_RAD
+    if unit == b"M":
+        try:
+            return dms_to_deg(value) * ARCSEC_PER_DEG
+        except ValueError as exc:
+            raise MalformedReply(instrument, f"{exc}: {frame!r}") from None
+    raise MalformedReply(instrument, f"unit {unit!r} is not an angle unit (G, R, M): {frame!r}")
+
+
+def _read_frame(port: serial.SerialBase) -> bytes:
+    # size bound: a frame is 17 bytes; read a little more so an over-long garbage line is seen as such.
+    return port.read_until(b"\r\n", FRAME_LENGTH + 8)
+
+
+@register("nd287")
+class ND287:
+    """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls once and returns one reading (arcsec)."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        name: str = "ND 287",
+        baudrate: int = 9600,
+        timeout_s: float = 0.5,
+        reconnect_attempts: int = 3,
+        reconnect_delay_s: float = 0.2,
+        readings_per_read: int = 1,
+        clock: Clock = time.monotonic,
+        opener=open_serial_url,
+    ):
+        if readings_per_read < 1:
+            raise ValueError(f"{name}: readings_per_read must be >= 1")
+        self.name = name
+        self.clock = clock
+        self.readings_per_read = int(readings_per_read)
+        self.link = SerialLink(
+            name,
+            url,
+            timeout_s=timeout_s,
+            reconnect_attempts=reconnect_attempts,
+            reconnect_delay_s=reconnect_delay_s,
+            opener=opener,
+            baudrate=baudrate,
+            bytesize=serial.SEVENBITS,
+            parity=serial.PARITY_EVEN,
+            stopbits=serial.STOPBITS_TWO,
+            xonxoff=False,
+        )
+
+    def connect(self) -> None:
+        self.link.open()
+
+    def close(self) -> None:
+        self.link.close()
+
+    def read_one(self) -> tuple[float, float]:
+        """One Ctrl-B exchange -> (time_s at request, angle_arcsec)."""
+        time_s = self.clock()
+        reply = self.link.exchange(STX, _read_frame)
+        require_terminated(self.name, reply)
+        return time_s, parse_frame(reply, self.name)
+
+    def read(self) -> Batch:
+        n = self.readings_per_read
+        time_s = np.empty(n)
+        angle_arcsec = np.empty(n)
+        for i in range(n):
+            time_s[i], angle_arcsec[i] = self.read_one()
+        return Batch(time_s, angle_arcsec)
+
+    def __enter__(self) -> ND287:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

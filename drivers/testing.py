@@ -1,0 +1,89 @@
+"""Transcript testing of serial drivers (in the style of PyMeasure's ``expected_protocol``).
+
+``ScriptedSerial`` stands in for a pyserial port: it holds a list of ``(expected_write, reply)`` pairs, checks
+that the driver writes exactly the expected bytes in order, and then offers the scripted reply for reading
+(``None`` = the instrument stays silent). Use it through a driver's ``opener`` argument::
+
+    port = ScriptedSerial([(b"\\x02", b"+   12.34560 G  \\r\\n")])
+    nd = ND287("socket://unused", opener=port.opener)
+    ...
+    port.assert_done()
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class TranscriptMismatch(AssertionError):
+    pass
+
+
+class ScriptedSerial:
+    def __init__(self, transcript: list[tuple[bytes, bytes | None]]):
+        self.transcript = list(transcript)
+        self.position = 0
+        self.settings: dict[str, Any] = {}
+        self.url: str | None = None
+        self.is_open = False
+        self._written = b""
+        self._input = b""
+        self.opened = 0
+
+    def opener(self, url: str, **settings: Any) -> ScriptedSerial:
+        self.url, self.settings = url, settings
+        self.is_open = True
+        self.opened += 1
+        return self
+
+    # -- the pyserial subset used by the drivers -------------------------------------------------------
+
+    def write(self, data: bytes) -> int:
+        if not self.is_open:
+            raise TranscriptMismatch("write on a closed port")
+        self._written += bytes(data)
+        while self.position < len(self.transcript):
+            expected, reply = self.transcript[self.position]
+            if not self._written.startswith(expected[: len(self._written)]):
+                raise TranscriptMismatch(
+                    f"step {self.position}: wrote {self._written!r}, expected {expected!r}"
+                )
+            if len(self._written) < len(expected):
+                break
+            self._written = self._written[len(expected):]
+            self.position += 1
+            if reply is not None:
+                self._input += reply
+            if not self._written:
+                break
+        else:
+            if self._written:
+                raise TranscriptMismatch(f"unexpected write {self._written!r} after the end of the transcript")
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def read(self, size: int = 1) -> bytes:
+        data, self._input = self._input[:size], self._input[size:]
+        return data
+
+    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes:
+        end = self._input.find(expected)
+        n = len(self._input) if end < 0 else end + len(expected)
+        if size is not None:
+            n = min(n, size)
+        return self.read(n)
+
+    def reset_input_buffer(self) -> None:
+        self._input = b""
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def assert_done(self) -> None:
+        if self.position != len(self.transcript) or self._written:
+            raise TranscriptMismatch(
+                f"transcript stopped at step {self.position} of {len(self.transcript)}"
+                + (f" with pending write {self._written!r}" if self._written else "")
+            )

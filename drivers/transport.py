@@ -1,0 +1,150 @@
+"""A serial link for request/reply ASCII instruments (ND 287, AED) with timeouts and a bounded reconnect.
+
+One code path for hardware and simulators: the link opens any pyserial URL (``/dev/ttyUSB0``,
+``socket://127.0.0.1:4001``, ``rfc2217://…``, ``spy://…``) with every serial setting passed to the constructor
+(Linux ptys silently drop parity/7-bit settings on a later reconfiguration, see protocols.md §5.4).
+
+Failure mapping (one exception type per failure, the instrument always named):
+- no byte within the timeout                     -> InstrumentTimeout
+- some bytes, but not a complete reply            -> MalformedReply (the caller validates complete replies too)
+- the link is gone and ``reconnect_attempts`` re-opens did not bring it back -> Disconnected
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import serial
+
+from drivers.base import Disconnected, InstrumentTimeout, MalformedReply
+
+# A function that reads one reply from an open port (e.g. ``lambda port: port.read_until(b"\r\n", 64)``).
+ReplyReader = Callable[[serial.SerialBase], bytes]
+
+
+def open_serial_url(url: str, **settings: Any) -> serial.SerialBase:
+    """``serial.serial_for_url`` with all settings in the constructor (never reconfigured afterwards)."""
+    return serial.serial_for_url(url, **settings)
+
+
+class SerialLink:
+    """A request/reply link: ``exchange(request, reader)`` writes ``request`` and returns the reply bytes.
+
+    The link re-opens the port when it finds it closed or broken (peer closed the socket, USB unplugged) at most
+    ``reconnect_attempts`` times, ``reconnect_delay_s`` apart, and then retries the request once. A timeout is
+    not a broken link: it raises at once and the next exchange starts from a drained input buffer.
+    """
+
+    def __init__(
+        self,
+        instrument: str,
+        url: str,
+        *,
+        timeout_s: float,
+        reconnect_attempts: int = 3,
+        reconnect_delay_s: float = 0.2,
+        opener: Callable[..., serial.SerialBase] = open_serial_url,
+        **serial_settings: Any,
+    ):
+        if timeout_s <= 0:
+            raise ValueError(f"{instrument}: timeout_s must be > 0, got {timeout_s}")
+        self.instrument = instrument
+        self.url = url
+        self.timeout_s = float(timeout_s)
+        self.reconnect_attempts = int(reconnect_attempts)
+        self.reconnect_delay_s = float(reconnect_delay_s)
+        self._opener = opener
+        self._settings = dict(serial_settings, timeout=self.timeout_s, write_timeout=self.timeout_s)
+        self._port: serial.SerialBase | None = None
+        self.reconnects = 0  # successful re-opens after a broken link (for diagnostics)
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None and self._port.is_open
+
+    def open(self) -> None:
+        """Open the port (one attempt); raises Disconnected if it cannot be opened."""
+        if self.is_open:
+            return
+        try:
+            self._port = self._opener(self.url, **self._settings)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._port = None
+            raise Disconnected(self.instrument, f"cannot open {self.url}: {exc}") from exc
+
+    def close(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass
+
+    def _reopen(self, reason: BaseException | str) -> None:
+        self.close()
+        last: BaseException | str = reason
+        for attempt in range(self.reconnect_attempts):
+            if attempt:
+                time.sleep(self.reconnect_delay_s)
+            try:
+                self.open()
+                self.reconnects += 1
+                return
+            except Disconnected as exc:
+                last = exc.__cause__ or exc
+        raise Disconnected(
+            self.instrument,
+            f"link to {self.url} lost ({reason}); {self.reconnect_attempts} reconnect attempts failed: {last}",
+        )
+
+    def exchange(self, request: bytes, reader: ReplyReader) -> bytes:
+        """Send ``request`` and return the raw reply; empty reply -> InstrumentTimeout."""
+        if not self.is_open:
+            self._reopen("port not open")
+        try:
+            reply = self._exchange_once(request, reader)
+        except (serial.SerialException, OSError) as exc:
+            # Broken link (e.g. the simulator restarted): re-open, then retry this request exactly once.
+            self._reopen(exc)
+            try:
+                reply = self._exchange_once(request, reader)
+            except (serial.SerialException, OSError) as exc2:
+                self.close()
+                raise Disconnected(self.instrument, f"link to {self.url} broken again: {exc2}") from exc2
+        if not reply:
+            raise InstrumentTimeout(
+                self.instrument, f"no reply to {request!r} within {self.timeout_s:g} s on {self.url}"
+            )
+        return reply
+
+    def send(self, request: bytes) -> None:
+        """Write without expecting a reply (e.g. the AED buffer-clearing ';')."""
+        if not self.is_open:
+            self._reopen("port not open")
+        try:
+            self._port.write(request)
+            self._port.flush()
+        except (serial.SerialException, OSError) as exc:
+            self._reopen(exc)
+            try:
+                self._port.write(request)
+            except (serial.SerialException, OSError) as exc2:
+                self.close()
+                raise Disconnected(self.instrument, f"link to {self.url} broken again: {exc2}") from exc2
+
+    def _exchange_once(self, request: bytes, reader: ReplyReader) -> bytes:
+        port = self._port
+        assert port is not None
+        port.reset_input_buffer()  # drop late bytes of an earlier timed-out or malformed reply
+        port.write(request)
+        port.flush()
+        return reader(port)
+
+
+def require_terminated(instrument: str, reply: bytes, terminator: bytes = b"\r\n") -> bytes:
+    """MalformedReply if ``reply`` (non-empty) lacks its terminator: a partial frame cut off by the timeout."""
+    if not reply.endswith(terminator):
+        raise MalformedReply(instrument, f"incomplete reply {reply!r} (no {terminator!r} before the timeout)")
+    return reply

@@ -1,0 +1,140 @@
+"""One physics state and clock shared by every simulated instrument.
+
+``SharedPhysics`` wraps a simulated bench (``sim.bench.SimulatedBench``: ``set_drive_enabled(bool)``,
+``set_torque_target(target_nm, slope_nm_per_s)``, ``advance(duration_s) -> Samples``, ``now_s``) behind a lock,
+remembers the latest sample for the instrument servers and calls tick hooks (the drive model's watchdogs and
+quick-stop ramp) after every advance. ``start(speed)`` runs a ticker thread that advances the physics in real
+time × speed; tests may instead call ``advance`` themselves.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+
+class BenchLike(Protocol):
+    now_s: float
+
+    def set_drive_enabled(self, enabled: bool) -> None: ...
+
+    def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None: ...
+
+    def advance(self, duration_s: float) -> Any: ...
+
+
+@dataclass(frozen=True)
+class PhysicsReading:
+    """The latest simulated sample: sensor torque (N·m), raw encoder angle (arcsec), applied (motor) torque,
+    true output twist (arcsec), on the simulated clock (s)."""
+
+    time_s: float = 0.0
+    torque_nm: float = 0.0
+    angle_arcsec: float = 0.0
+    applied_torque_nm: float = 0.0
+    true_angle_arcsec: float = 0.0
+
+
+def _last(samples: Any, name: str, default: float) -> float:
+    if name in ("time_s", "torque_nm", "angle_arcsec"):
+        column = getattr(samples, name)
+    else:
+        column = getattr(samples, "extra", {}).get(name)
+        if column is None:
+            return default
+    return float(column[-1]) if len(column) else default
+
+
+TickHook = Callable[[PhysicsReading], None]
+
+
+class SharedPhysics:
+    """Thread-safe access to one simulated bench; the single clock of all simulated instruments."""
+
+    def __init__(self, bench: BenchLike, *, tick_s: float = 0.002):
+        self.bench = bench
+        self.tick_s = float(tick_s)
+        self._lock = threading.RLock()
+        self._hooks: list[TickHook] = []
+        self._latest = PhysicsReading(time_s=float(getattr(bench, "now_s", 0.0)))
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.speed = 1.0
+        self.advance(self.tick_s)  # a first sample so servers never serve an empty state
+
+    @property
+    def lock(self) -> threading.RLock:
+        """The one lock of the shared state; instrument models use it too (a single lock order, no deadlock)."""
+        return self._lock
+
+    # -- physics access --------------------------------------------------------------------------------
+
+    def latest(self) -> PhysicsReading:
+        with self._lock:
+            return self._latest
+
+    def add_tick_hook(self, hook: TickHook) -> None:
+        with self._lock:
+            self._hooks.append(hook)
+
+    def remove_tick_hook(self, hook: TickHook) -> None:
+        with self._lock:
+            if hook in self._hooks:
+                self._hooks.remove(hook)
+
+    def set_drive_enabled(self, enabled: bool) -> None:
+        with self._lock:
+            self.bench.set_drive_enabled(bool(enabled))
+
+    def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None:
+        with self._lock:
+            self.bench.set_torque_target(float(target_nm), float(slope_nm_per_s))
+
+    def advance(self, duration_s: float) -> PhysicsReading:
+        """Advance the physics by ``duration_s`` simulated seconds and run the tick hooks."""
+        with self._lock:
+            samples = self.bench.advance(duration_s)
+            prev = self._latest
+            if samples is not None and len(samples):
+                applied = _last(samples, "applied_torque_nm", _last(samples, "torque_nm", 0.0))
+                self._latest = PhysicsReading(
+                    time_s=_last(samples, "time_s", prev.time_s),
+                    torque_nm=_last(samples, "torque_nm", prev.torque_nm),
+                    angle_arcsec=_last(samples, "angle_arcsec", prev.angle_arcsec),
+                    applied_torque_nm=applied,
+                    true_angle_arcsec=_last(samples, "true_angle_arcsec", _last(samples, "angle_arcsec", 0.0)),
+                )
+            reading = self._latest
+            for hook in list(self._hooks):
+                hook(reading)
+            return reading
+
+    # -- real-time ticker ------------------------------------------------------------------------------
+
+    def start(self, speed: float = 1.0) -> None:
+        """Advance the physics in a daemon thread at real time × ``speed``."""
+        if speed <= 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        if self._thread is not None:
+            return
+        self.speed = float(speed)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="sim-physics", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        last = time.monotonic()
+        while not self._stop.wait(self.tick_s):
+            now = time.monotonic()
+            # cap one step so a stalled process does not produce a huge jump of the simulated clock
+            self.advance(min(now - last, 0.1) * self.speed)
+            last = now

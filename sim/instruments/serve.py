@@ -1,0 +1,228 @@
+"""All instrument simulators of one bench on one shared physics + clock (what ``tcms sim serve`` runs).
+
+``InstrumentSimulators(physics, ...)`` starts, on one asyncio loop thread: the ND 287 server, the AED server,
+the CiA 402 drive's Modbus TCP server (and optionally an RTU-over-TCP server), and for CANopen either a
+loopback socketcand hub (cross-process) with the drive's LocalNode attached to it, or the LocalNode alone on an
+in-process python-can ``virtual`` channel (tests). ``ports`` reports what was bound (0 = ephemeral).
+Fault injection: ``inject(instrument, fault)`` and the objects themselves (``nd287``, ``aed``, ``drive``,
+``modbus``, ``canopen``, ``hub``).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sim.instruments.aed import AEDServer
+from sim.instruments.loop import LoopThread
+from sim.instruments.nd287 import ND287Server
+from sim.instruments.physics import SharedPhysics
+
+log = logging.getLogger(__name__)
+
+DEFAULT_PORTS = {"nd287": 4001, "aed": 4002, "modbus": 5020, "socketcand": 29536}
+INSTRUMENTS = ("nd287", "aed", "modbus", "modbus_rtu", "canopen")
+
+
+@dataclass
+class SimulatorOptions:
+    """Settings of the simulated instruments (``[sim.instruments]`` in a bench config, all optional)."""
+
+    host: str = "127.0.0.1"
+    ports: dict[str, int] = field(default_factory=lambda: dict(DEFAULT_PORTS))
+    instruments: tuple[str, ...] = ("nd287", "aed", "modbus", "canopen")
+    nd287_unit: str = "G"
+    nd287_decimals: int = 5
+    nd287_reply_delay_s: float = 0.0
+    aed_nominal_torque_nm: float = 2000.0
+    aed_reply_delay_s: float = 0.0
+    # the drive
+    node_id: int = 1
+    can_channel: str = "can0"
+    can_interface: str = "socketcand"  # "socketcand" (loopback hub, cross-process) or "virtual" (in-process)
+    rated_torque_nm: float = 2000.0
+    max_torque_permille: int = 1000
+    counts_per_rev: int = 1 << 20
+    heartbeat_ms: int = 100
+    modbus_map: str | None = None  # path of the register map TOML; None = config/modbus-drive.toml
+    modbus_comm_timeout_s: float = 0.0  # 0 = no Modbus communication watchdog
+
+    @staticmethod
+    def from_mapping(data: dict[str, Any], **overrides: Any) -> SimulatorOptions:
+        opts = SimulatorOptions()
+        for key, value in {**data, **overrides}.items():
+            if value is None:
+                continue
+            if not hasattr(opts, key):
+                raise ValueError(f"unknown simulator option {key!r}")
+            if key == "ports":
+                merged = dict(opts.ports)
+                for name, port in value.items():
+                    if name not in DEFAULT_PORTS and name != "modbus_rtu":
+                        raise ValueError(f"unknown simulator port {name!r} (known: {', '.join(DEFAULT_PORTS)})")
+                    merged[name] = int(port)
+                value = merged
+            elif key == "instruments":
+                value = tuple(value)
+                unknown = set(value) - set(INSTRUMENTS)
+                if unknown:
+                    raise ValueError(f"unknown simulated instrument(s) {sorted(unknown)} (known: {INSTRUMENTS})")
+            setattr(opts, key, value)
+        return opts
+
+
+class InstrumentSimulators:
+    """Start/stop all simulated instruments of one bench; every server shares ``physics``."""
+
+    def __init__(self, physics: SharedPhysics, options: SimulatorOptions | None = None):
+        self.physics = physics
+        self.options = options or SimulatorOptions()
+        self.loop: LoopThread | None = None
+        self.nd287: ND287Server | None = None
+        self.aed: AEDServer | None = None
+        self.drive = None
+        self.modbus = None
+        self.modbus_rtu = None
+        self.canopen = None
+        self.hub = None
+        self.ports: dict[str, int] = {}
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+
+    def start(self) -> dict[str, int]:
+        opts = self.options
+        self.loop = LoopThread()
+        try:
+            want = set(opts.instruments)
+            if "nd287" in want:
+                self.nd287 = ND287Server(
+                    lambda: self.physics.latest().angle_arcsec,
+                    host=opts.host,
+                    port=opts.ports.get("nd287", 0),
+                    unit=opts.nd287_unit,
+                    decimals=opts.nd287_decimals,
+                    reply_delay_s=opts.nd287_reply_delay_s,
+                )
+                self.ports["nd287"] = self.loop.run(self.nd287.start())
+            if "aed" in want:
+                self.aed = AEDServer(
+                    lambda: self.physics.latest().torque_nm,
+                    nominal_torque_nm=opts.aed_nominal_torque_nm,
+                    host=opts.host,
+                    port=opts.ports.get("aed", 0),
+                    reply_delay_s=opts.aed_reply_delay_s,
+                )
+                self.ports["aed"] = self.loop.run(self.aed.start())
+            if want & {"modbus", "modbus_rtu", "canopen"}:
+                self._start_drive(want)
+        except BaseException:
+            self.stop()
+            raise
+        return dict(self.ports)
+
+    def _start_drive(self, want: set[str]) -> None:
+        from sim.instruments.drive402 import Drive402Model
+
+        opts = self.options
+        self.drive = Drive402Model(
+            self.physics,
+            rated_torque_mnm=round(opts.rated_torque_nm * 1000),
+            max_torque_permille=opts.max_torque_permille,
+            counts_per_rev=opts.counts_per_rev,
+        )
+        if "modbus" in want or "modbus_rtu" in want:
+            from drivers.cia402_modbus import load_register_map
+
+            from sim.instruments.drive_modbus import DriveModbusServer
+
+            regmap = load_register_map(Path(opts.modbus_map) if opts.modbus_map else None)
+            if "modbus" in want:
+                self.modbus = DriveModbusServer(
+                    self.drive, regmap, host=opts.host, port=opts.ports.get("modbus", 0),
+                    comm_timeout_s=opts.modbus_comm_timeout_s,
+                )
+                self.ports["modbus"] = self.loop.run(self.modbus.start())
+            if "modbus_rtu" in want:
+                self.modbus_rtu = DriveModbusServer(
+                    self.drive, regmap, host=opts.host, port=opts.ports.get("modbus_rtu", 0), framer="rtu",
+                    comm_timeout_s=opts.modbus_comm_timeout_s,
+                )
+                self.ports["modbus_rtu"] = self.loop.run(self.modbus_rtu.start())
+        if "canopen" in want:
+            from sim.instruments.drive_canopen import DriveCanopenNode
+
+            if opts.can_interface == "socketcand":
+                from sim.instruments.socketcand_hub import SocketcandHub
+
+                self.hub = SocketcandHub(host=opts.host, port=opts.ports.get("socketcand", 0))
+                self.ports["socketcand"] = self.loop.run(self.hub.start())
+                bus_options = {
+                    "interface": "socketcand", "channel": opts.can_channel,
+                    "host": opts.host, "port": self.ports["socketcand"],
+                }
+            elif opts.can_interface == "virtual":
+                bus_options = {"interface": "virtual", "channel": opts.can_channel}
+            else:
+                raise ValueError(f"can_interface must be 'socketcand' or 'virtual', got {opts.can_interface!r}")
+            self.canopen = DriveCanopenNode(
+                self.drive, node_id=opts.node_id, heartbeat_ms=opts.heartbeat_ms, **bus_options
+            )
+            self.canopen.start()
+
+    def stop(self) -> None:
+        if self.canopen is not None:
+            self.canopen.stop()
+        if self.loop is not None:
+            for server in (self.nd287, self.aed, self.modbus, self.modbus_rtu, self.hub):
+                if server is not None:
+                    try:
+                        self.loop.run(server.stop(), 5.0)
+                    except Exception as exc:  # noqa: BLE001 - keep stopping the others
+                        log.warning("stopping %s: %s", server, exc)
+            self.loop.close()
+            self.loop = None
+        if self.drive is not None:
+            self.drive.detach()
+
+    def __enter__(self) -> InstrumentSimulators:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- control hooks (tests, the control port) -------------------------------------------------------
+
+    def server(self, instrument: str):
+        obj = {"nd287": self.nd287, "aed": self.aed, "modbus": self.modbus, "modbus_rtu": self.modbus_rtu,
+               "hub": self.hub, "socketcand": self.hub}.get(instrument)
+        if obj is None:
+            raise ValueError(f"no running simulated instrument {instrument!r}")
+        return obj
+
+    def restart(self, instrument: str) -> None:
+        """Stop and re-start one server on the same port (the instrument was power-cycled)."""
+        server = self.server(instrument)
+        self.loop.run(server.stop())
+        self.loop.run(server.start())
+
+    def stop_server(self, instrument: str) -> None:
+        self.loop.run(self.server(instrument).stop())
+
+    def start_server(self, instrument: str) -> None:
+        self.loop.run(self.server(instrument).start())
+
+    def inject(self, instrument: str, fault: str | None) -> None:
+        """Fault injection by name: nd287/aed: mute, garbage, partial, encoder_fault/sensor_fault;
+        modbus: mute; drive: a fault code (int, e.g. 0x2310) raises a drive fault with EMCY;
+        canopen: heartbeat_loss."""
+        if instrument == "drive":
+            if fault is None:
+                return
+            self.drive.inject_fault(int(fault))
+        elif instrument == "canopen":
+            self.canopen.inject(fault)
+        else:
+            self.server(instrument).inject(fault)
