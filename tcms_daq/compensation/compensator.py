@@ -1,0 +1,380 @@
+"""The compensator: a chain of correction terms applied to numpy batches, and its inverse for the simulator.
+
+    θ_c = θ − Σ_i term_i(θ, T, t)        (θ raw encoder reading in arcsec, T torque in N·m, t time in s)
+
+``apply`` is vectorised and runs in cache-sized chunks with preallocated buffers:
+
+* all terms that are linear (offset, scale, torsion) collapse into three numbers: θ_c = (1 − s)·θ − c_T·T − c0;
+* the remaining terms that depend on θ alone (eccentricity, periodic, …) are summed into one lookup table on a
+  grid of step h = tolerance / max|d term/dθ|, so the nearest grid value differs from the exact sum by at most
+  tolerance/2 (default tolerance 0.001″, far below the encoder's 0.7″ resolution). The table is built lazily
+  over the range the data visit and kept for later batches; ``exact=True`` evaluates every term directly.
+* anything else (time-dependent terms, terms registered later) is evaluated directly on the whole batch.
+
+``encoder_reading`` is the forward direction: what the encoder reads for a true angle, so that ``apply``
+recovers the truth (used by the simulated bench as its measuring chain).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from tcms_daq.compensation.geometry import GeometricModel, Geometry, evaluate_geometry, load_geometry
+from tcms_daq.compensation.terms import Eccentricity, Scale, Term, Torsion, term_from_dict
+from tcms_daq.errors import ConfigError, DataFormatError
+
+CHUNK = 16384
+MAX_TABLE_POINTS = 1 << 22
+DEFAULT_TOLERANCE_ARCSEC = 1e-3
+
+
+class _AngleTable:
+    """Sum of the angle-only terms (plus the constant offset) on the grid x_j = (i0 + j)·h."""
+
+    __slots__ = ("h", "inv_h", "i0", "values", "lo", "hi")
+
+    def __init__(self, terms: Sequence[Term], offset: float, h: float, lo: float, hi: float):
+        self.h = h
+        self.inv_h = 1.0 / h
+        self.i0 = math.floor(lo / h) - 2
+        i1 = math.ceil(hi / h) + 2
+        x = (self.i0 + np.arange(i1 - self.i0 + 1, dtype=float)) * h
+        values = np.full_like(x, offset)
+        for term in terms:
+            values += term.evaluate(x, 0.0, None)
+        self.values = values
+        self.lo = (self.i0 + 1) * h
+        self.hi = (i1 - 1) * h
+
+
+class Compensator:
+    """An immutable chain of correction terms (see the module docstring for the convention and units)."""
+
+    def __init__(
+        self,
+        terms: Sequence[Term] = (),
+        *,
+        uncertainties: Sequence[dict[str, float] | None] | None = None,
+        meta: dict[str, Any] | None = None,
+        tolerance_arcsec: float = DEFAULT_TOLERANCE_ARCSEC,
+    ):
+        self.terms: tuple[Term, ...] = tuple(terms)
+        for t in self.terms:
+            if not isinstance(t, Term):
+                raise TypeError(f"not a Term: {t!r}")
+        unc = list(uncertainties) if uncertainties is not None else [None] * len(self.terms)
+        if len(unc) != len(self.terms):
+            raise ValueError("one uncertainty entry (or None) per term")
+        self.uncertainties: tuple[dict[str, float] | None, ...] = tuple(unc)
+        self.meta: dict[str, Any] = dict(meta or {})
+        if not tolerance_arcsec >= 0:
+            raise ConfigError("tolerance_arcsec must be >= 0")
+        self.tolerance_arcsec = float(tolerance_arcsec)
+        c0 = c1 = c2 = 0.0
+        tabulable: list[Term] = []
+        direct: list[Term] = []
+        for t in self.terms:
+            parts = t.linear_parts()
+            if parts is not None:
+                c0 += parts[0]
+                c1 += parts[1]
+                c2 += parts[2]
+            elif t.angle_only and math.isfinite(t.max_slope()):
+                tabulable.append(t)
+            else:
+                direct.append(t)
+        self._offset, self._per_arcsec, self._per_nm = c0, c1, c2
+        self._tabulable = tuple(tabulable)
+        self._direct = tuple(direct)
+        slope = sum(t.max_slope() for t in tabulable)
+        self._table_h = min(self.tolerance_arcsec / slope, 1.0) if slope > 0 else 1.0
+        self._table: _AngleTable | None = None
+
+    # ---- construction ----
+    @classmethod
+    def identity(cls) -> Compensator:
+        """No correction: θ_c = θ."""
+        return cls((), meta={"description": "identity (no compensation)"})
+
+    @classmethod
+    def from_model(cls, model: GeometricModel, *, eccentricity: bool = True) -> Compensator:
+        """Scale (1 − k) and torsion (32 ΔL/(G π d⁴)) from the consistent geometric model; for φ = 0 the
+        Eq. 2 eccentricity term instead of the scale (direction of the eccentricity at reading 0 = the
+        geometry's eccentricity_phase_rad, the inspection values do not give it)."""
+        g = model.geometry
+        terms: list[Term] = [Scale(coefficient=model.scale_coefficient), Torsion(arcsec_per_nm=model.torsion_arcsec_per_nm)]
+        if eccentricity and model.notes and model.eccentricity_abs_mm > 0:
+            terms.append(
+                Eccentricity(
+                    eccentricity_mm=model.eccentricity_abs_mm,
+                    radius_mm=g.encoder_radius_mm,
+                    phase_rad=g.eccentricity_phase_rad,
+                )
+            )
+        meta = {
+            "description": "consistent geometric model (scale k = R1'/R2, torsion 32 dL/(G pi d^4))",
+            "source": g.source,
+            "k": model.k,
+            "delta_l_mm": model.delta_l_mm,
+            "phi_rad": model.phi_rad,
+        }
+        return cls(terms, meta=meta)
+
+    @classmethod
+    def from_geometry(cls, geometry: str | Path | Geometry, *, eccentricity: bool = True) -> Compensator:
+        """Compensator of the consistent geometric model for a geometry file (or Geometry)."""
+        geom = geometry if isinstance(geometry, Geometry) else load_geometry(geometry)
+        return cls.from_model(evaluate_geometry(geom), eccentricity=eccentricity)
+
+    def with_terms(self, *terms: Term) -> Compensator:
+        """A new compensator with ``terms`` appended (e.g. accepted by the discrepancy workflow)."""
+        return Compensator(
+            self.terms + tuple(terms),
+            uncertainties=self.uncertainties + (None,) * len(terms),
+            meta=self.meta,
+            tolerance_arcsec=self.tolerance_arcsec,
+        )
+
+    # ---- the hot path ----
+    def apply(
+        self,
+        angle_arcsec,
+        torque_nm,
+        time_s=None,
+        *,
+        out: np.ndarray | None = None,
+        exact: bool = False,
+    ) -> np.ndarray:
+        """Compensated angle θ_c = θ − Σ term(θ, T, t) in arcsec for raw readings θ (arcsec), torque T (N·m,
+        array of θ's shape or scalar) and time t (s, needed only by time-dependent terms).
+
+        ``out`` may be a preallocated float64 array of θ's shape (it may be θ itself). ``exact=True``
+        evaluates the angle-only terms directly instead of from the tabulated sum (≤ tolerance_arcsec/2).
+        """
+        theta = np.asarray(angle_arcsec, dtype=float)
+        shape = theta.shape
+        theta_f = np.ascontiguousarray(theta).reshape(-1)
+        n = theta_f.size
+        torque = np.asarray(torque_nm, dtype=float)
+        if torque.shape != shape:
+            try:
+                torque = np.broadcast_to(torque, shape)
+            except ValueError:
+                raise DataFormatError(f"torque shape {torque.shape} does not match angle shape {shape}") from None
+        torque_f = np.ascontiguousarray(torque).reshape(-1)
+        if out is None:
+            out = np.empty(shape)
+        elif out.shape != shape or out.dtype != np.float64:
+            raise ValueError("out must be a float64 array of the angle's shape")
+        if not out.flags.c_contiguous:
+            raise ValueError("out must be C-contiguous")
+        out_f = out.reshape(-1)
+        # direct terms first: ``out`` may be the input array itself
+        direct_corr = None
+        if self._direct:
+            time_f = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), shape).reshape(-1)
+            direct_corr = np.zeros(n)
+            for term in self._direct:
+                direct_corr += term.evaluate(theta_f, torque_f, time_f)
+
+        one_minus_s = 1.0 - self._per_arcsec
+        c_t, c0 = self._per_nm, self._offset
+        use_table = bool(self._tabulable) and not exact and self.tolerance_arcsec > 0
+        size = min(CHUNK, n) or 1
+        buf = np.empty(size)
+        ubuf = np.empty(size)
+        ibuf = np.empty(size, dtype=np.intp) if use_table else None
+        for s in range(0, n, CHUNK):
+            e = min(n, s + CHUNK)
+            th = theta_f[s:e]
+            o = out_f[s:e]
+            b = buf[: e - s]
+            u = ubuf[: e - s]
+            table = self._table_covering(th) if use_table else None
+            if table is not None:  # u = tabulated angle-only terms + offset (read θ before writing o)
+                idx = ibuf[: e - s]
+                np.multiply(th, table.inv_h, out=u)
+                np.add(u, 0.5 - table.i0, out=u)
+                np.copyto(idx, u, casting="unsafe")
+                np.take(table.values, idx, out=u, mode="clip")
+            elif self._tabulable:
+                u.fill(c0)
+                for term in self._tabulable:
+                    np.add(u, term.evaluate(th, 0.0, None), out=u)
+            np.multiply(th, one_minus_s, out=o)
+            if table is not None or self._tabulable:
+                np.subtract(o, u, out=o)
+            elif c0 != 0.0:
+                np.subtract(o, c0, out=o)
+            if c_t != 0.0:
+                np.multiply(torque_f[s:e], c_t, out=b)
+                np.subtract(o, b, out=o)
+        if direct_corr is not None:
+            np.subtract(out_f, direct_corr, out=out_f)
+        return out
+
+    __call__ = apply
+
+    def _table_covering(self, th: np.ndarray) -> _AngleTable | None:
+        lo = float(th.min())
+        hi = float(th.max())
+        table = self._table
+        if table is not None and table.lo <= lo and hi <= table.hi:
+            return table
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            return None
+        if table is not None:
+            lo, hi = min(lo, table.lo), max(hi, table.hi)
+        # grow geometrically so a sweep that widens its range rebuilds only a few times
+        margin = max(hi - lo, 256 * self._table_h)
+        lo, hi = lo - margin, hi + margin
+        if (hi - lo) / self._table_h > MAX_TABLE_POINTS:
+            return None
+        table = _AngleTable(self._tabulable, self._offset, self._table_h, lo, hi)
+        self._table = table
+        return table
+
+    def correction(self, angle_arcsec, torque_nm, time_s=None, *, exact: bool = True) -> np.ndarray:
+        """Σ term in arcsec (the error of the raw reading); θ_c = θ − correction."""
+        theta = np.asarray(angle_arcsec, dtype=float)
+        return theta - self.apply(theta, torque_nm, time_s, exact=exact)
+
+    # ---- the forward direction (simulator) ----
+    def encoder_reading(
+        self, true_angle_arcsec, torque_nm, time_s=None, *, tolerance_arcsec: float = 1e-9, max_iter: int = 100
+    ) -> np.ndarray:
+        """What the encoder reads (arcsec) for the true angle (arcsec) under this chain's errors: the θ with
+        θ − Σ term(θ, T, t) = θ_true. Exact for linear terms, fixed-point iteration for the others."""
+        true = np.asarray(true_angle_arcsec, dtype=float)
+        torque = np.broadcast_to(np.asarray(torque_nm, dtype=float), true.shape)
+        time = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), true.shape)
+        denom = 1.0 - self._per_arcsec
+        if denom <= 0:
+            raise ConfigError("scale coefficient >= 1: the measuring chain is not invertible")
+        base = true + self._offset + self._per_nm * torque
+        nonlinear = self._tabulable + self._direct
+        theta = base / denom
+        if not nonlinear:
+            return theta
+        contraction = sum(t.max_slope() for t in nonlinear) / denom
+        if not contraction < 1:
+            raise ConfigError("measuring-chain terms change too fast with the angle to invert (|d/dθ| ≥ 1)")
+        for _ in range(max_iter):
+            extra = np.zeros_like(theta)
+            for term in nonlinear:
+                extra += term.evaluate(theta, torque, time)
+            new = (base + extra) / denom
+            if np.max(np.abs(new - theta), initial=0.0) <= tolerance_arcsec:
+                return new
+            theta = new
+        return theta
+
+    def measuring_chain_error(self, true_angle_arcsec, torque_nm, time_s=None) -> np.ndarray:
+        """Encoder reading − true angle, in arcsec."""
+        true = np.asarray(true_angle_arcsec, dtype=float)
+        return self.encoder_reading(true, torque_nm, time_s) - true
+
+    # ---- serialisation ----
+    def to_dict(self) -> dict[str, Any]:
+        terms = []
+        for term, unc in zip(self.terms, self.uncertainties, strict=True):
+            d = term.to_dict()
+            if unc:
+                d["uncertainty"] = dict(unc)
+            terms.append(d)
+        head = {k: v for k, v in self.meta.items() if v is not None}
+        head["tolerance_arcsec"] = self.tolerance_arcsec
+        return {"compensator": head, "terms": terms}
+
+    def to_toml(self) -> str:
+        return (
+            "# TCMS-DAQ compensator: theta_c = theta - sum(term). Angles in arcsec, torque in N m, time in s.\n"
+            + tomli_w.dumps(self.to_dict())
+        )
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_toml(), encoding="utf-8")
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "<compensator>") -> Compensator:
+        head = data.get("compensator", {})
+        if not isinstance(head, dict):
+            raise ConfigError(f"{source}: [compensator] must be a table")
+        raw_terms = data.get("terms", [])
+        if not isinstance(raw_terms, list):
+            raise ConfigError(f"{source}: 'terms' must be an array of tables ([[terms]])")
+        terms, uncs = [], []
+        for i, raw in enumerate(raw_terms):
+            terms.append(term_from_dict(raw, where=f"{source} terms[{i}]"))
+            unc = raw.get("uncertainty") if isinstance(raw, dict) else None
+            uncs.append(dict(unc) if isinstance(unc, dict) else None)
+        meta = {k: v for k, v in head.items() if k != "tolerance_arcsec"}
+        tol = head.get("tolerance_arcsec", DEFAULT_TOLERANCE_ARCSEC)
+        if isinstance(tol, bool) or not isinstance(tol, int | float) or not tol >= 0:
+            raise ConfigError(f"{source}: tolerance_arcsec must be a number >= 0")
+        return cls(terms, uncertainties=uncs, meta=meta, tolerance_arcsec=float(tol))
+
+    @classmethod
+    def load(cls, path: str | Path) -> Compensator:
+        """Load a compensator TOML ([compensator] + [[terms]]) or a geometry TOML ([structure] + [parts.N])."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: no such file") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: cannot read ({exc})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+        if "structure" in data:
+            return cls.from_geometry(path)
+        if "terms" in data or "compensator" in data:
+            return cls.from_dict(data, source=str(path))
+        raise ConfigError(f"{path}: neither a compensator ([[terms]]) nor a geometry file ([structure], [parts.N])")
+
+    def describe(self) -> str:
+        lines = [f"compensator ({self.meta.get('description', 'custom')}): theta_c = theta - sum(term)"]
+        for term, unc in zip(self.terms, self.uncertainties, strict=True):
+            params = ", ".join(f"{k} = {v:.6g}" for k, v in term.to_dict().items() if k != "type")
+            lines.append(f"  {term.label():<14} {params}" + (f"  (U, k=2: {unc})" if unc else ""))
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"Compensator({[t.label() for t in self.terms]})"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Compensator) and self.to_dict() == other.to_dict()
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def load_compensator(path: str | Path) -> Compensator:
+    """A compensator from a compensator TOML or a geometry TOML (the bench's ``compensation`` key)."""
+    return Compensator.load(path)
+
+
+def encoder_reading(source: Compensator | str | Path | Geometry, true_angle_arcsec, torque_nm, time_s=None):
+    """Forward measuring chain: what the encoder reads (arcsec) for the true angle (arcsec) and torque (N·m)
+    under the errors of ``source`` (a Compensator, a geometry or compensator file, or a Geometry)."""
+    comp = _as_compensator(source)
+    return comp.encoder_reading(true_angle_arcsec, torque_nm, time_s)
+
+
+def measuring_chain_error(source: Compensator | str | Path | Geometry, true_angle_arcsec, torque_nm, time_s=None):
+    """Encoder reading − true angle (arcsec) for the chain described by ``source``."""
+    return _as_compensator(source).measuring_chain_error(true_angle_arcsec, torque_nm, time_s)
+
+
+def _as_compensator(source: Compensator | str | Path | Geometry) -> Compensator:
+    if isinstance(source, Compensator):
+        return source
+    if isinstance(source, Geometry):
+        return Compensator.from_geometry(source)
+    return Compensator.load(source)
