@@ -1,0 +1,448 @@
+"""Hysteresis evaluation of a torsional characteristic test (DESIGN §2, domain.md §1.7).
+
+Pure functions on arrays. Sign convention: positive torque twists the output towards positive angle.
+
+Per full loop (a B↑ and a B↓ branch):
+- backlash (loop width at zero torque) = |θ_B↓(0) − θ_B↑(0)|;
+- midline m(T) = [θ_B↑(T) + θ_B↓(T)]/2; lost motion = m(+p·T_rated) − m(−p·T_rated);
+- torsional rigidity per direction = secant ΔT/Δm over [lo, hi]·T_test on that side (the upper end is clipped
+  to TIP_MARGIN below the torque the loop actually reached, where the branches meet), averaged over both sides;
+- optional Harmonic Drive K1/K2/K3: least-squares lines of the midline per region, per direction.
+Results are reported per loop, per direction and as mean ± std over the evaluated loops.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+from tcms_daq.analysis import harmonic
+from tcms_daq.analysis.interpolation import angle_at_torque, fit_window
+from tcms_daq.analysis.noise import white_noise_std
+from tcms_daq.analysis.segmentation import Branch, Loop, segment_loops
+from tcms_daq.errors import DataFormatError, EvaluationError
+from tcms_daq.units import ARCSEC_PER_ARCMIN
+
+MIN_SAMPLES = 20
+TIP_MARGIN = 0.02  # evaluate at most at 98 % of the torque reached at a turning point
+SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken as a test at rated torque
+RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
+SCALE_PERCENTILE = 99.5
+
+SIDES = (("positive", 1), ("negative", -1))
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Acceptance limits of a reducer (None = not checked). Angles in arcsec, rigidity in N·m/arcmin."""
+
+    rigidity_min_nm_per_arcmin: float | None = None
+    rigidity_max_nm_per_arcmin: float | None = None
+    backlash_max_arcsec: float | None = None
+    lost_motion_max_arcsec: float | None = None
+
+    def judge(self, values: dict[str, float]) -> dict[str, Any]:
+        """Verdict of mean values: ``{"passed": bool, "checks": {limit_name: {...}}}``."""
+        rules = (
+            ("rigidity_min_nm_per_arcmin", "rigidity_nm_per_arcmin", ">="),
+            ("rigidity_max_nm_per_arcmin", "rigidity_nm_per_arcmin", "<="),
+            ("backlash_max_arcsec", "backlash_arcsec", "<="),
+            ("lost_motion_max_arcsec", "lost_motion_arcsec", "<="),
+        )
+        checks: dict[str, Any] = {}
+        for name, quantity, comparison in rules:
+            limit = getattr(self, name)
+            if limit is None:
+                continue
+            value = values[quantity]
+            passed = bool(value >= limit if comparison == ">=" else value <= limit)
+            checks[name] = {
+                "quantity": quantity,
+                "value": value,
+                "comparison": comparison,
+                "limit": float(limit),
+                "passed": passed,
+            }
+        return {"passed": all(c["passed"] for c in checks.values()), "checks": checks}
+
+
+@dataclass
+class DirectionResult:
+    """One side (positive or negative torque) of one loop or the mean over loops."""
+
+    rigidity_nm_per_arcmin: float
+    interval_nm: tuple[float, float]  # |torque| range of the rigidity secant on this side
+    torsion_angle_arcsec: float  # |m(±hi) − m(0)|: midline twist from zero to the interval's upper end
+    half_lost_motion_arcsec: float  # |m(±p·T_rated) − m(0)|
+    k1_nm_per_rad: float | None = None
+    k2_nm_per_rad: float | None = None
+    k3_nm_per_rad: float | None = None
+
+
+@dataclass
+class LoopResult:
+    index: int  # 0-based among the full loops found in the record
+    evaluated: bool  # False for loops skipped (e.g. the conditioning loop)
+    order: str  # "up-down" (B↑ then B↓) or "down-up"
+    start_time_s: float
+    end_time_s: float
+    rigidity_nm_per_arcmin: float
+    backlash_arcsec: float
+    lost_motion_arcsec: float
+    loading_rate_nm_per_s: float
+    per_direction: dict[str, DirectionResult]
+    k1_nm_per_rad: float | None = None
+    k2_nm_per_rad: float | None = None
+    k3_nm_per_rad: float | None = None
+
+
+@dataclass
+class Evaluation:
+    """Result of ``evaluate``; ``to_dict()`` is the JSON form (snake_case names with units)."""
+
+    rigidity_nm_per_arcmin: float
+    lost_motion_arcsec: float
+    backlash_arcsec: float
+    std: dict[str, float | None]  # std over evaluated loops (None with a single loop)
+    per_direction: dict[str, DirectionResult]
+    loops: list[LoopResult]
+    n_loops: int  # loops evaluated
+    skipped_loops: int
+    loading_rate_nm_per_s: float
+    test_torque_nm: float
+    rated_torque_nm: float
+    lost_motion_pct: float
+    lost_motion_torque_nm: float
+    rigidity_interval: tuple[float, float]
+    k1_nm_per_rad: float | None = None
+    k2_nm_per_rad: float | None = None
+    k3_nm_per_rad: float | None = None
+    hd_breakpoints_nm: tuple[float, float] | None = None
+    verdict: dict[str, Any] | None = None
+    n_samples: int = 0
+    duration_s: float = 0.0
+    noise: dict[str, float] = field(default_factory=dict)
+    fit_window_samples: int = 2
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _jsonable(asdict(self))
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _validated(time_s, torque_nm, angle_arcsec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    cols = {}
+    for name, values in (("time_s", time_s), ("torque_nm", torque_nm), ("angle_arcsec", angle_arcsec)):
+        try:
+            arr = np.asarray(values, dtype=float)
+        except (TypeError, ValueError):
+            raise DataFormatError(f"{name} is not numeric") from None
+        if arr.ndim != 1:
+            raise DataFormatError(f"{name} must be one-dimensional, got shape {arr.shape}")
+        cols[name] = arr
+    lengths = {len(v) for v in cols.values()}
+    if len(lengths) != 1:
+        raise DataFormatError(
+            "column lengths differ: " + ", ".join(f"{k} {len(v)}" for k, v in cols.items())
+        )
+    n = lengths.pop()
+    if n < MIN_SAMPLES:
+        raise DataFormatError(f"too few samples: {n} (need at least {MIN_SAMPLES} for an evaluation)")
+    for name, arr in cols.items():
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            raise DataFormatError(f"non-finite value {arr[bad[0]]} in {name} at sample {bad[0]}")
+    t = cols["time_s"]
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        i = int(back[0])
+        raise DataFormatError(
+            f"time_s is not strictly increasing at sample {i + 1} ({t[i]!r} s then {t[i + 1]!r} s)"
+        )
+    return t, cols["torque_nm"], cols["angle_arcsec"]
+
+
+def _check_parameters(rated_torque_nm, test_torque_nm, lost_motion_pct, rigidity_interval, skip_loops):
+    if not (rated_torque_nm is not None and math.isfinite(rated_torque_nm) and rated_torque_nm > 0):
+        raise EvaluationError(f"rated torque must be a positive number of N·m, got {rated_torque_nm!r}")
+    if test_torque_nm is not None and not (math.isfinite(test_torque_nm) and test_torque_nm > 0):
+        raise EvaluationError(f"test torque must be a positive number of N·m, got {test_torque_nm!r}")
+    if not (0.0 < lost_motion_pct < 50.0):
+        raise EvaluationError(f"lost-motion torque level must be between 0 and 50 % of rated, got {lost_motion_pct}")
+    lo, hi = rigidity_interval
+    if not (0.0 <= lo < hi <= 1.0):
+        raise EvaluationError(
+            f"rigidity interval must be fractions of the test torque with 0 <= lo < hi <= 1, got {lo}…{hi}"
+        )
+    if skip_loops < 0:
+        raise EvaluationError(f"skip_loops must be >= 0, got {skip_loops}")
+
+
+def _smooth(x: np.ndarray, window: int) -> np.ndarray:
+    return uniform_filter1d(x, size=window, mode="nearest") if window >= 3 else x
+
+
+def _branch_rate(time_s: np.ndarray, torque_smooth_nm: np.ndarray, branch: Branch, test_torque_nm: float) -> float:
+    """Mean |dT/dt| (N·m/s) between ∓RATE_LEVELS·T_test on one branch (includes any dwell in between)."""
+    sl = branch.slice
+    progress = np.maximum.accumulate(branch.direction * torque_smooth_nm[sl])
+    a, b = np.searchsorted(progress, [-RATE_LEVELS * test_torque_nm, RATE_LEVELS * test_torque_nm])
+    t = time_s[sl]
+    if b >= t.size or b <= a:
+        return float("nan")
+    return float(2.0 * RATE_LEVELS * test_torque_nm / (t[b] - t[a]))
+
+
+def evaluate(
+    time_s,
+    torque_nm,
+    angle_arcsec,
+    *,
+    rated_torque_nm: float,
+    test_torque_nm: float | None = None,
+    lost_motion_pct: float = 3.0,
+    rigidity_interval: tuple[float, float] = (0.5, 1.0),
+    hd_breakpoints_nm: tuple[float, float] | None = None,
+    limits: Limits | None = None,
+    skip_loops: int = 0,
+) -> Evaluation:
+    """Evaluate a hysteresis test record.
+
+    time_s (s, strictly increasing), torque_nm (N·m), angle_arcsec (output twist, arcsec): equal-length
+    arrays. rated_torque_nm sets the lost-motion level (lost_motion_pct % of it); test_torque_nm (default:
+    the torque reached at the turning points, snapped to rated within 2 %) sets the rigidity interval
+    ``rigidity_interval`` (fractions of the test torque, on each side). hd_breakpoints_nm = (T1, T2) adds
+    Harmonic Drive K1/K2/K3. The first ``skip_loops`` full loops (e.g. a conditioning loop) are reported but
+    not averaged. Raises DataFormatError for malformed arrays and EvaluationError for data that do not
+    contain an evaluable loop.
+    """
+    t, torque, angle = _validated(time_s, torque_nm, angle_arcsec)
+    _check_parameters(rated_torque_nm, test_torque_nm, lost_motion_pct, rigidity_interval, skip_loops)
+    lo_frac, hi_frac = (float(x) for x in rigidity_interval)
+
+    scale = float(np.percentile(np.abs(torque), SCALE_PERCENTILE))
+    if scale <= 0.0:
+        raise EvaluationError("torque is zero throughout the record: no hysteresis loop")
+    torque_noise = white_noise_std(torque)
+    angle_noise = white_noise_std(angle)
+
+    # Pilot pass on the raw torque: branch density and overall compliance size the fitting window.
+    pilot_branches, _ = segment_loops(torque, scale)
+    samples_per_nm = float(
+        np.median([(b.stop - b.start) / max(abs(b.stop_torque_nm - b.start_torque_nm), 1e-9) for b in pilot_branches])
+    )
+    tips = [(b.start, b.start_torque_nm) for b in pilot_branches] + [
+        (pilot_branches[-1].stop, pilot_branches[-1].stop_torque_nm)
+    ]
+    pos = [i for i, tq in tips if tq > 0]
+    neg = [i for i, tq in tips if tq < 0]
+    compliance = abs(
+        (angle[pos].mean() - angle[neg].mean()) / (torque[pos].mean() - torque[neg].mean())
+    ) if pos and neg else 0.0
+    window = fit_window(angle_noise, torque_noise, compliance, samples_per_nm, scale)
+    torque_smooth = _smooth(torque, window)
+
+    _, loops = segment_loops(torque_smooth, scale)
+    if skip_loops >= len(loops):
+        raise EvaluationError(
+            f"no full loop left to evaluate: the record has {len(loops)} full loop(s) and {skip_loops} are skipped"
+        )
+    evaluated = loops[skip_loops:]
+
+    warnings: list[str] = []
+    if test_torque_nm is None:
+        reached = float(np.median([lp.reached_torque_nm(s) for lp in evaluated for _, s in SIDES]))
+        if abs(reached - rated_torque_nm) <= SNAP_TO_RATED * rated_torque_nm:
+            test_torque_nm = float(rated_torque_nm)
+        else:
+            test_torque_nm = round(reached, 1)
+    test_torque_nm = float(test_torque_nm)
+    lm_torque = lost_motion_pct / 100.0 * rated_torque_nm
+
+    loop_results = [
+        _evaluate_loop(
+            k, k >= skip_loops, loop, t, torque, angle, torque_smooth, window,
+            test_torque_nm, lm_torque, lo_frac, hi_frac, hd_breakpoints_nm, warnings,
+        )
+        for k, loop in enumerate(loops)
+    ]
+    used = [r for r in loop_results if r.evaluated]
+
+    def mean(values):
+        vals = [v for v in values if v is not None]
+        return float(np.mean(vals)) if len(vals) == len(values) and vals else None
+
+    def std(values):
+        vals = [v for v in values if v is not None]
+        return float(np.std(vals, ddof=1)) if len(vals) == len(values) and len(vals) >= 2 else None
+
+    per_direction: dict[str, DirectionResult] = {}
+    for name, _ in SIDES:
+        ds = [r.per_direction[name] for r in used]
+        per_direction[name] = DirectionResult(
+            rigidity_nm_per_arcmin=mean([d.rigidity_nm_per_arcmin for d in ds]),
+            interval_nm=(
+                mean([d.interval_nm[0] for d in ds]),
+                mean([d.interval_nm[1] for d in ds]),
+            ),
+            torsion_angle_arcsec=mean([d.torsion_angle_arcsec for d in ds]),
+            half_lost_motion_arcsec=mean([d.half_lost_motion_arcsec for d in ds]),
+            k1_nm_per_rad=mean([d.k1_nm_per_rad for d in ds]),
+            k2_nm_per_rad=mean([d.k2_nm_per_rad for d in ds]),
+            k3_nm_per_rad=mean([d.k3_nm_per_rad for d in ds]),
+        )
+    quantities = ("rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec")
+    means = {q: mean([getattr(r, q) for r in used]) for q in quantities}
+    stds: dict[str, float | None] = {q: std([getattr(r, q) for r in used]) for q in quantities}
+    for name, _ in SIDES:
+        stds[f"{name}_rigidity_nm_per_arcmin"] = std([r.per_direction[name].rigidity_nm_per_arcmin for r in used])
+    hd = {}
+    if hd_breakpoints_nm is not None:
+        for q in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"):
+            hd[q] = mean([getattr(r, q) for r in used])
+            stds[q] = std([getattr(r, q) for r in used])
+    rates = [r.loading_rate_nm_per_s for r in used if math.isfinite(r.loading_rate_nm_per_s)]
+
+    return Evaluation(
+        rigidity_nm_per_arcmin=means["rigidity_nm_per_arcmin"],
+        lost_motion_arcsec=means["lost_motion_arcsec"],
+        backlash_arcsec=means["backlash_arcsec"],
+        std=stds,
+        per_direction=per_direction,
+        loops=loop_results,
+        n_loops=len(used),
+        skipped_loops=skip_loops,
+        loading_rate_nm_per_s=float(np.median(rates)) if rates else float("nan"),
+        test_torque_nm=test_torque_nm,
+        rated_torque_nm=float(rated_torque_nm),
+        lost_motion_pct=float(lost_motion_pct),
+        lost_motion_torque_nm=lm_torque,
+        rigidity_interval=(lo_frac, hi_frac),
+        hd_breakpoints_nm=tuple(float(x) for x in hd_breakpoints_nm) if hd_breakpoints_nm else None,
+        verdict=limits.judge(means) if limits is not None else None,
+        n_samples=int(t.size),
+        duration_s=float(t[-1] - t[0]),
+        noise={"torque_nm": torque_noise, "angle_arcsec": angle_noise},
+        fit_window_samples=window,
+        warnings=sorted(set(warnings)),
+        **hd,
+    )
+
+
+def _evaluate_loop(
+    index: int,
+    is_evaluated: bool,
+    loop: Loop,
+    t: np.ndarray,
+    torque: np.ndarray,
+    angle: np.ndarray,
+    torque_smooth: np.ndarray,
+    window: int,
+    test_torque_nm: float,
+    lm_torque: float,
+    lo_frac: float,
+    hi_frac: float,
+    hd_breakpoints_nm: tuple[float, float] | None,
+    warnings: list[str],
+) -> LoopResult:
+    lo = lo_frac * test_torque_nm
+    his: dict[int, float] = {}
+    for name, sign in SIDES:
+        reached = loop.reached_torque_nm(sign)
+        usable = (1.0 - TIP_MARGIN) * reached
+        if usable <= lo or usable <= lm_torque:
+            need = max(lo, lm_torque)
+            raise EvaluationError(
+                f"torque never reaches the evaluation interval: loop {index} reaches {sign * reached:+.4g} Nm on "
+                f"the {name} side, the evaluation needs beyond {sign * need:+.4g} Nm"
+            )
+        hi = min(hi_frac * test_torque_nm, usable)
+        if hi < hi_frac * test_torque_nm * (1.0 - 2.5 * TIP_MARGIN):
+            warnings.append(
+                f"rigidity interval clipped on the {name} side: torque reached {reached:.4g} Nm, "
+                f"interval asks for {hi_frac * test_torque_nm:.4g} Nm"
+            )
+        his[sign] = hi
+
+    # Torque levels evaluated on both branches: 0, ±lost-motion level, rigidity interval ends, HD grids.
+    levels = [0.0, lm_torque, -lm_torque, lo, his[1], -lo, -his[-1]]
+    hd_slices: dict[tuple[int, int], slice] = {}
+    if hd_breakpoints_nm is not None:
+        for _, sign in SIDES:
+            for r, region in enumerate(harmonic.hd_regions(hd_breakpoints_nm, his[sign])):
+                if region is not None:
+                    grid = sign * harmonic.region_grid(region)
+                    hd_slices[(sign, r)] = slice(len(levels), len(levels) + grid.size)
+                    levels.extend(grid.tolist())
+    levels_arr = np.asarray(levels)
+
+    def branch_angles(branch: Branch) -> np.ndarray:
+        sl = branch.slice
+        return angle_at_torque(torque[sl], angle[sl], torque_smooth[sl], branch.direction, levels_arr, window)
+
+    up = branch_angles(loop.up)
+    down = branch_angles(loop.down)
+    if np.isnan(up).any() or np.isnan(down).any():
+        raise EvaluationError(f"loop {index}: a branch does not cover the evaluation torque levels")
+    mid = 0.5 * (up + down)
+    m0, m_lm_pos, m_lm_neg, m_lo_pos, m_hi_pos, m_lo_neg, m_hi_neg = mid[:7]
+
+    per_direction: dict[str, DirectionResult] = {}
+    for name, sign in SIDES:
+        m_lo, m_hi = (m_lo_pos, m_hi_pos) if sign > 0 else (m_lo_neg, m_hi_neg)
+        twist_arcsec = sign * (m_hi - m_lo)
+        if twist_arcsec <= 0.0:
+            raise EvaluationError(
+                f"loop {index}: angle does not increase with torque on the {name} side "
+                f"(midline {m_lo:.4g}″ at {sign * lo:+.4g} Nm, {m_hi:.4g}″ at {sign * his[sign]:+.4g} Nm)"
+            )
+        ks: list[float | None] = [None, None, None]
+        for r in range(3):
+            sl = hd_slices.get((sign, r))
+            if sl is not None:
+                ks[r] = harmonic.stiffness_nm_per_rad(levels_arr[sl], mid[sl])
+        per_direction[name] = DirectionResult(
+            rigidity_nm_per_arcmin=(his[sign] - lo) / twist_arcsec * ARCSEC_PER_ARCMIN,
+            interval_nm=(lo, his[sign]),
+            torsion_angle_arcsec=abs(m_hi - m0),
+            half_lost_motion_arcsec=abs((m_lm_pos if sign > 0 else m_lm_neg) - m0),
+            k1_nm_per_rad=ks[0],
+            k2_nm_per_rad=ks[1],
+            k3_nm_per_rad=ks[2],
+        )
+
+    def both(q: str) -> float | None:
+        a, b = (getattr(per_direction[name], q) for name, _ in SIDES)
+        return None if a is None or b is None else 0.5 * (a + b)
+
+    rates = [_branch_rate(t, torque_smooth, b, test_torque_nm) for b in (loop.first, loop.second)]
+    return LoopResult(
+        index=index,
+        evaluated=is_evaluated,
+        order=loop.order,
+        start_time_s=float(t[loop.first.start]),
+        end_time_s=float(t[loop.second.stop]),
+        rigidity_nm_per_arcmin=both("rigidity_nm_per_arcmin"),
+        backlash_arcsec=float(abs(down[0] - up[0])),
+        lost_motion_arcsec=float(m_lm_pos - m_lm_neg),
+        loading_rate_nm_per_s=float(np.nanmean(rates)) if not all(map(math.isnan, rates)) else float("nan"),
+        per_direction=per_direction,
+        k1_nm_per_rad=both("k1_nm_per_rad"),
+        k2_nm_per_rad=both("k2_nm_per_rad"),
+        k3_nm_per_rad=both("k3_nm_per_rad"),
+    )
