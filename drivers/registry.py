@@ -53,3 +53,5 @@ declare("nd287", "drivers.nd287")
 declare("aed", "drivers.aed")
 declare("cia402-canopen", "drivers.cia402_canopen")
 declare("cia402-modbus", "drivers.cia402_modbus")
+# In-process drivers over the simulated bench (issue 4, acquisition engineer).
+declare("virtual", "drivers.virtual")

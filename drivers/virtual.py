@@ -1,0 +1,356 @@
+"""In-process drivers over one simulated bench (``virtual://name``).
+
+A :class:`VirtualBench` wraps one physics object with the ``SimulatedBench`` contract (``set_drive_enabled``,
+``set_torque_target(target_nm, slope_nm_per_s)``, ``advance(duration_s) -> Samples``, ``now_s``) and its
+simulated clock. Three drivers share it: an angle source, a torque source and a loader. Time only moves when
+someone calls :meth:`VirtualBench.advance` (the acquisition's simulated clock does, in its ``sleep``); every
+advance appends the high-rate samples the physics produced to per-channel buffers, and ``read()`` drains them.
+Samples are stamped with the simulated clock, i.e. at the "driver".
+
+Fault hooks (:class:`VirtualFaults`) let tests trip every interlock without a protocol simulator: encoder
+fault, muted channels (stale data), torque offset spike, drive fault (with an error code, as an EMCY would
+carry) and a lost loader.
+
+Sign convention: positive torque twists the output towards positive angle; angle in arcsec, torque in N·m.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import urlparse
+
+import numpy as np
+
+from drivers.base import Batch, CommandRejected, DeviceFault, Disconnected, LoaderStatus
+from drivers.registry import register
+from tcms_daq.errors import ConfigError
+
+# Bound on buffered samples per channel when nobody reads (oldest dropped): 10 min at 1 kHz.
+MAX_BUFFERED_SAMPLES = 600_000
+# Drive error code the virtual loader reports for an injected fault without a code (CiA 301 "generic error").
+GENERIC_DRIVE_FAULT = 0x1000
+
+
+@dataclass
+class VirtualFaults:
+    """Fault injection switches shared by the three virtual drivers of one bench."""
+
+    encoder_fault: bool = False  # angle read raises DeviceFault (ND 287 shows '?')
+    angle_muted: bool = False  # angle read returns nothing (stale data)
+    torque_muted: bool = False  # torque read returns nothing
+    torque_offset_nm: float = 0.0  # added to every torque reading (a sensor jump)
+    drive_fault_code: int = 0  # != 0: drive in FAULT with this error code (as an EMCY carries)
+    loader_lost: bool = False  # loader calls raise Disconnected
+
+
+class _ChannelBuffer:
+    """Append-only time/value buffer drained by ``take``; bounded, drops the oldest."""
+
+    def __init__(self) -> None:
+        self._time: list[np.ndarray] = []
+        self._value: list[np.ndarray] = []
+        self._count = 0
+        self.dropped = 0
+
+    def append(self, time_s: np.ndarray, value: np.ndarray) -> None:
+        if len(time_s) == 0:
+            return
+        self._time.append(np.asarray(time_s, dtype=float))
+        self._value.append(np.asarray(value, dtype=float))
+        self._count += len(time_s)
+        while self._count > MAX_BUFFERED_SAMPLES and len(self._time) > 1:
+            self._count -= len(self._time[0])
+            self.dropped += len(self._time[0])
+            del self._time[0], self._value[0]
+
+    def take(self) -> Batch:
+        if not self._time:
+            return Batch.empty()
+        out = Batch(np.concatenate(self._time), np.concatenate(self._value))
+        self._time.clear()
+        self._value.clear()
+        self._count = 0
+        return out
+
+    def clear(self) -> None:
+        self.take()
+
+
+class VirtualBench:
+    """One simulated bench shared by the virtual drivers: physics, simulated clock, per-channel buffers.
+
+    ``physics`` follows the SimulatedBench contract. Thread-safe: one lock around every physics call.
+    """
+
+    def __init__(self, physics: Any, name: str = "sim"):
+        self.name = name
+        self.physics = physics
+        self.faults = VirtualFaults()
+        self._lock = threading.RLock()
+        self._angle = _ChannelBuffer()
+        self._torque = _ChannelBuffer()
+        self._drive_enabled = False
+        self._target_nm = 0.0
+        self._applied_nm = 0.0
+
+    # -- the simulated clock ------------------------------------------------------------------------
+    def now_s(self) -> float:
+        with self._lock:
+            return float(self.physics.now_s)
+
+    def advance(self, duration_s: float) -> None:
+        """Run the physics for ``duration_s`` simulated seconds and buffer what the sensors produced."""
+        if duration_s <= 0:
+            return
+        with self._lock:
+            samples = self.physics.advance(duration_s)
+            if len(samples) == 0:
+                return
+            self._angle.append(samples.time_s, samples.angle_arcsec)
+            self._torque.append(samples.time_s, samples.torque_nm)
+            applied = samples.extra.get("applied_torque_nm")
+            self._applied_nm = float(applied[-1]) if applied is not None else float(samples.torque_nm[-1])
+
+    # -- used by the drivers ------------------------------------------------------------------------
+    def take_angle(self) -> Batch:
+        with self._lock:
+            return self._angle.take()
+
+    def take_torque(self) -> Batch:
+        with self._lock:
+            return self._torque.take()
+
+    def set_drive_enabled(self, enabled: bool) -> None:
+        with self._lock:
+            self._drive_enabled = bool(enabled)
+            if not enabled:
+                self._target_nm = 0.0
+            self.physics.set_drive_enabled(bool(enabled))
+
+    def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None:
+        with self._lock:
+            self._target_nm = float(target_nm)
+            self.physics.set_torque_target(float(target_nm), float(slope_nm_per_s))
+
+    @property
+    def drive_enabled(self) -> bool:
+        return self._drive_enabled
+
+    @property
+    def applied_torque_nm(self) -> float:
+        with self._lock:
+            return self._applied_nm
+
+    def inject_drive_fault(self, code: int = GENERIC_DRIVE_FAULT) -> None:
+        """Drive fault reaction: torque off at once, FAULT with ``code`` until a fault reset."""
+        with self._lock:
+            self.faults.drive_fault_code = int(code) or GENERIC_DRIVE_FAULT
+            self.set_drive_enabled(False)
+
+
+PhysicsFactory = Callable[[Any], Any]
+
+
+@dataclass
+class VirtualContext:
+    """What the bench composer hands to virtual drivers: the shared benches (by name) and how to build one."""
+
+    sim_config: Any = None
+    physics_factory: PhysicsFactory | None = None
+    benches: dict[str, VirtualBench] = field(default_factory=dict)
+
+    def bench(self, name: str) -> VirtualBench:
+        if name not in self.benches:
+            factory = self.physics_factory or default_physics_factory
+            self.benches[name] = VirtualBench(factory(self.sim_config), name=name)
+        return self.benches[name]
+
+
+def default_physics_factory(sim_config: Any) -> Any:
+    """Build ``sim.bench.SimulatedBench`` from the ``[sim]`` config section (the core's simulated bench)."""
+    try:
+        from sim.bench import SimulatedBench
+    except ImportError as exc:  # pragma: no cover - only before the core lands
+        raise ConfigError(f"virtual bench needs sim.bench.SimulatedBench ({exc})") from None
+    if sim_config is None:
+        return SimulatedBench()
+    return SimulatedBench(sim_config)
+
+
+def parse_virtual_url(url: str) -> str:
+    """``virtual://name`` → ``name``; ConfigError for anything else."""
+    parsed = urlparse(url)
+    name = parsed.netloc or parsed.path.lstrip("/")
+    if parsed.scheme != "virtual" or not name:
+        raise ConfigError(f"virtual driver needs a url like 'virtual://sim', got {url!r}")
+    return name
+
+
+class VirtualAngleSource:
+    """Angle source (arcsec) reading the simulated encoder."""
+
+    def __init__(self, bench: VirtualBench, name: str = "virtual angle"):
+        self.name = name
+        self.bench = bench
+        self.time_source = bench
+        self.connected = False
+
+    def connect(self) -> None:
+        self.connected = True
+        self.bench.take_angle()  # start fresh: no stale samples from before the connection
+
+    def close(self) -> None:
+        self.connected = False
+
+    def read(self) -> Batch:
+        if not self.connected:
+            raise Disconnected(self.name, "not connected")
+        if self.bench.faults.encoder_fault:
+            self.bench.take_angle()
+            raise DeviceFault(self.name, "encoder fault (display shows '?')")
+        batch = self.bench.take_angle()
+        return Batch.empty() if self.bench.faults.angle_muted else batch
+
+
+class VirtualTorqueSource:
+    """Torque source (N·m) reading the simulated torque sensor, with a tare offset like an amplifier's TAR."""
+
+    def __init__(self, bench: VirtualBench, name: str = "virtual torque"):
+        self.name = name
+        self.bench = bench
+        self.time_source = bench
+        self.connected = False
+        self.tare_nm = 0.0
+        self._last_raw_nm: float | None = None
+
+    def connect(self) -> None:
+        self.connected = True
+        self.bench.take_torque()
+
+    def close(self) -> None:
+        self.connected = False
+
+    def read(self) -> Batch:
+        if not self.connected:
+            raise Disconnected(self.name, "not connected")
+        batch = self.bench.take_torque()
+        if len(batch):
+            self._last_raw_nm = float(np.mean(batch.value[-20:]))
+        if self.bench.faults.torque_muted:
+            return Batch.empty()
+        return Batch(batch.time_s, batch.value - self.tare_nm + self.bench.faults.torque_offset_nm)
+
+    def tare(self) -> None:
+        """Zero the channel at the present load (mean of the latest readings; advances nothing)."""
+        if self._last_raw_nm is None:
+            self.bench.advance(0.01)
+            batch = self.bench.take_torque()
+            if not len(batch):
+                raise DeviceFault(self.name, "no reading to tare on")
+            self._last_raw_nm = float(np.mean(batch.value))
+        self.tare_nm = self._last_raw_nm
+
+
+class VirtualLoader:
+    """CiA 402-like loader over the simulated drive: enable/disable, profile torque with a slope, FAULT."""
+
+    def __init__(self, bench: VirtualBench, rated_torque_nm: float, max_torque_nm: float | None = None,
+                 name: str = "virtual loader"):
+        if rated_torque_nm <= 0:
+            raise ConfigError(f"{name}: rated_torque_nm must be > 0, got {rated_torque_nm}")
+        self.name = name
+        self.bench = bench
+        self.time_source = bench
+        self.rated_torque_nm = float(rated_torque_nm)
+        self.max_torque_nm = float(max_torque_nm if max_torque_nm is not None else rated_torque_nm)
+        self.connected = False
+        self.commands: list[tuple[str, float, float]] = []  # (command, value, sim time) for tests
+
+    def _check(self) -> None:
+        if self.bench.faults.loader_lost:
+            raise Disconnected(self.name, "no heartbeat from the drive")
+        if not self.connected:
+            raise Disconnected(self.name, "not connected")
+
+    def connect(self) -> None:
+        self.connected = True
+
+    def close(self) -> None:
+        self.connected = False
+
+    def enable(self) -> None:
+        self._check()
+        if self.bench.faults.drive_fault_code:
+            raise DeviceFault(self.name, f"drive in FAULT (error 0x{self.bench.faults.drive_fault_code:04X})",
+                              self.bench.faults.drive_fault_code)
+        self.bench.set_torque_target(0.0, self.max_torque_nm)
+        self.bench.set_drive_enabled(True)
+        self.commands.append(("enable", 1.0, self.bench.now_s()))
+
+    def disable(self) -> None:
+        self._check()
+        self.bench.set_torque_target(0.0, self.max_torque_nm * 10)
+        self.bench.set_drive_enabled(False)
+        self.commands.append(("disable", 0.0, self.bench.now_s()))
+
+    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        if not np.isfinite(target_nm) or abs(target_nm) > self.max_torque_nm:
+            raise CommandRejected(self.name, f"target torque {target_nm} N·m outside ±{self.max_torque_nm} N·m")
+        if slope_nm_per_s is not None and not (np.isfinite(slope_nm_per_s) and slope_nm_per_s > 0):
+            raise CommandRejected(self.name, f"torque slope must be > 0 N·m/s, got {slope_nm_per_s}")
+        self._check()
+        code = self.bench.faults.drive_fault_code
+        if code:
+            raise DeviceFault(self.name, f"drive in FAULT (error 0x{code:04X})", code)
+        if not self.bench.drive_enabled:
+            raise CommandRejected(self.name, "drive not in OPERATION ENABLED")
+        slope = float(slope_nm_per_s) if slope_nm_per_s is not None else self.max_torque_nm
+        self.bench.set_torque_target(float(target_nm), slope)
+        self.commands.append(("torque", float(target_nm), self.bench.now_s()))
+
+    def status(self) -> LoaderStatus:
+        self._check()
+        code = self.bench.faults.drive_fault_code
+        if code:
+            state = "FAULT"
+        else:
+            state = "OPERATION ENABLED" if self.bench.drive_enabled else "SWITCH ON DISABLED"
+        torque = self.bench.applied_torque_nm if not code else 0.0
+        return LoaderStatus(state=state, torque_actual_nm=torque, fault=bool(code), error_code=code,
+                            time_s=self.bench.now_s())
+
+    def fault_reset(self) -> None:
+        self._check()
+        self.bench.faults.drive_fault_code = 0
+        self.commands.append(("fault_reset", 0.0, self.bench.now_s()))
+
+
+@register("virtual")
+class VirtualDriver:
+    """Registry entry ``virtual``: builds the angle/torque/loader driver of kind ``kind`` on the shared bench.
+
+    The bench composer calls :meth:`from_config` with a context holding the shared benches so the three
+    instruments of ``virtual://sim`` drive one physics object and one clock.
+    """
+
+    def __new__(cls, *, kind: str, url: str = "virtual://sim", context: VirtualContext | None = None,
+                **options: Any):
+        ctx = context or VirtualContext()
+        bench = ctx.bench(parse_virtual_url(url))
+        if kind == "angle":
+            return VirtualAngleSource(bench)
+        if kind == "torque":
+            return VirtualTorqueSource(bench)
+        if kind == "loader":
+            rated = float(options.get("rated_torque_nm", options.get("max_torque_nm", 2000.0)))
+            return VirtualLoader(bench, rated, options.get("max_torque_nm"))
+        raise ConfigError(f"virtual driver: unknown instrument kind {kind!r} (angle, torque, loader)")
+
+    @classmethod
+    def from_config(cls, kind: str, options: Mapping[str, Any], context: Mapping[str, Any]):
+        ctx = context.setdefault("virtual", VirtualContext(sim_config=context.get("sim_config"),
+                                                          physics_factory=context.get("physics_factory")))
+        return cls(kind=kind, context=ctx, **dict(options))

@@ -1,0 +1,73 @@
+"""Align torque and angle readings from separate instruments onto one time base.
+
+The angle source is the time base: every angle reading keeps its own driver stamp, and the torque at that
+instant is interpolated linearly between the two torque readings that bracket it. Why this way round: the
+angle (the quantity whose small differences make the rigidity) is never resampled, so encoder quantisation
+and the compensation see the raw readings, while the torque signal is smooth between readings (the loader
+ramps it). An angle reading is held back until a torque reading at or after its stamp has arrived, so
+interpolation never extrapolates; after ``max_wait_s`` without newer torque data (torque channel slow or
+stalled) held readings are released with the latest torque (zero-order hold) rather than lost. Angle readings
+stamped before the first torque reading take the first torque value.
+
+When both channels come from one instrument (the virtual bench), the stamps coincide and the interpolation
+returns the torque readings unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# torque history kept for interpolation (s); older readings are never needed once angles pass them
+_KEEP_S = 1.0
+
+
+class Aligner:
+    """Stateful, batch-wise aligner; ``push`` returns (time_s, torque_nm, angle_arcsec) ready so far."""
+
+    def __init__(self, max_wait_s: float = 0.5):
+        self.max_wait_s = float(max_wait_s)
+        self._tq_t = np.empty(0)
+        self._tq_v = np.empty(0)
+        self._ang_t = np.empty(0)
+        self._ang_v = np.empty(0)
+
+    def push(self, angle_t: np.ndarray, angle_v: np.ndarray, torque_t: np.ndarray, torque_v: np.ndarray,
+             now_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if len(torque_t):
+            order = np.argsort(torque_t, kind="stable")
+            self._tq_t = np.concatenate([self._tq_t, np.asarray(torque_t, float)[order]])
+            self._tq_v = np.concatenate([self._tq_v, np.asarray(torque_v, float)[order]])
+        if len(angle_t):
+            self._ang_t = np.concatenate([self._ang_t, np.asarray(angle_t, float)])
+            self._ang_v = np.concatenate([self._ang_v, np.asarray(angle_v, float)])
+        if not len(self._ang_t) or not len(self._tq_t):
+            return np.empty(0), np.empty(0), np.empty(0)
+
+        last_tq = self._tq_t[-1]
+        ready = self._ang_t <= last_tq
+        stale = (now_s - self._ang_t) > self.max_wait_s
+        take = ready | stale
+        if not take.any():
+            return np.empty(0), np.empty(0), np.empty(0)
+        # release in order: everything up to the last releasable reading
+        n = int(np.flatnonzero(take)[-1]) + 1
+        t = self._ang_t[:n]
+        a = self._ang_v[:n]
+        tq = np.interp(t, self._tq_t, self._tq_v)
+        self._ang_t = self._ang_t[n:]
+        self._ang_v = self._ang_v[n:]
+        keep_from = np.searchsorted(self._tq_t, t[-1] - _KEEP_S)
+        keep_from = min(int(keep_from), len(self._tq_t) - 2) if len(self._tq_t) >= 2 else 0
+        self._tq_t = self._tq_t[max(keep_from, 0):]
+        self._tq_v = self._tq_v[max(keep_from, 0):]
+        return t, tq, a
+
+    def flush(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Release every held angle reading (end of run)."""
+        if not len(self._ang_t) or not len(self._tq_t):
+            self._ang_t = self._ang_v = np.empty(0)
+            return np.empty(0), np.empty(0), np.empty(0)
+        t, a = self._ang_t, self._ang_v
+        tq = np.interp(t, self._tq_t, self._tq_v)
+        self._ang_t = self._ang_v = np.empty(0)
+        return t, tq, a

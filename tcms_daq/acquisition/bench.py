@@ -1,0 +1,218 @@
+"""A bench composed from config: angle source, torque source, loader, clock and compensator.
+
+Each ``[instruments.<kind>]`` table names a registered driver and its options (``url`` and whatever the
+driver takes). The composer does not know which drivers are simulated: a driver class may offer
+``from_config(kind, options, context)`` to share state with its siblings (the in-process virtual bench does,
+so its three instruments drive one physics object); otherwise it is built as ``cls(**options)``.
+
+The clock follows the drivers: when all three instruments expose the same ``time_source`` (an object with
+``now_s()`` and ``advance(duration_s)``), the bench runs on that simulated clock; when none does, on real
+monotonic time. Mixing the two on one bench is refused.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers import registry
+from tcms_daq.acquisition.clock import Clock, MonotonicClock, SimulatedClock
+from tcms_daq.errors import ConfigError
+
+KINDS = ("angle", "torque", "loader")
+
+
+def identity_compensator(angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    """No correction: θ_c = θ."""
+    return angle_arcsec
+
+
+@dataclass
+class Bench:
+    """The instruments of one bench and how its readings are corrected.
+
+    compensator: an object with ``apply(angle_arcsec, torque_nm, time_s) -> angle_arcsec`` (a
+    ``tcms_daq.compensation.Compensator``) or a plain callable with the same signature.
+    """
+
+    angle: Any
+    torque: Any
+    loader: Any
+    clock: Clock
+    compensator: Any = identity_compensator
+    name: str = "bench"
+    max_torque_nm: float = math.inf
+    description: dict[str, Any] = field(default_factory=dict)
+    connected: bool = False
+
+    def compensate(self, angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+        apply = getattr(self.compensator, "apply", None)
+        if apply is not None:
+            return apply(angle_arcsec, torque_nm, time_s)
+        return self.compensator(angle_arcsec, torque_nm, time_s)
+
+    def instruments(self) -> dict[str, Any]:
+        return {"angle": self.angle, "torque": self.torque, "loader": self.loader}
+
+    def connect(self) -> None:
+        """Connect all instruments; on a failure close the ones already open and re-raise."""
+        opened = []
+        try:
+            for drv in self.instruments().values():
+                drv.connect()
+                opened.append(drv)
+        except BaseException:
+            for drv in opened:
+                try:
+                    drv.close()
+                except Exception:
+                    pass
+            raise
+        self.connected = True
+
+    def close(self) -> None:
+        for drv in self.instruments().values():
+            try:
+                drv.close()
+            except Exception:
+                pass
+        self.connected = False
+
+    def __enter__(self) -> Bench:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _section(config: Any, key: str) -> Any:
+    if isinstance(config, Mapping):
+        return config.get(key)
+    return getattr(config, key, None)
+
+
+def _as_dict(obj: Any) -> dict[str, Any]:
+    if obj is None:
+        return {}
+    if isinstance(obj, Mapping):
+        return dict(obj)
+    dump = getattr(obj, "model_dump", None)
+    if dump is not None:
+        return dict(dump())
+    return dict(vars(obj))
+
+
+def load_compensator(path: str | Path) -> Any:
+    """The compensator stored in a TOML file (``tcms_daq.compensation``); ConfigError when unusable."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"compensation model {path}: no such file")
+    try:
+        from tcms_daq.compensation import Compensator
+    except ImportError as exc:
+        raise ConfigError(f"compensation model {path}: tcms_daq.compensation unavailable ({exc})") from None
+    for loader_name in ("load", "from_toml_file", "read_toml", "from_file"):
+        loader = getattr(Compensator, loader_name, None)
+        if loader is not None:
+            return loader(path)
+    from_toml = getattr(Compensator, "from_toml", None)
+    if from_toml is not None:
+        return from_toml(path.read_text(encoding="utf-8"))
+    raise ConfigError(f"compensation model {path}: Compensator has no TOML loader")
+
+
+def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: float = math.inf,
+                  physics_factory: Callable[[Any], Any] | None = None, compensator: Any = None) -> Bench:
+    """Build a :class:`Bench` (not yet connected) from a bench config (mapping or the core's config model).
+
+    speed: simulated seconds per real second when the bench runs on a simulated clock (inf = as fast as
+    possible). physics_factory: builds the simulated physics from the ``[sim]`` section (tests inject one).
+    compensator: overrides the ``bench.compensation`` file.
+    """
+    bench_cfg = _as_dict(_section(config, "bench"))
+    instruments = _section(config, "instruments")
+    if instruments is None:
+        raise ConfigError("bench config: missing [instruments] (angle, torque, loader)")
+    max_torque_nm = float(bench_cfg.get("max_torque_nm", math.inf))
+    context: dict[str, Any] = {
+        "sim_config": _section(config, "sim"),
+        "physics_factory": physics_factory,
+        "bench_max_torque_nm": max_torque_nm,
+        "config_dir": config_dir,
+    }
+    drivers: dict[str, Any] = {}
+    description: dict[str, Any] = {}
+    for kind in KINDS:
+        opts = _as_dict(_section(instruments, kind))
+        if not opts:
+            raise ConfigError(f"bench config: missing [instruments.{kind}]")
+        driver_name = opts.pop("driver", None)
+        if not driver_name:
+            raise ConfigError(f"bench config: [instruments.{kind}] has no 'driver'")
+        opts = {k: v for k, v in opts.items() if v is not None}
+        if kind == "loader" and driver_name == "virtual":
+            opts.setdefault("max_torque_nm", max_torque_nm if math.isfinite(max_torque_nm) else 2000.0)
+        cls = registry.driver_class(driver_name)
+        from_config = getattr(cls, "from_config", None)
+        try:
+            drivers[kind] = from_config(kind, opts, context) if from_config else cls(**opts)
+        except TypeError as exc:
+            raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r}: {exc}") from None
+        description[kind] = {"driver": driver_name, **{k: v for k, v in opts.items() if k != "context"}}
+
+    sources = [getattr(d, "time_source", None) for d in drivers.values()]
+    if all(s is not None for s in sources):
+        if any(s is not sources[0] for s in sources):
+            raise ConfigError("bench config: the simulated instruments must share one bench (same url)")
+        clock: Clock = SimulatedClock(sources[0], speed=speed)
+    elif any(s is not None for s in sources):
+        raise ConfigError("bench config: cannot mix simulated (virtual) and real instruments on one bench")
+    else:
+        clock = MonotonicClock()
+
+    comp_source = "identity"
+    if compensator is None:
+        comp_file = bench_cfg.get("compensation")
+        if comp_file:
+            path = Path(comp_file)
+            if not path.is_absolute() and config_dir is not None:
+                path = Path(config_dir) / path
+            compensator = load_compensator(path)
+            comp_source = str(path)
+        else:
+            compensator = identity_compensator
+    else:
+        comp_source = type(compensator).__name__
+    description["compensation"] = comp_source
+    return Bench(drivers["angle"], drivers["torque"], drivers["loader"], clock, compensator,
+                 name=str(bench_cfg.get("name", "bench")), max_torque_nm=max_torque_nm, description=description)
+
+
+def read_bench_config(path: str | Path) -> Any:
+    """A bench config from TOML: the core's validated model when available, else the plain table."""
+    path = Path(path)
+    try:
+        from tcms_daq import config as core_config
+    except ImportError:
+        core_config = None
+    loader = getattr(core_config, "load_bench_config", None) if core_config else None
+    if loader is not None:
+        return loader(path)
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+
+
+def bench_from_file(path: str | Path, **kwargs: Any) -> Bench:
+    path = Path(path)
+    return compose_bench(read_bench_config(path), config_dir=path.parent, **kwargs)

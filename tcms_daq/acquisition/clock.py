@@ -1,0 +1,81 @@
+"""Clocks for the acquisition loop and the procedure.
+
+``MonotonicClock`` is real time (``time.monotonic``), used with real instruments and protocol simulators in
+another process. ``SimulatedClock`` wraps a time source with ``now_s()`` and ``advance(duration_s)`` (the
+virtual bench): its ``sleep`` advances the simulation, so an in-process test runs as fast as the physics can be
+computed (``speed = inf``), or paced against real time for a live demo (``speed = 1`` is real time).
+
+Both stamp in seconds. ``stepped`` tells the acquisition loop whether time moves only inside ``sleep`` (then
+it reads the instruments synchronously after each step, which keeps in-process runs deterministic) or by itself
+(then it reads in worker threads).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Protocol, runtime_checkable
+
+
+@runtime_checkable
+class Clock(Protocol):
+    stepped: bool
+
+    def now(self) -> float:
+        """Current time in s (monotonic)."""
+        ...
+
+    def sleep(self, duration_s: float) -> None:
+        """Let ``duration_s`` of this clock's time pass."""
+        ...
+
+
+@runtime_checkable
+class TimeSource(Protocol):
+    def now_s(self) -> float: ...
+
+    def advance(self, duration_s: float) -> None: ...
+
+
+class MonotonicClock:
+    """Real time: ``time.monotonic``; drivers of real instruments stamp with the same clock."""
+
+    stepped = False
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, duration_s: float) -> None:
+        if duration_s > 0:
+            time.sleep(duration_s)
+
+
+class SimulatedClock:
+    """Simulated time of a :class:`TimeSource`; ``sleep`` advances the simulation.
+
+    speed: simulated seconds per real second; ``math.inf`` (default) never waits in real time.
+    """
+
+    stepped = True
+
+    def __init__(self, source: TimeSource, speed: float = math.inf):
+        if not speed > 0:
+            raise ValueError(f"clock speed must be > 0, got {speed}")
+        self.source = source
+        self.speed = float(speed)
+        self._real_start = time.monotonic()
+        self._sim_start = source.now_s()
+
+    def now(self) -> float:
+        return self.source.now_s()
+
+    def sleep(self, duration_s: float) -> None:
+        if duration_s <= 0:
+            return
+        if math.isfinite(self.speed):
+            # pace against real time without accumulating drift
+            target_real = self._real_start + (self.source.now_s() + duration_s - self._sim_start) / self.speed
+            delay = target_real - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        self.source.advance(duration_s)

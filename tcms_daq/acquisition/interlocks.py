@@ -1,0 +1,125 @@
+"""Safety interlocks judged on every aligned batch and every loader status.
+
+Each check is a vectorised function of a batch (no per-sample Python); the first violation becomes a
+:class:`Trip` whose ``reason`` is one line a test engineer can act on. The acquisition loop checks, the
+procedure aborts on the first trip (ramping the loader to zero and disabling it) and keeps the data so far.
+
+Interlocks (DESIGN §6): torque limit (bench and reducer), angle window, torque-rate limit, stale-data
+watchdog, drive fault, lost instrument.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.base import LoaderStatus
+
+
+@dataclass(frozen=True)
+class Trip:
+    """A tripped interlock: ``interlock`` name, one-line ``reason``, clock time ``time_s``."""
+
+    interlock: str
+    reason: str
+    time_s: float
+
+    def to_dict(self) -> dict:
+        return {"interlock": self.interlock, "reason": self.reason, "time_s": self.time_s}
+
+
+@dataclass(frozen=True)
+class InterlockLimits:
+    """Limits; ``None`` disables a check. Torques in N·m, angles in arcsec, times in s.
+
+    bench_torque_limit_nm: the bench's maximum (sensor, fixture); reducer_torque_limit_nm: the test piece's
+    (catalogue). torque_rate_limit_nm_per_s is judged on the slope over ``rate_window_s`` (not sample to
+    sample, which would trip on sensor noise). stale_timeout_s: longest time without a new reading per channel.
+    max_consecutive_errors: failed reads of one instrument in a row before it counts as lost.
+    """
+
+    bench_torque_limit_nm: float | None = None
+    reducer_torque_limit_nm: float | None = None
+    angle_min_arcsec: float | None = None
+    angle_max_arcsec: float | None = None
+    torque_rate_limit_nm_per_s: float | None = None
+    rate_window_s: float = 0.05
+    stale_timeout_s: float = 1.0
+    max_consecutive_errors: int = 3
+
+    @property
+    def torque_limit_nm(self) -> float:
+        limits = [x for x in (self.bench_torque_limit_nm, self.reducer_torque_limit_nm) if x is not None]
+        return min(limits) if limits else math.inf
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+def check_torque_limit(time_s: np.ndarray, torque_nm: np.ndarray, limits: InterlockLimits) -> Trip | None:
+    for name, limit in (("bench", limits.bench_torque_limit_nm), ("reducer", limits.reducer_torque_limit_nm)):
+        if limit is None:
+            continue
+        over = np.flatnonzero(np.abs(torque_nm) > limit)
+        if over.size:
+            i = int(over[0])
+            return Trip("torque_limit", f"torque {torque_nm[i]:.1f} N·m exceeds the {name} limit "
+                                        f"±{limit:g} N·m", float(time_s[i]))
+    return None
+
+
+def check_angle_window(time_s: np.ndarray, angle_arcsec: np.ndarray, limits: InterlockLimits) -> Trip | None:
+    lo = -np.inf if limits.angle_min_arcsec is None else limits.angle_min_arcsec
+    hi = np.inf if limits.angle_max_arcsec is None else limits.angle_max_arcsec
+    out = np.flatnonzero((angle_arcsec < lo) | (angle_arcsec > hi))
+    if out.size:
+        i = int(out[0])
+        return Trip("angle_window", f"angle {angle_arcsec[i]:.1f}″ outside the window "
+                                    f"[{lo:g}, {hi:g}]″", float(time_s[i]))
+    return None
+
+
+class TorqueRateMonitor:
+    """Torque slope over a sliding window, carried across batches."""
+
+    def __init__(self, limits: InterlockLimits):
+        self.limits = limits
+        self._t = np.empty(0)
+        self._v = np.empty(0)
+
+    def check(self, time_s: np.ndarray, torque_nm: np.ndarray) -> Trip | None:
+        limit = self.limits.torque_rate_limit_nm_per_s
+        if limit is None or not len(time_s):
+            return None
+        window = self.limits.rate_window_s
+        t = np.concatenate([self._t, time_s])
+        v = np.concatenate([self._v, torque_nm])
+        start = len(self._t)
+        # for each new sample i the first sample at least `window` earlier
+        j = np.searchsorted(t, t[start:] - window, side="right") - 1
+        valid = j >= 0
+        trip = None
+        if valid.any():
+            i = np.arange(start, len(t))[valid]
+            jj = j[valid]
+            dt = t[i] - t[jj]
+            ok = dt > 0
+            rate = np.zeros_like(dt)
+            rate[ok] = (v[i][ok] - v[jj][ok]) / dt[ok]
+            over = np.flatnonzero(np.abs(rate) > limit)
+            if over.size:
+                k = int(over[0])
+                trip = Trip("torque_rate", f"torque rate {rate[k]:.0f} N·m/s exceeds ±{limit:g} N·m/s",
+                            float(t[i[k]]))
+        keep = np.searchsorted(t, t[-1] - 2 * window)
+        self._t, self._v = t[keep:], v[keep:]
+        return trip
+
+
+def check_loader_status(status: LoaderStatus) -> Trip | None:
+    if status.fault or status.state.upper() == "FAULT":
+        code = f" 0x{status.error_code:04X}" if status.error_code else ""
+        return Trip("drive_fault", f"drive fault{code} (loader state {status.state})", status.time_s)
+    return None

@@ -1,0 +1,414 @@
+"""The stiffness test procedure as an explicit state machine.
+
+    idle → preparing (enable drive, tare) → loading (ramp the profile's torque setpoints) → evaluating
+         → completed | aborted | failed
+
+- **aborted**: an interlock tripped (torque/angle/rate limit, stale data, drive fault, lost instrument) or an
+  abort was requested; ``reason`` says which.
+- **failed**: anything else went wrong (the loader never reached a setpoint, the data cannot be evaluated, a
+  bug); ``reason`` carries the message.
+
+On every exit path, before the final state is entered, the loader is ramped to zero torque and disabled while
+acquisition keeps recording; the samples acquired up to the end are kept in the :class:`RunRecord`.
+
+Setpoints: each profile segment is commanded as a profile-torque target with its slope (the drive ramps at
+that slope, CiA 402 mode 4); the procedure waits for the ramp, checks that the measured torque reached the
+target within a tolerance, and dwells. Time is the bench clock, so on the simulated clock a run takes no real
+time.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from drivers.base import InstrumentError, LoaderStatus
+from tcms_daq.acquisition.bench import Bench
+from tcms_daq.acquisition.fanout import DataMessage, Message
+from tcms_daq.acquisition.interlocks import InterlockLimits, Trip
+from tcms_daq.acquisition.loop import AbortRequested, AcquisitionLoop, InterlockTripped
+from tcms_daq.acquisition.record import (
+    ABORTED,
+    COMPLETED,
+    EVALUATING,
+    FAILED,
+    LOADING,
+    PREPARING,
+    TRANSITIONS,
+    RunRecord,
+    StateChange,
+)
+from tcms_daq.errors import TcmsError
+from tcms_daq.samples import Samples
+
+
+class ProcedureError(TcmsError):
+    """The procedure cannot go on (not an interlock): the run ends ``failed``."""
+
+
+class ProfileRejected(TcmsError):
+    """The profile violates a limit; raised before anything is commanded."""
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Ramp the torque to ``target_nm`` at ``slope_nm_per_s``, then hold for ``dwell_s``."""
+
+    target_nm: float
+    slope_nm_per_s: float
+    dwell_s: float = 0.0
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class ProcedureOptions:
+    """Timing and tolerances (clock seconds, N·m).
+
+    settle_s: wait after connecting and after enabling (readings flowing, watchdog armed);
+    tolerance_nm: how close the measured torque must come to each setpoint (None: 2 % of the peak, ≥ 1 N·m);
+    settle_timeout_s: extra time allowed to reach a setpoint after its ramp;
+    ramp_down_slope_nm_per_s: slope of the ramp to zero on exit (None: the profile's steepest slope);
+    ramp_down_timeout_s: extra time allowed for the ramp to zero before disabling anyway.
+    """
+
+    settle_s: float = 0.2
+    tolerance_nm: float | None = None
+    settle_timeout_s: float = 2.0
+    ramp_down_slope_nm_per_s: float | None = None
+    ramp_down_timeout_s: float = 3.0
+
+
+def _get(obj: Any, *names: str, default: Any = None) -> Any:
+    for name in names:
+        if isinstance(obj, dict) and name in obj:
+            return obj[name]
+        if hasattr(obj, name):
+            return getattr(obj, name)
+    return default
+
+
+def as_segments(profile: Any) -> list[Segment]:
+    """Profile segments → :class:`Segment` list.
+
+    Accepts a sequence of segments (objects or mappings with ``target_nm``, ``slope_nm_per_s`` or
+    ``rate_nm_per_s``, optional ``dwell_s``) or an object with a ``segments`` attribute/method.
+    """
+    seq = _get(profile, "segments")
+    if seq is not None:
+        profile = seq() if callable(seq) else seq
+    out = []
+    for i, seg in enumerate(profile):
+        if isinstance(seg, Segment):
+            out.append(seg)
+            continue
+        target = _get(seg, "target_nm", "torque_nm", "end_nm")
+        slope = _get(seg, "slope_nm_per_s", "rate_nm_per_s")
+        if target is None or slope is None:
+            raise ProfileRejected(f"profile segment {i}: needs target_nm and slope_nm_per_s/rate_nm_per_s")
+        out.append(Segment(float(target), float(slope), float(_get(seg, "dwell_s", "hold_s", default=0.0) or 0.0),
+                           str(_get(seg, "label", "kind", default="") or "")))
+    if not out:
+        raise ProfileRejected("profile has no segments")
+    return out
+
+
+def default_limits(bench: Bench, segments: Sequence[Segment], reducer_torque_limit_nm: float | None = None,
+                   **overrides: Any) -> InterlockLimits:
+    """Interlock limits for a run: bench and reducer torque, a rate limit of twice the steepest profile slope
+    (+5 % of the peak per second for sensor noise); ``overrides`` replace any field."""
+    peak = max(abs(s.target_nm) for s in segments)
+    slope = max(s.slope_nm_per_s for s in segments)
+    values: dict[str, Any] = {
+        "bench_torque_limit_nm": bench.max_torque_nm if math.isfinite(bench.max_torque_nm) else None,
+        "reducer_torque_limit_nm": reducer_torque_limit_nm,
+        "torque_rate_limit_nm_per_s": 2.0 * slope + 0.05 * peak,
+    }
+    values.update({k: v for k, v in overrides.items() if k in InterlockLimits.__dataclass_fields__})
+    return InterlockLimits(**values)
+
+
+def validate_profile(segments: Sequence[Segment], limits: InterlockLimits) -> None:
+    """ProfileRejected (one line) when a setpoint or slope exceeds the limits."""
+    for i, seg in enumerate(segments):
+        if not (math.isfinite(seg.target_nm) and math.isfinite(seg.slope_nm_per_s)) or seg.slope_nm_per_s <= 0:
+            raise ProfileRejected(f"profile segment {i}: invalid target {seg.target_nm} N·m / slope "
+                                  f"{seg.slope_nm_per_s} N·m/s")
+        for name, limit in (("bench", limits.bench_torque_limit_nm), ("reducer", limits.reducer_torque_limit_nm)):
+            if limit is not None and abs(seg.target_nm) > limit:
+                raise ProfileRejected(f"test torque {abs(seg.target_nm):g} N·m exceeds the {name} limit "
+                                      f"{limit:g} N·m")
+        rate = limits.torque_rate_limit_nm_per_s
+        if rate is not None and seg.slope_nm_per_s > rate:
+            raise ProfileRejected(f"profile slope {seg.slope_nm_per_s:g} N·m/s exceeds the rate limit {rate:g} N·m/s")
+
+
+Evaluator = Callable[[Samples], dict[str, Any] | None]
+
+
+def analysis_evaluator(rated_torque_nm: float, **options: Any) -> Evaluator:
+    """Evaluate with ``tcms_daq.analysis.evaluate`` (rigidity, lost motion, backlash …)."""
+
+    def evaluate(samples: Samples) -> dict[str, Any]:
+        from tcms_daq.analysis import evaluate as analysis_evaluate
+
+        result = analysis_evaluate(samples.time_s, samples.torque_nm, samples.angle_arcsec,
+                                   rated_torque_nm=rated_torque_nm, **options)
+        return result.to_dict() if hasattr(result, "to_dict") else dict(result)
+
+    return evaluate
+
+
+class TestRun:
+    """One test on a bench, run by :meth:`run` (blocking) or :meth:`start` (a thread).
+
+    subscribers: callables receiving every :class:`DataMessage` / state :class:`EventMessage` on their own
+    thread (lossy bounded queue, ``subscriber_queue`` batches), so they cannot block acquisition; or
+    :class:`~.fanout.Subscription` objects created by the caller on ``acquisition.fanout``.
+    acquisition: a running :class:`AcquisitionLoop` to use (e.g. the service's live one); default: its own.
+    """
+
+    __test__ = False  # not a pytest test class
+
+    def __init__(self, bench: Bench, profile: Any, *, limits: InterlockLimits | None = None,
+                 reducer_torque_limit_nm: float | None = None, evaluate: Evaluator | None = None,
+                 options: ProcedureOptions | None = None, subscribers: Iterable[Callable[[Message], Any]] = (),
+                 subscriber_queue: int = 256, acquisition: AcquisitionLoop | None = None,
+                 abort_event: threading.Event | None = None, run_id: str | None = None,
+                 profile_info: dict[str, Any] | None = None):
+        self.bench = bench
+        self.segments = as_segments(profile)
+        self.limits = limits or default_limits(bench, self.segments, reducer_torque_limit_nm)
+        validate_profile(self.segments, self.limits)
+        self.evaluate = evaluate
+        self.options = options or ProcedureOptions()
+        self.subscribers = list(subscribers)
+        self.subscriber_queue = subscriber_queue
+        self._acq = acquisition
+        self.abort_event = abort_event or threading.Event()
+        self._abort_reason = "aborted by operator"
+        peak = max(abs(s.target_nm) for s in self.segments)
+        self.tolerance_nm = (self.options.tolerance_nm if self.options.tolerance_nm is not None
+                             else max(0.02 * peak, 1.0))
+        self.record = RunRecord(run_id or uuid.uuid4().hex[:12], bench_name=bench.name,
+                                profile={"segments": [asdict(s) for s in self.segments], **(profile_info or {})},
+                                limits=self.limits.to_dict())
+        self._thread: threading.Thread | None = None
+        self._done = threading.Event()
+        self._setpoint_nm = 0.0
+        self._lock = threading.Lock()
+
+    # -- public API -----------------------------------------------------------------------------------
+    @property
+    def state(self) -> str:
+        return self.record.state
+
+    @property
+    def run_id(self) -> str:
+        return self.record.run_id
+
+    @property
+    def acquisition(self) -> AcquisitionLoop | None:
+        return self._acq
+
+    def start(self) -> TestRun:
+        """Run in a daemon thread; returns at once."""
+        self._thread = threading.Thread(target=self.run, name=f"tcms-run-{self.run_id}", daemon=True)
+        self._thread.start()
+        return self
+
+    def join(self, timeout: float | None = None) -> RunRecord:
+        self._done.wait(timeout)
+        return self.record
+
+    def abort(self, reason: str = "aborted by operator") -> None:
+        """Request an abort: the run ramps down, disables the loader and ends ``aborted`` with ``reason``."""
+        self._abort_reason = reason
+        self.abort_event.reason = reason  # type: ignore[attr-defined]
+        self.abort_event.set()
+
+    def run(self) -> RunRecord:
+        """Run the whole procedure in the calling thread; never raises for a test outcome."""
+        acq = self._acq
+        own_acq = acq is None
+        own_connect = False
+        subs = []
+        recorder = None
+        try:
+            self._transition(PREPARING)
+            if not self.bench.connected:
+                self.bench.connect()
+                own_connect = True
+            if acq is None:
+                acq = AcquisitionLoop(self.bench, self.limits)
+                self._acq = acq
+            acq.set_limits(self.limits)
+            recorder = acq.fanout.subscribe(f"recorder-{self.run_id}", maxsize=None)
+            subs = [acq.fanout.subscribe_callback(cb, maxsize=self.subscriber_queue) for cb in self.subscribers]
+            self._publish_state()
+            acq.start()
+            self._prepare(acq)
+            self._transition(LOADING)
+            t_start = acq.clock.now()
+            for seg in self.segments:
+                self._run_segment(acq, seg)
+            self.record.loading_window_s = (t_start, acq.clock.now())
+            self._safe_stop(acq)
+            self._transition(EVALUATING)
+            self._collect(recorder)
+            if self.evaluate is not None:
+                loading = self.record.loading_samples()
+                self.record.evaluation = self.evaluate(loading)
+            self._transition(COMPLETED)
+        except (InterlockTripped, AbortRequested) as exc:
+            self._finish_early(acq, recorder, ABORTED, exc)
+        except InstrumentError as exc:  # a command failed: treat like the matching interlock
+            if acq is None:  # could not even connect
+                self._finish_early(acq, recorder, FAILED, exc)
+                return self.record
+            trip = Trip("drive_fault" if "fault" in type(exc).__name__.lower() else "lost_instrument",
+                        str(exc), acq.clock.now())
+            acq.raise_trip(trip)
+            self._finish_early(acq, recorder, ABORTED, InterlockTripped(acq.trip or trip))
+        except Exception as exc:
+            self._finish_early(acq, recorder, FAILED, exc)
+        finally:
+            try:
+                if acq is not None:
+                    self._safe_stop(acq)
+                    if own_acq:
+                        acq.stop()
+                    self._collect(recorder)
+                    self.record.acquisition = {
+                        "channels": acq.channel_stats(),
+                        "subscribers": {s.name: {"dropped": s.dropped, "delivered": s.delivered} for s in subs},
+                        "recorder_max_backlog": recorder.max_backlog if recorder else 0,
+                    }
+                    if recorder is not None:
+                        recorder.close()
+                    for s in subs:
+                        s.close()
+                    if own_acq:
+                        acq.fanout.close()
+            finally:
+                if own_connect:
+                    self.bench.close()
+                self.record.finished_wall = time.time()
+                self._done.set()
+        return self.record
+
+    # -- the phases ----------------------------------------------------------------------------------
+    def _prepare(self, acq: AcquisitionLoop) -> None:
+        opts = self.options
+        acq.wait(opts.settle_s, abort_event=self.abort_event)
+        status = acq.loader_command(self.bench.loader.status)
+        if status.fault:
+            self.record.notes.append(f"loader was in FAULT (0x{status.error_code:04X}) before the test: reset")
+            acq.loader_command(self.bench.loader.fault_reset)
+        acq.instrument_command("torque", self.bench.torque.tare)
+        acq.loader_command(self.bench.loader.enable)
+        self._setpoint_nm = 0.0
+        acq.wait(opts.settle_s, abort_event=self.abort_event)
+
+    def _run_segment(self, acq: AcquisitionLoop, seg: Segment) -> None:
+        start_nm = self._setpoint_nm
+        acq.loader_command(self.bench.loader.set_torque, seg.target_nm, seg.slope_nm_per_s)
+        self._setpoint_nm = seg.target_nm
+        ramp_s = abs(seg.target_nm - start_nm) / seg.slope_nm_per_s
+        acq.wait(ramp_s, abort_event=self.abort_event)
+
+        def near() -> bool:
+            tq = acq.latest_torque_nm()
+            return tq is not None and abs(tq - seg.target_nm) <= self.tolerance_nm
+
+        if not acq.wait(self.options.settle_timeout_s + 0.1 * ramp_s, abort_event=self.abort_event, until=near):
+            raise ProcedureError(f"loader did not reach {seg.target_nm:g} N·m within ±{self.tolerance_nm:g} N·m "
+                                 f"(measured {acq.latest_torque_nm()} N·m)")
+        if seg.dwell_s > 0:
+            acq.wait(seg.dwell_s, abort_event=self.abort_event)
+
+    def _safe_stop(self, acq: AcquisitionLoop) -> None:
+        """Ramp to zero torque and disable; every step tried even if an earlier one failed. Idempotent."""
+        with self._lock:
+            if self.record.loader_final is not None:
+                return
+            loader = self.bench.loader
+            slope = self.options.ramp_down_slope_nm_per_s or max(s.slope_nm_per_s for s in self.segments)
+            try:
+                acq.loader_command(loader.set_torque, 0.0, slope)
+                ramp_s = abs(self._setpoint_nm) / slope
+                self._setpoint_nm = 0.0
+                acq.wait(ramp_s, check_trips=False)
+                acq.wait(self.options.ramp_down_timeout_s, check_trips=False,
+                         until=lambda: abs(acq.latest_torque_nm() or 0.0) <= self.tolerance_nm)
+            except Exception as exc:
+                self.record.notes.append(f"ramp to zero failed: {exc}")
+            try:
+                acq.loader_command(loader.disable)
+            except Exception as exc:
+                self.record.notes.append(f"disable failed: {exc}")
+            acq.wait(self.options.settle_s, check_trips=False)
+            try:
+                status: LoaderStatus = acq.loader_command(loader.status)
+                self.record.loader_final = {"state": status.state, "torque_actual_nm": status.torque_actual_nm,
+                                            "fault": status.fault, "error_code": status.error_code}
+            except Exception as exc:
+                self.record.loader_final = {"state": "unknown", "error": str(exc)}
+
+    def _finish_early(self, acq: AcquisitionLoop | None, recorder, state: str, exc: BaseException) -> None:
+        if isinstance(exc, InterlockTripped):
+            reason = exc.trip.reason
+            self.record.trip = exc.trip.to_dict()
+        elif isinstance(exc, AbortRequested):
+            reason = exc.reason
+        else:
+            reason = str(exc) or type(exc).__name__
+            if not isinstance(exc, TcmsError):
+                reason = f"{type(exc).__name__}: {reason}"
+        if acq is not None:
+            if self.record.loading_window_s is None and self.record.state == LOADING:
+                start = next((h.time_s for h in self.record.history if h.state == LOADING), acq.clock.now())
+                self.record.loading_window_s = (start, acq.clock.now())
+            try:
+                self._safe_stop(acq)
+            except Exception as stop_exc:  # pragma: no cover - _safe_stop records its own failures
+                self.record.notes.append(f"safe stop: {stop_exc}")
+            self._collect(recorder)
+        self._transition(state, reason)
+
+    def _collect(self, recorder) -> None:
+        if recorder is None:
+            return
+        parts = [m.samples for m in recorder.drain() if isinstance(m, DataMessage)]
+        if parts:
+            self.record.samples = Samples.concat([self.record.samples, *parts]) if len(self.record.samples) \
+                else Samples.concat(parts)
+
+    # -- state machine -------------------------------------------------------------------------------
+    def _transition(self, state: str, reason: str | None = None) -> None:
+        current = self.record.state
+        if state not in TRANSITIONS[current]:
+            raise ProcedureError(f"invalid state transition {current} → {state}")
+        now = self._acq.clock.now() if self._acq is not None else self.bench.clock.now()
+        self.record.history.append(StateChange(state, now, time.time(), reason))
+        self.record.state = state
+        if reason is not None:
+            self.record.reason = reason
+        self._publish_state()
+
+    def _publish_state(self) -> None:
+        if self._acq is None:
+            return
+        last = self.record.history[-1] if self.record.history else None
+        self._acq.fanout.publish_event("state", last.time_s if last else self._acq.clock.now(),
+                                       run_id=self.run_id, state=self.record.state, reason=self.record.reason)
+
+
+def run_test(bench: Bench, profile: Any, **kwargs: Any) -> TestRun:
+    """Start a :class:`TestRun` in a thread and return it (``.join()`` for the record, ``.abort()`` to stop)."""
+    return TestRun(bench, profile, **kwargs).start()
+

@@ -1,0 +1,101 @@
+"""Fixtures for the acquisition tests: a small stand-in physics with the SimulatedBench contract, virtual
+benches built on it, and a short GB-style profile."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tcms_daq.acquisition import Segment, compose_bench
+from tcms_daq.samples import Samples
+
+RIGIDITY_NM_PER_ARCMIN = 300.0
+BACKLASH_ARCSEC = 10.0
+
+
+class LinearPhysics:
+    """Spring (RIGIDITY) plus a backlash step smoothed over ±20 N·m, drive lag, seeded sensor noise.
+
+    SimulatedBench contract: set_drive_enabled, set_torque_target(target, slope), advance(dt) -> Samples,
+    now_s. Sample rate 1 kHz.
+    """
+
+    def __init__(self, seed: int = 0, rate_hz: float = 1000.0, tau_s: float = 0.005,
+                 torque_noise_nm: float = 0.2, angle_noise_arcsec: float = 0.1):
+        self.rng = np.random.default_rng(seed)
+        self.rate_hz = rate_hz
+        self.tau_s = tau_s
+        self.torque_noise_nm = torque_noise_nm
+        self.angle_noise_arcsec = angle_noise_arcsec
+        self._n = 0  # samples produced; now_s = n / rate
+        self.enabled = False
+        self.target_nm = 0.0
+        self.slope_nm_per_s = 1e9
+        self.setpoint_nm = 0.0
+        self.applied_nm = 0.0
+
+    @property
+    def now_s(self) -> float:
+        return self._n / self.rate_hz
+
+    def set_drive_enabled(self, enabled: bool) -> None:
+        self.enabled = enabled
+        if not enabled:
+            self.target_nm = 0.0
+            self.setpoint_nm = 0.0
+
+    def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None:
+        self.target_nm = target_nm
+        self.slope_nm_per_s = slope_nm_per_s
+
+    def advance(self, duration_s: float) -> Samples:
+        n_end = int(round((self.now_s + duration_s) * self.rate_hz))
+        n = max(n_end - self._n, 0)
+        dt = 1.0 / self.rate_hz
+        t = (self._n + 1 + np.arange(n)) / self.rate_hz
+        applied = np.empty(n)
+        step = self.slope_nm_per_s * dt
+        alpha = dt / (self.tau_s + dt)
+        for i in range(n):  # fine for a test stand-in; the real sim is vectorised
+            if self.enabled:
+                self.setpoint_nm += float(np.clip(self.target_nm - self.setpoint_nm, -step, step))
+            self.applied_nm += alpha * (self.setpoint_nm - self.applied_nm)
+            applied[i] = self.applied_nm
+        self._n = n_end if n else self._n
+        angle = applied / RIGIDITY_NM_PER_ARCMIN * 60.0 + BACKLASH_ARCSEC / 2 * np.tanh(applied / 20.0)
+        torque = applied + self.rng.normal(0, self.torque_noise_nm, n)
+        angle = angle + self.rng.normal(0, self.angle_noise_arcsec, n)
+        return Samples(t, torque, angle, {"applied_torque_nm": applied})
+
+
+def virtual_config(max_torque_nm: float = 2000.0) -> dict:
+    inst = {"driver": "virtual", "url": "virtual://sim"}
+    return {"bench": {"name": "test bench", "max_torque_nm": max_torque_nm},
+            "instruments": {"angle": dict(inst), "torque": dict(inst), "loader": dict(inst)}}
+
+
+@pytest.fixture
+def make_bench():
+    def make(seed: int = 0, max_torque_nm: float = 2000.0, **physics_kw):
+        return compose_bench(virtual_config(max_torque_nm), physics_factory=lambda _cfg: LinearPhysics(seed, **physics_kw))
+
+    return make
+
+
+def gb_profile(peak_nm: float = 300.0, slope_nm_per_s: float = 600.0, loops: int = 2) -> list[Segment]:
+    """−T → 0 → +T → 0 → −T repeated ``loops`` times (starting from 0 to −T)."""
+    segs = [Segment(-peak_nm, slope_nm_per_s, 0.05, "to -T")]
+    for _ in range(loops):
+        segs += [Segment(0.0, slope_nm_per_s, 0.0, "unload"), Segment(peak_nm, slope_nm_per_s, 0.05, "load +"),
+                 Segment(0.0, slope_nm_per_s, 0.0, "unload"), Segment(-peak_nm, slope_nm_per_s, 0.05, "load -")]
+    return segs
+
+
+@pytest.fixture
+def profile():
+    return gb_profile()
+
+
+@pytest.fixture
+def make_profile():
+    return gb_profile

@@ -1,0 +1,82 @@
+"""The procedure state machine on the in-process virtual bench (stand-in physics, simulated clock)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tcms_daq.acquisition import ProfileRejected, TestRun
+from tcms_daq.acquisition.record import TRANSITIONS
+
+
+def secant_rigidity(samples, peak_nm: float) -> float:
+    """N·m/arcmin: line fits between 50 % and 95 % of the peak on each side, averaged."""
+    t, a = samples.torque_nm, samples.angle_arcsec
+    slopes = []
+    for sign in (1, -1):
+        sel = (sign * t > 0.5 * peak_nm) & (sign * t < 0.95 * peak_nm)
+        slopes.append(np.polyfit(t[sel], a[sel], 1)[0])
+    # the tanh backlash term is saturated above 150 N·m, so each side's slope is the spring's compliance
+    return 60.0 / float(np.mean(slopes))
+
+
+def test_completed_run_walks_the_states_and_ends_safe(make_bench, profile):
+    bench = make_bench()
+    record = TestRun(bench, profile, evaluate=lambda s: {"rigidity_nm_per_arcmin": secant_rigidity(s, 300.0)}).run()
+    assert record.state == "completed", record.reason
+    assert [h.state for h in record.history] == ["preparing", "loading", "evaluating", "completed"]
+    for a, b in zip(record.history, record.history[1:], strict=False):
+        assert b.state in TRANSITIONS[a.state]
+        assert b.time_s >= a.time_s
+    assert record.reason is None
+    assert record.loader_final["state"] == "SWITCH ON DISABLED"
+    assert abs(record.loader_final["torque_actual_nm"]) < 1.0
+    # the profile was driven: both peaks reached, every sample stamped in order
+    s = record.loading_samples()
+    assert s.torque_nm.max() > 290 and s.torque_nm.min() < -290
+    assert np.all(np.diff(record.samples.time_s) > 0)
+    assert record.evaluation["rigidity_nm_per_arcmin"] == pytest.approx(300.0, rel=0.02)
+    # the loader's commands: enable, the setpoints in order, zero, disable
+    cmds = bench.loader.commands
+    assert cmds[0][0] == "enable" and cmds[-1][0] == "disable"
+    targets = [v for c, v, _ in cmds if c == "torque"]
+    assert targets[: len(profile)] == [s.target_nm for s in profile]
+    assert targets[-1] == 0.0
+
+
+def test_simulated_clock_runs_the_same_run_deterministically(make_bench, profile):
+    a = TestRun(make_bench(seed=3), profile).run()
+    b = TestRun(make_bench(seed=3), profile).run()
+    assert a.state == b.state == "completed"
+    np.testing.assert_array_equal(a.samples.time_s, b.samples.time_s)
+    np.testing.assert_array_equal(a.samples.angle_arcsec, b.samples.angle_arcsec)
+
+
+def test_profile_above_the_bench_limit_is_rejected_before_anything_moves(make_bench, make_profile):
+    bench = make_bench(max_torque_nm=200.0)
+    with pytest.raises(ProfileRejected, match="bench limit 200"):
+        TestRun(bench, make_profile(peak_nm=300.0))
+    with pytest.raises(ProfileRejected, match="reducer limit 250"):
+        TestRun(make_bench(), make_profile(peak_nm=300.0), reducer_torque_limit_nm=250.0)
+    assert bench.loader.commands == []
+
+
+def test_abort_request_ramps_down_and_keeps_data(make_bench, profile):
+    bench = make_bench()
+    seen = []
+
+    def on_message(msg):
+        seen.append(msg)
+        if msg.kind == "data" and msg.samples.torque_nm.min() < -150 and not run.abort_event.is_set():
+            run.abort("operator pressed stop")
+
+    run = TestRun(bench, profile, subscribers=[on_message])
+    record = run.start().join(timeout=30)
+    assert record.state == "aborted"
+    assert record.reason == "operator pressed stop"
+    assert record.loader_final["state"] == "SWITCH ON DISABLED"
+    assert abs(record.loader_final["torque_actual_nm"]) < 1.0
+    assert len(record.samples) > 100
+    assert record.samples.torque_nm[-1] == pytest.approx(0.0, abs=2.0)
+    states = [m.details["state"] for m in seen if m.kind == "event" and m.event == "state"]
+    assert states[0] == "preparing" and states[-1] == "aborted"
