@@ -1,0 +1,247 @@
+"""The simulated bench: reducer physics, servo loader and sensors on one simulated clock.
+
+``SimulatedBench`` is the in-process ground truth every simulated instrument reads (the virtual drivers, the
+ND 287 / AED / CiA 402 protocol simulators). Time advances only when ``advance()`` is called, so a test runs
+as fast as the arrays can be computed. Per batch, vectorised:
+
+    demand (profile-torque ramp) → torque loop lag → applied torque → reducer twist (sim.physics)
+    → measuring chain (hook, default identity) → optional effects (hook, off by default)
+    → torque sensor (gain, offset, noise) and encoder (interpolation error, noise, quantisation)
+
+Hooks:
+* ``measuring_chain(true_angle_arcsec, torque_nm, time_s) -> encoder_arcsec``: geometric errors of the chain
+  between reducer output and encoder scale (filled by the compensation module from a geometry file).
+* ``effects(cols) -> cols | None``: hidden effects (sim/effects.py). ``cols`` holds ``time_s``,
+  ``applied_torque_nm``, ``true_angle_arcsec`` and the two sensor inputs ``torque_signal_nm`` and
+  ``angle_signal_arcsec``, which an effect may change (in place or in a returned dict) before the sensor models.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from sim.drive import TorqueDrive
+from sim.physics import LoopTruth, ReducerPhysics, TwistState, loop_truth, physics_from_spec, twist_arcsec
+from sim.sensors import EncoderModel, TorqueSensorModel
+from tcms_daq.config.models import BenchConfig, ReducerSpec
+from tcms_daq.errors import ConfigError
+from tcms_daq.samples import Samples
+
+MeasuringChain = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+Effects = Callable[[dict[str, np.ndarray]], "dict[str, np.ndarray] | None"]
+
+
+class SimulatedBench:
+    """Physics of the bench on a simulated clock (s). Thread-safe: commands and ``advance`` take a lock."""
+
+    def __init__(
+        self,
+        physics: ReducerPhysics,
+        *,
+        reducer: ReducerSpec | None = None,
+        sample_rate_hz: float = 500.0,
+        torque_loop_time_constant_s: float = 0.005,
+        max_torque_nm: float = 2000.0,
+        torque_noise_nm: float = 0.0,
+        torque_gain: float = 1.0,
+        torque_offset_nm: float = 0.0,
+        encoder_noise_arcsec: float = 0.0,
+        encoder_resolution_arcsec: float = 0.0,
+        encoder_signal_period_arcsec: float = 72.0,
+        encoder_interpolation_error_arcsec: float = 0.0,
+        seed: int = 0,
+        measuring_chain: MeasuringChain | None = None,
+        effects: Effects | None = None,
+    ):
+        self.physics = physics
+        self.reducer = reducer
+        self.sample_rate_hz = float(sample_rate_hz)
+        self.seed = int(seed)
+        self.max_torque_nm = float(max_torque_nm)
+        self.drive = TorqueDrive(self.sample_rate_hz, torque_loop_time_constant_s, max_torque_nm)
+        torque_rng, angle_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(2))
+        self.torque_sensor = TorqueSensorModel(torque_rng, torque_noise_nm, torque_gain, torque_offset_nm)
+        self.encoder = EncoderModel(angle_rng, encoder_noise_arcsec, encoder_resolution_arcsec,
+                                    encoder_signal_period_arcsec, encoder_interpolation_error_arcsec)
+        self.measuring_chain = measuring_chain
+        self.effects = effects
+        self._twist_state = TwistState()
+        self._n = 0  # samples emitted; sample k is at k / sample_rate_hz
+        self._now_s = 0.0
+        self._last: dict[str, float] = {
+            "time_s": 0.0, "applied_torque_nm": 0.0, "true_angle_arcsec": 0.0, "torque_nm": 0.0,
+            "angle_arcsec": 0.0, "demand_nm": 0.0,
+        }
+        self._lock = threading.RLock()
+
+    # ------------------------------------------------------------------------------------------ construction
+
+    @classmethod
+    def from_config(
+        cls,
+        cfg: BenchConfig,
+        reducer: ReducerSpec,
+        *,
+        seed: int | None = None,
+        measuring_chain: MeasuringChain | None = None,
+        effects: Effects | None = None,
+    ) -> SimulatedBench:
+        """A bench from the [sim] table of a bench config and a catalogue reducer."""
+        s = cfg.sim
+        if effects is None and s.effects:
+            effects = _effects_from_config(s.effects, seed=s.seed if seed is None else seed, source=cfg.source_path)
+        return cls(
+            physics_from_spec(reducer),
+            reducer=reducer,
+            sample_rate_hz=s.sample_rate_hz,
+            torque_loop_time_constant_s=s.torque_loop_time_constant_s,
+            max_torque_nm=cfg.bench.max_torque_nm,
+            torque_noise_nm=s.torque_noise_nm,
+            torque_gain=s.torque_gain,
+            torque_offset_nm=s.torque_offset_nm,
+            encoder_noise_arcsec=s.encoder_noise_arcsec,
+            encoder_resolution_arcsec=s.encoder_resolution_arcsec,
+            encoder_signal_period_arcsec=s.encoder_signal_period_arcsec,
+            encoder_interpolation_error_arcsec=s.encoder_interpolation_error_arcsec,
+            seed=s.seed if seed is None else seed,
+            measuring_chain=measuring_chain,
+            effects=effects,
+        )
+
+    # ------------------------------------------------------------------------------------------ commands
+
+    @property
+    def now_s(self) -> float:
+        """Simulated time (s) since the bench was created."""
+        return self._now_s
+
+    @property
+    def drive_enabled(self) -> bool:
+        return self.drive.enabled
+
+    def set_drive_enabled(self, enabled: bool) -> None:
+        """Enable the loader (torque demand ramps from 0 to the target) or disable it (demand 0 at once)."""
+        with self._lock:
+            self.drive.set_enabled(bool(enabled), self._now_s)
+
+    def set_torque_target(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        """Profile torque: ramp the demand to ``target_nm`` at ``slope_nm_per_s`` (None: a step).
+
+        The target is clamped to ±max_torque_nm (what the motor can deliver); interlocks are not the physics' job.
+        """
+        with self._lock:
+            self.drive.command(float(target_nm), slope_nm_per_s, self._now_s)
+
+    def tare(self, duration_s: float = 0.1) -> float:
+        """Zero the torque reading: average it over ``duration_s`` (the clock advances) and subtract from now on."""
+        with self._lock:
+            batch = self.advance(duration_s)
+            if len(batch):
+                self.torque_sensor.tare_nm += float(np.mean(batch.torque_nm))
+            return self.torque_sensor.tare_nm
+
+    # ------------------------------------------------------------------------------------------ clock
+
+    def advance(self, duration_s: float) -> Samples:
+        """Run the simulated clock forward by ``duration_s`` and return the samples taken meanwhile.
+
+        Columns: ``time_s``; ``torque_nm`` (torque sensor reading); ``angle_arcsec`` (raw encoder reading); extra
+        ``applied_torque_nm`` (true torque in the reducer), ``true_angle_arcsec`` (true output twist) and
+        ``demand_nm`` (the drive's torque demand).
+        """
+        if not duration_s >= 0 or not math.isfinite(duration_s):
+            raise ValueError(f"duration_s must be finite and >= 0 (got {duration_s})")
+        with self._lock:
+            end_s = self._now_s + duration_s
+            n_end = int(math.floor(end_s * self.sample_rate_hz + 1e-9))
+            k = np.arange(self._n + 1, n_end + 1, dtype=float)
+            self._now_s = end_s
+            if k.size == 0:
+                return _empty_samples()
+            self._n = n_end
+            time_s = k / self.sample_rate_hz
+            demand, applied = self.drive.step(time_s)
+            true_angle, self._twist_state = twist_arcsec(applied, self.physics, self._twist_state)
+            angle_signal = true_angle if self.measuring_chain is None else np.asarray(
+                self.measuring_chain(true_angle, applied, time_s), dtype=float)
+            cols = {
+                "time_s": time_s,
+                "applied_torque_nm": applied,
+                "true_angle_arcsec": true_angle,
+                "torque_signal_nm": applied,
+                "angle_signal_arcsec": angle_signal,
+            }
+            if self.effects is not None:
+                returned = self.effects(cols)
+                if returned is not None:
+                    cols = returned
+            torque_reading = self.torque_sensor.read(cols["torque_signal_nm"])
+            angle_reading = self.encoder.read(cols["angle_signal_arcsec"])
+            self._last = {
+                "time_s": float(time_s[-1]),
+                "applied_torque_nm": float(applied[-1]),
+                "true_angle_arcsec": float(true_angle[-1]),
+                "torque_nm": float(torque_reading[-1]),
+                "angle_arcsec": float(angle_reading[-1]),
+                "demand_nm": float(demand[-1]),
+            }
+            return Samples(
+                time_s,
+                torque_reading,
+                angle_reading,
+                {"applied_torque_nm": applied, "true_angle_arcsec": true_angle, "demand_nm": demand},
+            )
+
+    # ------------------------------------------------------------------------------------------ state
+
+    def snapshot(self) -> dict[str, Any]:
+        """The present state: clock, drive and the last sample's values (plain floats/bools, JSON-ready)."""
+        with self._lock:
+            return {
+                "now_s": self._now_s,
+                "samples": self._n,
+                "sample_rate_hz": self.sample_rate_hz,
+                "drive_enabled": self.drive.enabled,
+                "target_nm": self.drive.target_nm,
+                "slope_nm_per_s": self.drive.slope_nm_per_s,
+                "demand_now_nm": self.drive.demand_setpoint_nm(self._now_s),
+                "reducer": self.physics.name,
+                "tare_nm": self.torque_sensor.tare_nm,
+                "last": dict(self._last),
+            }
+
+    def truth(self, test_torque_nm: float | None = None, lost_motion_pct: float | None = None,
+              rigidity_interval: tuple[float, float] = (0.5, 1.0)) -> LoopTruth:
+        """Exact characteristics of the simulated reducer's steady loop between ±test torque (sim.physics)."""
+        rated = self.reducer.rated_torque_nm if self.reducer is not None else None
+        if test_torque_nm is None:
+            if rated is None:
+                raise ValueError("test_torque_nm is needed when the bench has no catalogue reducer")
+            test_torque_nm = rated
+        pct = lost_motion_pct if lost_motion_pct is not None else (
+            self.reducer.lost_motion_pct if self.reducer is not None else 3.0)
+        return loop_truth(self.physics, test_torque_nm, rated if rated is not None else test_torque_nm, pct,
+                          rigidity_interval)
+
+
+def _empty_samples() -> Samples:
+    e = np.empty(0)
+    return Samples(e, e, e, {"applied_torque_nm": e, "true_angle_arcsec": e, "demand_nm": e})
+
+
+def _effects_from_config(table: dict[str, Any], *, seed: int, source: str | None) -> Effects | None:
+    """Build the hidden-effects hook from a [sim.effects] table via ``sim.effects.from_config`` (if present)."""
+    where = source or "<config>"
+    try:
+        from sim import effects as effects_module  # optional module (hidden effects)
+    except ImportError:
+        raise ConfigError(f"{where}: sim.effects: effects configured but sim/effects.py is not available") from None
+    build = getattr(effects_module, "from_config", None)
+    if build is None:
+        raise ConfigError(f"{where}: sim.effects: sim/effects.py has no from_config(table, seed=...)")
+    return build(table, seed=seed)

@@ -1,0 +1,227 @@
+"""Pydantic models of the configuration: the bench, the reducer catalogue and test profiles.
+
+Units are in the field names (``_nm``, ``_arcsec``, ``_s``, ``_hz``). Sign convention everywhere: positive torque
+twists the reducer output towards positive angle.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
+
+# ------------------------------------------------------------------------------------------------- reducers
+
+
+class ReducerSimSpec(BaseModel):
+    """True characteristics the simulated bench gives this reducer (not catalogue limits).
+
+    backlash_arcsec: loop width at zero torque (Nabtesco "backlash" = hysteresis loss) of a loop between ±rated
+        torque. Produced by the friction hysteresis (a symmetric Dahl loop), so the midline is unaffected at 0.
+    lost_motion_zone_arcsec: full height of the smooth lost-motion zone (L/2)·tanh(T/T_b) on the midline.
+    lost_motion_zone_pct: T_b in % of the rated torque (the torque over which the zone is taken up).
+    friction_transition_pct: T_z of the Dahl loop in % of the rated torque (how fast a branch saturates after a
+        torque reversal; 3·T_z ≈ 95 % of the width is built up).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    backlash_arcsec: float = Field(25.0, ge=0.0)
+    lost_motion_zone_arcsec: float = Field(12.0, ge=0.0)
+    lost_motion_zone_pct: float = Field(1.0, gt=0.0, le=50.0)
+    friction_transition_pct: float = Field(3.0, gt=0.0, le=50.0)
+
+
+class ReducerSpec(BaseModel):
+    """One catalogue entry.
+
+    kind "rv": a single catalogue torsional rigidity (secant, N·m/arcmin). kind "harmonic": Harmonic Drive piecewise
+    stiffness K1 (0…T1), K2 (T1…T2), K3 (>T2) in N·m/rad. Limits are pass/fail limits for the evaluation.
+    ``sources`` maps a field name to where its value comes from; ``assumed`` lists fields whose values are
+    assumptions (not confirmed in a primary source).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str
+    kind: Literal["rv", "harmonic"]
+    rated_torque_nm: float = Field(gt=0.0)
+    ratio: float | None = Field(None, gt=0.0)
+    rigidity_nm_per_arcmin: float | None = Field(None, gt=0.0)
+    t1_nm: float | None = Field(None, gt=0.0)
+    t2_nm: float | None = Field(None, gt=0.0)
+    k1_nm_per_rad: float | None = Field(None, gt=0.0)
+    k2_nm_per_rad: float | None = Field(None, gt=0.0)
+    k3_nm_per_rad: float | None = Field(None, gt=0.0)
+    backlash_limit_arcsec: float = Field(60.0, gt=0.0)
+    lost_motion_limit_arcsec: float = Field(60.0, gt=0.0)
+    lost_motion_pct: float = Field(3.0, gt=0.0, le=50.0)
+    rigidity_min_nm_per_arcmin: float | None = Field(None, gt=0.0)
+    sim: ReducerSimSpec = Field(default_factory=ReducerSimSpec)
+    sources: dict[str, str] = Field(default_factory=dict)
+    assumed: list[str] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _check_kind(self) -> ReducerSpec:
+        if self.kind == "rv" and self.rigidity_nm_per_arcmin is None:
+            raise ValueError("kind 'rv' needs rigidity_nm_per_arcmin")
+        if self.kind == "harmonic":
+            missing = [
+                k
+                for k in ("t1_nm", "t2_nm", "k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad")
+                if getattr(self, k) is None
+            ]
+            if missing:
+                raise ValueError(f"kind 'harmonic' needs {', '.join(missing)}")
+            if self.t2_nm <= self.t1_nm:  # type: ignore[operator]
+                raise ValueError(f"t2_nm ({self.t2_nm}) must be greater than t1_nm ({self.t1_nm})")
+        known = set(type(self).model_fields)
+        for key in list(self.sources) + list(self.assumed):
+            if key not in known:
+                raise ValueError(f"sources/assumed name unknown field {key!r}")
+        return self
+
+    @property
+    def hd_breakpoints_nm(self) -> tuple[float, float] | None:
+        if self.kind != "harmonic":
+            return None
+        return (float(self.t1_nm), float(self.t2_nm))  # type: ignore[arg-type]
+
+    def nominal_rigidity_nm_per_arcmin(self, test_torque_nm: float | None = None,
+                                       interval: tuple[float, float] = (0.5, 1.0)) -> float:
+        """Catalogue rigidity; for a Harmonic Drive the secant of the K1/K2/K3 curve over the interval."""
+        if self.kind == "rv":
+            return float(self.rigidity_nm_per_arcmin)  # type: ignore[arg-type]
+        t = self.rated_torque_nm if test_torque_nm is None else test_torque_nm
+        lo, hi = interval[0] * t, interval[1] * t
+        d_arcsec = hd_twist_arcsec(hi, self) - hd_twist_arcsec(lo, self)
+        return (hi - lo) / d_arcsec * ARCSEC_PER_ARCMIN
+
+    def limits(self) -> dict[str, float]:
+        """Pass/fail limits: maxima for backlash and lost motion, a minimum rigidity when the catalogue has one."""
+        out = {
+            "backlash_arcsec_max": self.backlash_limit_arcsec,
+            "lost_motion_arcsec_max": self.lost_motion_limit_arcsec,
+        }
+        if self.rigidity_min_nm_per_arcmin is not None:
+            out["rigidity_nm_per_arcmin_min"] = self.rigidity_min_nm_per_arcmin
+        return out
+
+
+def hd_twist_arcsec(torque_nm: float, spec: ReducerSpec) -> float:
+    """Harmonic Drive catalogue twist (one direction, from zero torque) in arcsec; odd in the torque."""
+    t = abs(float(torque_nm))
+    t1, t2 = float(spec.t1_nm), float(spec.t2_nm)  # type: ignore[arg-type]
+    k1, k2, k3 = float(spec.k1_nm_per_rad), float(spec.k2_nm_per_rad), float(spec.k3_nm_per_rad)  # type: ignore[arg-type]
+    if t <= t1:
+        phi = t / k1
+    elif t <= t2:
+        phi = t1 / k1 + (t - t1) / k2
+    else:
+        phi = t1 / k1 + (t2 - t1) / k2 + (t - t2) / k3
+    return math.copysign(phi * ARCSEC_PER_RAD, torque_nm)
+
+
+# ------------------------------------------------------------------------------------------------- profiles
+
+
+class TestProfile(BaseModel):
+    """A stiffness test profile (DESIGN §2): GB-style sequence −T → 0 → +T → 0 → −T (or mirrored).
+
+    kind "continuous": constant torque rate ``rate_nm_per_s``; "stepped": equal steps of ``step_nm`` with
+    ``dwell_s`` at each level (transitions at ``rate_nm_per_s``). ``max_torque_nm`` None = the reducer's rated
+    torque; ``rate_nm_per_s`` None = a quarter of the test torque per second. ``conditioning_loops`` loops are run
+    (and recorded, marked) before the ``cycles`` evaluated loops. ``tip_dwell_s``: hold at ±T before reversing.
+    """
+
+    __test__ = False  # not a pytest test class
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["continuous", "stepped"] = "continuous"
+    max_torque_nm: float | None = Field(None, gt=0.0)
+    rate_nm_per_s: float | None = Field(None, gt=0.0)
+    cycles: int = Field(3, ge=1, le=1000)
+    conditioning_loops: int = Field(1, ge=1, le=100)
+    step_nm: float = Field(50.0, gt=0.0)
+    dwell_s: float = Field(1.0, ge=0.0)
+    tip_dwell_s: float = Field(0.2, ge=0.0)
+    start: Literal["negative", "positive"] = "negative"
+
+
+# ------------------------------------------------------------------------------------------------- bench
+
+
+class InstrumentConfig(BaseModel):
+    """One instrument: a driver name from the registry and a transport URL; driver options as extra keys."""
+
+    model_config = ConfigDict(extra="allow")
+
+    driver: str = "virtual"
+    url: str = "virtual://sim"
+
+
+class InstrumentsConfig(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    angle: InstrumentConfig = Field(default_factory=InstrumentConfig)
+    torque: InstrumentConfig = Field(default_factory=InstrumentConfig)
+    loader: InstrumentConfig = Field(default_factory=InstrumentConfig)
+
+
+class BenchSection(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    name: str = "bench"
+    max_torque_nm: float = Field(2000.0, gt=0.0)
+    compensation: str | None = None
+    reducers: str = "reducers.toml"
+
+
+class SimConfig(BaseModel):
+    """The simulated bench (sim/): clock, drive, sensors; ``effects`` is the [sim.effects] table (sim/effects.py).
+
+    torque_loop_time_constant_s: first-order lag of the drive's torque loop behind its profile-torque ramp.
+    torque_gain: sensor reading = gain·applied + offset + noise. encoder_resolution_arcsec: quantisation step.
+    encoder_interpolation_error_arcsec: amplitude of the sinusoidal interpolation error over one signal period.
+    geometry: measuring-chain geometry file (relative to the config file), read by the compensation module.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    seed: int = Field(0, ge=0)
+    sample_rate_hz: float = Field(500.0, gt=0.0, le=1.0e6)
+    reducer: str = "RV-110E"
+    torque_loop_time_constant_s: float = Field(0.005, ge=0.0)
+    torque_noise_nm: float = Field(0.3, ge=0.0)
+    torque_gain: float = Field(1.0, gt=0.0)
+    torque_offset_nm: float = 0.0
+    encoder_noise_arcsec: float = Field(0.2, ge=0.0)
+    encoder_resolution_arcsec: float = Field(0.1, ge=0.0)
+    encoder_signal_period_arcsec: float = Field(72.0, gt=0.0)
+    encoder_interpolation_error_arcsec: float = Field(0.0, ge=0.0)
+    geometry: str | None = None
+    effects: dict[str, Any] = Field(default_factory=dict)
+
+
+class BenchConfig(BaseModel):
+    """A bench configuration file (config/bench-*.toml). Unknown top-level tables are kept for other modules."""
+
+    model_config = ConfigDict(extra="allow")
+
+    bench: BenchSection = Field(default_factory=BenchSection)
+    instruments: InstrumentsConfig = Field(default_factory=InstrumentsConfig)
+    sim: SimConfig = Field(default_factory=SimConfig)
+    procedure: TestProfile = Field(default_factory=TestProfile)
+    source_path: str | None = Field(None, exclude=True)
+
+    def resolve(self, relative: str) -> str:
+        """A path named in this file, resolved relative to the file's directory."""
+        from pathlib import Path
+
+        p = Path(relative)
+        if p.is_absolute() or self.source_path is None:
+            return str(p)
+        return str(Path(self.source_path).parent / p)
