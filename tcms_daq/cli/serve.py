@@ -1,0 +1,86 @@
+"""``tcms serve``: the FastAPI service with the dashboard, REST API, live WebSockets and the run store."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+from tcms_daq.errors import ConfigError
+
+DEFAULT_DATA_DIR = "data"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "serve",
+        help="run the web service (dashboard, REST API, live data)",
+        description="Start the TCMS-DAQ service. Default: the simulated bench in-process and a SQLite (WAL) "
+        "run store in the data directory. Mutating endpoints need 'Authorization: Bearer <token>'; the token "
+        "comes from the config ([service] api_token), TCMS_API_TOKEN, or is generated and printed.",
+    )
+    p.add_argument("--config", type=Path, default=None, help="bench config TOML (default: config/bench-sim.toml)")
+    p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 = any free port)")
+    p.add_argument("--data-dir", type=Path, default=None,
+                   help=f"run store directory (default: $TCMS_DATA_DIR or ./{DEFAULT_DATA_DIR})")
+    p.add_argument("--sim-speed", type=float, default=1.0,
+                   help="simulated seconds per real second for a simulated bench (default 1 = real time)")
+    p.add_argument("--log-level", default="warning", choices=["critical", "error", "warning", "info", "debug"])
+    p.set_defaults(func=run)
+
+
+def _service_token(config_path: Path | None) -> str | None:
+    """``[service] api_token`` from the bench config, if present."""
+    if config_path is None:
+        return None
+    import tomllib
+
+    try:
+        data = tomllib.loads(config_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{config_path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{config_path}: invalid TOML ({exc})") from None
+    token = (data.get("service") or {}).get("api_token")
+    return str(token) if token else None
+
+
+def run(args: argparse.Namespace) -> int:
+    import socket
+
+    import uvicorn
+
+    from tcms_daq.service.app import ServiceSettings, create_app
+
+    if not (args.sim_speed > 0 and math.isfinite(args.sim_speed)):
+        raise ConfigError(f"--sim-speed must be a positive number, got {args.sim_speed}")
+    if not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port must be 0…65535, got {args.port}")
+    data_dir = args.data_dir or Path(os.environ.get("TCMS_DATA_DIR", DEFAULT_DATA_DIR))
+    settings = ServiceSettings(
+        data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(args.config)
+    )
+    app = create_app(settings)
+
+    sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((args.host, args.port))
+    except OSError as exc:
+        raise ConfigError(f"cannot listen on {args.host}:{args.port} ({exc.strerror})") from None
+    port = sock.getsockname()[1]
+    shown_host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+    token = app.state.api_token
+    where = {"generated": "generated for this session", "environment": "from TCMS_API_TOKEN",
+             "config": f"from {args.config}"}[app.state.api_token_source]
+    print(f"TCMS-DAQ service on http://{shown_host}:{port}/  (store: {data_dir}, sim speed {args.sim_speed:g})")
+    print(f"  dashboard: http://{shown_host}:{port}/?token={token}")
+    print(f"  API token ({where}): {token}")
+    print(f"  OpenAPI docs: http://{shown_host}:{port}/docs", flush=True)
+    config = uvicorn.Config(app, log_level=args.log_level, ws_per_message_deflate=False, lifespan="on",
+                            timeout_graceful_shutdown=10)
+    server = uvicorn.Server(config)
+    server.run(sockets=[sock])
+    return 0 if server.started else 1

@@ -1,0 +1,271 @@
+"""The FastAPI application: REST under ``/api``, ``/metrics``, the live and event WebSockets and the dashboard.
+
+``create_app(settings)`` builds the app; its lifespan opens the run store (marking runs a previous process left
+active as ``interrupted``), starts the bench runner (acquisition → live hub), the live framer task and the test
+manager, and tears them down in reverse order (an active test is aborted, the bench ramps down).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import Depends, FastAPI, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from tcms_daq.service import exports
+from tcms_daq.service.auth import require_token, resolve_token
+from tcms_daq.service.events import CLOSE_TRY_AGAIN_LATER, EventHub
+from tcms_daq.service.live import LiveHub, schema_message
+from tcms_daq.service.metrics import ServiceCollector, make_registry, render
+from tcms_daq.service.report import render_report
+from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
+from tcms_daq.service.schemas import Health, TestAccepted, TestRequest, TestSummary
+from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
+from tcms_daq.store import RunStore
+
+STATIC_DIR = Path(__file__).parent / "static"
+STORE_FILENAME = "tcms-runs.sqlite3"
+
+
+@dataclass
+class ServiceSettings:
+    """What ``tcms serve`` configures. ``sim_speed``: simulated seconds per real second."""
+
+    data_dir: Path
+    config_path: Path | None = None
+    sim_speed: float = 1.0
+    api_token: str | None = None
+    frame_rate_hz: float = 25.0
+    live_queue_frames: int = 50
+    live_stall_timeout_s: float = 5.0
+    recorder_flush_s: float = 0.2
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _one_line_validation_error(exc: RequestValidationError) -> str:
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body")
+        msg = str(err.get("msg", "invalid value"))
+        parts.append(f"{loc}: {msg}" if loc else msg)
+    return "; ".join(parts) or "invalid request"
+
+
+def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastAPI:
+    token, token_source = resolve_token(settings.api_token)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        store = RunStore(settings.data_dir / STORE_FILENAME)
+        bench = runner or await asyncio.to_thread(
+            BenchRunner.from_config, settings.config_path, sim_speed=settings.sim_speed
+        )
+        live = LiveHub(settings.frame_rate_hz, settings.live_queue_frames, settings.live_stall_timeout_s)
+        events = EventHub()
+        events.bind_loop(asyncio.get_running_loop())
+        manager = TestManager(store, bench, events, recorder_flush_s=settings.recorder_flush_s)
+        for run_id in store.recovered_run_ids:
+            events.publish("test_state", id=run_id, status="interrupted", error="service restarted")
+        app.state.store, app.state.runner, app.state.live = store, bench, live
+        app.state.events, app.state.manager = events, manager
+        app.state.metrics = make_registry(ServiceCollector(live, events, store, lambda: manager.active_id))
+        framer = asyncio.create_task(live.run(), name="live-framer")
+        await asyncio.to_thread(bench.open, live.publish)
+        try:
+            yield
+        finally:
+            await asyncio.to_thread(manager.shutdown)
+            await asyncio.to_thread(bench.close)
+            framer.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await framer
+            for client in tuple(live.clients):
+                client.close()
+            store.close()
+
+    app = FastAPI(
+        title="TCMS-DAQ",
+        summary="Torsional characteristic tests of precision reducers: acquisition, live data, results.",
+        version="0.1.0",
+        lifespan=lifespan,
+    )
+    app.state.api_token = token
+    app.state.api_token_source = token_source
+    app.state.settings = settings
+    auth = [Depends(require_token)]
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = jsonable_encoder(exc.errors(), custom_encoder={Exception: str})
+        return JSONResponse({"detail": _one_line_validation_error(exc), "errors": errors}, status_code=422)
+
+    @app.exception_handler(RequestRejected)
+    async def _rejected(request: Request, exc: RequestRejected) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=422)
+
+    @app.exception_handler(Conflict)
+    async def _conflict(request: Request, exc: Conflict) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=409)
+
+    @app.exception_handler(UnknownRun)
+    async def _unknown(request: Request, exc: UnknownRun) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=404)
+
+    def _record(request: Request, run_id: str):
+        record = request.app.state.store.get_run(run_id)
+        if record is None:
+            raise UnknownRun(f"no test with id {run_id!r}")
+        return record
+
+    # -- REST ------------------------------------------------------------------------------------------------
+    @app.get("/api/health", response_model=Health, tags=["service"])
+    def health() -> dict:
+        return {"status": "ok"}
+
+    @app.get("/api/bench", tags=["bench"])
+    def bench_status(request: Request) -> dict:
+        state = request.app.state
+        return {
+            **state.runner.status(),
+            "active_test": state.manager.active_id,
+            "live": {
+                "acquisition_rate_samples_per_second": state.live.acquisition_rate_hz(),
+                "frame_rate_hz": state.live.frame_rate_hz,
+                "clients": len(state.live.clients),
+            },
+        }
+
+    @app.post("/api/tests", status_code=202, response_model=TestAccepted, dependencies=auth, tags=["tests"])
+    def create_test(body: TestRequest, request: Request) -> dict:
+        record = request.app.state.manager.submit(body)
+        return {"id": record.id, "status": record.status}
+
+    @app.get("/api/tests", response_model=list[TestSummary], tags=["tests"])
+    def list_tests(
+        request: Request, limit: Annotated[int, Query(ge=1, le=1000)] = 100, offset: Annotated[int, Query(ge=0)] = 0
+    ) -> list[dict]:
+        return [r.summary() for r in request.app.state.store.list_runs(limit, offset)]
+
+    @app.get("/api/tests/{run_id}", response_model=TestSummary, tags=["tests"])
+    def get_test(run_id: str, request: Request) -> dict:
+        return _record(request, run_id).summary()
+
+    @app.get("/api/tests/{run_id}/profile", tags=["tests"])
+    def get_profile(run_id: str, request: Request) -> dict:
+        return _record(request, run_id).profile or {}
+
+    @app.post("/api/tests/{run_id}/abort", status_code=202, response_model=TestAccepted, dependencies=auth,
+              tags=["tests"])
+    def abort_test(run_id: str, request: Request) -> dict:
+        record = request.app.state.manager.abort(run_id)
+        return {"id": record.id, "status": "aborting"}
+
+    @app.get("/api/tests/{run_id}/samples", tags=["tests"])
+    def get_samples(
+        run_id: str, request: Request, format: Annotated[str, Query(pattern="^(csv|json|parquet|mdf4)$")] = "csv"
+    ) -> Response:
+        record = _record(request, run_id)
+        columns = request.app.state.store.read_columns(record.id)
+        exporter, media_type, ext = exports.EXPORTERS[format]
+        body = exporter(columns, record.id)
+        return Response(
+            body, media_type=media_type,
+            headers={"Content-Disposition": f'attachment; filename="tcms-{record.id}.{ext}"'},
+        )
+
+    @app.get("/api/tests/{run_id}/report", response_class=HTMLResponse, tags=["tests"])
+    def get_report(run_id: str, request: Request) -> HTMLResponse:
+        record = _record(request, run_id)
+        return HTMLResponse(render_report(record, request.app.state.store.read_columns(record.id)))
+
+    @app.get("/api/compensation", response_class=PlainTextResponse, tags=["compensation"])
+    def get_compensation(request: Request) -> PlainTextResponse:
+        """The compensator the next test will use, as TOML."""
+        return PlainTextResponse(request.app.state.runner.compensator_toml(), media_type="application/toml")
+
+    @app.put("/api/compensation", response_class=PlainTextResponse, dependencies=auth, tags=["compensation"])
+    async def put_compensation(request: Request) -> PlainTextResponse:
+        """Replace the compensator with the TOML in the body (422 if it does not parse; 409 during a test)."""
+        raw = await request.body()
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise RequestRejected("compensation body is not UTF-8 TOML text") from None
+        state = request.app.state
+        if state.manager.active_id is not None:
+            raise Conflict(f"test {state.manager.active_id} is running; change the compensation after it")
+        await asyncio.to_thread(state.runner.set_compensator_toml, text)
+        state.events.publish("compensation_changed")
+        return PlainTextResponse(state.runner.compensator_toml(), media_type="application/toml")
+
+    @app.get("/api/live/clients", tags=["live"])
+    def live_clients(request: Request) -> dict:
+        live: LiveHub = request.app.state.live
+        return {
+            "sequence": live.sequence,
+            "frames_total": live.frames_total,
+            "dropped_total": live.dropped_total(),
+            "evicted_total": live.evicted_total,
+            "clients": live.client_stats(),
+        }
+
+    @app.get("/metrics", tags=["service"])
+    def metrics(request: Request) -> Response:
+        return Response(render(request.app.state.metrics), media_type="text/plain; version=0.0.4; charset=utf-8")
+
+    # -- WebSockets ------------------------------------------------------------------------------------------
+    async def _until_disconnect(ws: WebSocket) -> None:
+        try:
+            while True:
+                message = await ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    return
+        except (WebSocketDisconnect, RuntimeError):
+            return
+
+    @app.websocket("/ws/live")
+    async def ws_live(ws: WebSocket) -> None:
+        live: LiveHub = ws.app.state.live
+        await ws.accept()
+        await ws.send_json(schema_message(live.frame_rate_hz))
+        client = await live.serve(ws.send_bytes, _until_disconnect(ws))
+        if client.evicted:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(ws.close(code=CLOSE_TRY_AGAIN_LATER, reason="stalled: evicted"), 1.0)
+
+    @app.websocket("/ws/events")
+    async def ws_events(ws: WebSocket) -> None:
+        events: EventHub = ws.app.state.events
+        since_text = ws.query_params.get("since")
+        try:
+            since = int(since_text) if since_text is not None else None
+        except ValueError:
+            await ws.close(code=1008, reason="since must be an integer")
+            return
+        await ws.accept()
+        client = await events.serve(ws.send_json, _until_disconnect(ws), since=since)
+        if client.overflowed:
+            with contextlib.suppress(Exception):
+                await ws.close(code=CLOSE_TRY_AGAIN_LATER, reason="event backlog overflow: reconnect with ?since=")
+
+    # -- dashboard -------------------------------------------------------------------------------------------
+    @app.get("/", include_in_schema=False)
+    def dashboard() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+
+    @app.exception_handler(HTTPException)
+    async def _http(request: Request, exc: HTTPException) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
+
+    return app

@@ -1,0 +1,37 @@
+"""Bearer-token auth for mutating endpoints (DESIGN §7).
+
+The token comes from config, else ``TCMS_API_TOKEN``; with neither, a random one is generated at start and
+printed with the dashboard URL (as Jupyter does). Read endpoints stay open.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+
+from fastapi import HTTPException, Request, status
+
+TOKEN_ENV = "TCMS_API_TOKEN"
+
+
+def resolve_token(configured: str | None) -> tuple[str, str]:
+    """(token, where it came from: 'config' | 'environment' | 'generated')."""
+    if configured:
+        return configured, "config"
+    env = os.environ.get(TOKEN_ENV, "").strip()
+    if env:
+        return env, "environment"
+    return secrets.token_urlsafe(24), "generated"
+
+
+def require_token(request: Request) -> None:
+    """FastAPI dependency: 401 unless ``Authorization: Bearer <token>`` matches the service token."""
+    expected: str = request.app.state.api_token
+    header = request.headers.get("authorization", "")
+    scheme, _, given = header.partition(" ")
+    if scheme.lower() != "bearer" or not given or not secrets.compare_digest(given.strip(), expected):
+        raise HTTPException(
+            status_code=status.HTTP_401_UNAUTHORIZED,
+            detail="missing or invalid bearer token (Authorization: Bearer <token>)",
+            headers={"WWW-Authenticate": "Bearer"},
+        )

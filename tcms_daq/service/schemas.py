@@ -1,0 +1,57 @@
+"""Request and response bodies of the REST API (pydantic models; names carry units)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class TestRequest(BaseModel):
+    """``POST /api/tests``: one torsional characteristic test.
+
+    Continuous profiles ramp at ``rate_nm_per_s``; stepped profiles go in ``step_nm`` steps with ``dwell_s``
+    at each step (the torque moves between steps at ``rate_nm_per_s``).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    reducer: str = Field(min_length=1, max_length=64, description="reducer model from the catalogue, e.g. RV-110E")
+    max_torque_nm: float = Field(gt=0, description="test torque T (the profile runs between −T and +T), N·m")
+    cycles: int = Field(default=3, ge=1, le=50, description="evaluated hysteresis loops")
+    profile: Literal["continuous", "stepped"] = "continuous"
+    rate_nm_per_s: float | None = Field(default=None, gt=0, le=1e5, description="torque rate, N·m/s")
+    step_nm: float | None = Field(default=None, gt=0, description="torque step of a stepped profile, N·m")
+    dwell_s: float | None = Field(default=None, ge=0, le=600, description="dwell at each step, s")
+    serial_number: str | None = Field(default=None, max_length=64)
+    operator: str | None = Field(default=None, max_length=64)
+
+    @model_validator(mode="after")
+    def _stepped_fields(self) -> TestRequest:
+        if self.profile == "continuous" and (self.step_nm is not None or self.dwell_s is not None):
+            raise ValueError("step_nm and dwell_s apply only to profile 'stepped'")
+        if self.step_nm is not None and self.step_nm > self.max_torque_nm:
+            raise ValueError(f"step_nm {self.step_nm} exceeds max_torque_nm {self.max_torque_nm}")
+        return self
+
+
+class TestAccepted(BaseModel):
+    id: str
+    status: str
+
+
+class TestSummary(BaseModel):
+    id: str
+    status: Literal["queued", "running", "completed", "aborted", "failed", "interrupted"]
+    created_at: str | None
+    started_at: str | None
+    finished_at: str | None
+    request: dict[str, Any]
+    results: dict[str, Any] | None
+    error: str | None
+    sample_count: int
+    channels: list[str]
+
+
+class Health(BaseModel):
+    status: Literal["ok"]

@@ -1,0 +1,329 @@
+// TCMS-DAQ dashboard: live binary frames -> ring of typed-array chunks -> uPlot.setData once per animation frame.
+// Frame layout (little-endian): "TCMS", u16 version, u16 n_channels, u64 sequence, f64 t0_s, u32 n_samples,
+// u32 dropped, then n_channels float32 columns (time_s - t0_s, torque_nm, encoder_arcsec, angle_arcsec).
+"use strict";
+(() => {
+  const $ = (id) => document.getElementById(id);
+  const HEADER_SIZE = 32;
+  const WINDOW_S = 10;          // visible history of the time traces (acquisition clock seconds)
+  const LOOP_MAX_POINTS = 3000; // hysteresis loop is decimated by stride doubling to stay below this
+
+  const state = {
+    frames: 0, dropped: 0, lastSeq: 0, gaps: 0,
+    chunks: [],                 // {t: Float64Array, torque, encoder, angle: Float32Array}
+    loop: { x: [], y: [], stride: 1, counter: 0 },
+    activeId: null, testState: "idle", eventSeq: 0, dirty: false, schema: null,
+  };
+
+  // ---- token: ?token=... (printed by `tcms serve`) is kept for this tab and removed from the address bar ----
+  const params = new URLSearchParams(location.search);
+  if (params.get("token")) {
+    sessionStorage.setItem("tcmsToken", params.get("token"));
+    params.delete("token");
+    history.replaceState(null, "", location.pathname + (params.toString() ? "?" + params : ""));
+  }
+  $("f-token").value = sessionStorage.getItem("tcmsToken") || "";
+  $("f-token").addEventListener("change", () => sessionStorage.setItem("tcmsToken", $("f-token").value.trim()));
+
+  function message(text, isError) {
+    $("message").textContent = text || "";
+    $("message").className = isError ? "error" : "";
+  }
+
+  async function api(method, path, body) {
+    const headers = {};
+    const token = $("f-token").value.trim();
+    if (token) headers["Authorization"] = "Bearer " + token;
+    if (body !== undefined) headers["Content-Type"] = "application/json";
+    const res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+    let data = null;
+    try { data = await res.json(); } catch (e) { data = null; }
+    if (!res.ok) {
+      const detail = data && data.detail ? (typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail)) : res.statusText;
+      throw new Error(`${res.status}: ${detail}`);
+    }
+    return data;
+  }
+
+  // ---- plots ----
+  function width(el) { return Math.max(300, el.clientWidth - 4); }
+
+  const torquePlot = new uPlot({
+    width: width($("plot-torque")), height: 220,
+    scales: { x: { time: false } },
+    axes: [{ label: "time / s" }, { label: "torque / N·m", size: 60 }],
+    series: [{ label: "t / s" }, { label: "torque / N·m", stroke: "#1f5fa8", width: 1 }],
+    legend: { live: false },
+  }, [[], []], $("plot-torque"));
+
+  const anglePlot = new uPlot({
+    width: width($("plot-angle")), height: 220,
+    scales: { x: { time: false } },
+    axes: [{ label: "time / s" }, { label: "angle / arcsec", size: 70 }],
+    series: [
+      { label: "t / s" },
+      { label: "raw encoder", stroke: "#b8c0cc", width: 1 },
+      { label: "compensated", stroke: "#d9771e", width: 1 },
+    ],
+    legend: { live: false },
+  }, [[], [], []], $("plot-angle"));
+
+  const loopPlot = new uPlot({
+    mode: 2,
+    width: width($("plot-loop")), height: 380,
+    scales: { x: { time: false, auto: true }, y: { auto: true } },
+    axes: [{ label: "torque / N·m" }, { label: "compensated angle / arcsec", size: 70 }],
+    series: [
+      {},
+      { label: "hysteresis loop", stroke: "#157a2e", width: 1.5, paths: uPlot.paths.linear(), points: { show: false },
+        facets: [{ scale: "x", auto: true }, { scale: "y", auto: true }] },
+    ],
+    legend: { show: false },
+    cursor: { show: false },
+  }, [null, [[], []]], $("plot-loop"));
+
+  window.addEventListener("resize", () => {
+    torquePlot.setSize({ width: width($("plot-torque")), height: 220 });
+    anglePlot.setSize({ width: width($("plot-angle")), height: 220 });
+    loopPlot.setSize({ width: width($("plot-loop")), height: 380 });
+  });
+
+  // ---- live stream ----
+  function parseFrame(buf) {
+    const dv = new DataView(buf);
+    const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
+    if (magic !== "TCMS") throw new Error("not a TCMS frame");
+    const nch = dv.getUint16(6, true);
+    const seq = Number(dv.getBigUint64(8, true));
+    const t0 = dv.getFloat64(16, true);
+    const n = dv.getUint32(24, true);
+    const dropped = dv.getUint32(28, true);
+    const cols = [];
+    for (let c = 0; c < nch; c++) cols.push(new Float32Array(buf, HEADER_SIZE + 4 * n * c, n));
+    return { seq, t0, n, dropped, cols };
+  }
+
+  function addToLoop(torque, angle) {
+    const loop = state.loop;
+    for (let i = 0; i < torque.length; i++) {
+      if (loop.counter++ % loop.stride !== 0) continue;
+      loop.x.push(torque[i]);
+      loop.y.push(angle[i]);
+    }
+    if (loop.x.length > LOOP_MAX_POINTS) {
+      loop.x = loop.x.filter((_, i) => i % 2 === 0);
+      loop.y = loop.y.filter((_, i) => i % 2 === 0);
+      loop.stride *= 2;
+    }
+  }
+
+  function onFrame(f) {
+    if (state.lastSeq && f.seq !== state.lastSeq + 1) state.gaps += 1;
+    state.lastSeq = f.seq;
+    state.frames += 1;
+    state.dropped = f.dropped;
+    const t = new Float64Array(f.n);
+    for (let i = 0; i < f.n; i++) t[i] = f.t0 + f.cols[0][i];
+    const chunk = { t, torque: f.cols[1], encoder: f.cols[2], angle: f.cols[3] };
+    state.chunks.push(chunk);
+    const newest = t.length ? t[t.length - 1] : 0;
+    while (state.chunks.length > 1) {
+      const first = state.chunks[0].t;
+      if (first.length && first[first.length - 1] < newest - WINDOW_S) state.chunks.shift(); else break;
+    }
+    if (state.testState === "running" && f.n) addToLoop(chunk.torque, chunk.angle);
+    state.dirty = true;
+  }
+
+  function concat(key) {
+    let n = 0;
+    for (const c of state.chunks) n += c[key].length;
+    const out = new Float64Array(n);
+    let o = 0;
+    for (const c of state.chunks) { out.set(c[key], o); o += c[key].length; }
+    return out;
+  }
+
+  function paint() {
+    if (state.dirty) {
+      state.dirty = false;
+      const t = concat("t");
+      torquePlot.setData([t, concat("torque")]);
+      anglePlot.setData([t, concat("encoder"), concat("angle")]);
+      loopPlot.setData([null, [state.loop.x, state.loop.y]]);
+      $("loop-points").textContent = state.loop.x.length;
+      $("live-frames").textContent = state.frames;
+      $("live-dropped").textContent = state.dropped;
+    }
+    requestAnimationFrame(paint);
+  }
+  requestAnimationFrame(paint);
+
+  function wsUrl(path) { return (location.protocol === "https:" ? "wss://" : "ws://") + location.host + path; }
+
+  function connectLive() {
+    const ws = new WebSocket(wsUrl("/ws/live"));
+    ws.binaryType = "arraybuffer";
+    ws.onopen = () => { $("live-state").textContent = "connected"; };
+    ws.onmessage = (ev) => {
+      if (typeof ev.data === "string") { state.schema = JSON.parse(ev.data); state.lastSeq = 0; return; }
+      onFrame(parseFrame(ev.data));
+    };
+    ws.onclose = () => { $("live-state").textContent = "reconnecting"; setTimeout(connectLive, 1000); };
+  }
+  connectLive();
+
+  // ---- test state over the lossless event channel ----
+  function setTestState(id, status) {
+    if (id) { state.activeId = id; $("test-id").textContent = id; }
+    state.testState = status;
+    $("test-state").textContent = status;
+    const active = status === "queued" || status === "running";
+    $("start").disabled = active;
+    $("abort").disabled = !active;
+  }
+
+  function connectEvents() {
+    const ws = new WebSocket(wsUrl("/ws/events" + (state.eventSeq ? "?since=" + state.eventSeq : "")));
+    ws.onopen = () => { $("events-state").textContent = "connected"; };
+    ws.onmessage = (ev) => {
+      const e = JSON.parse(ev.data);
+      if (e.type === "hello") { if (!state.eventSeq) syncBench(); return; }
+      state.eventSeq = e.seq;
+      if (e.type === "test_state") {
+        if (e.status === "queued" && e.id !== state.activeId) resetLoop();
+        setTestState(e.id, e.status);
+        if (["completed", "aborted", "failed", "interrupted"].includes(e.status)) {
+          $("test-phase").textContent = "–";
+          showResults(e.id);
+          loadHistory();
+          if (e.error) message(e.status + ": " + e.error, e.status !== "aborted");
+          else message("test " + e.status);
+        }
+      } else if (e.type === "test_phase") {
+        $("test-phase").textContent = e.phase;
+      }
+    };
+    ws.onclose = () => { $("events-state").textContent = "reconnecting"; setTimeout(connectEvents, 1000); };
+  }
+
+  function resetLoop() { state.loop = { x: [], y: [], stride: 1, counter: 0 }; state.dirty = true; }
+
+  function flatten(obj, prefix, rows) {
+    for (const [k, v] of Object.entries(obj || {})) {
+      const key = prefix ? prefix + "." + k : k;
+      if (v !== null && typeof v === "object" && !Array.isArray(v)) flatten(v, key, rows);
+      else if (Array.isArray(v)) {
+        if (v.length && v.every((x) => typeof x === "number")) rows.push([key, v.map(fmt).join(", ")]);
+      } else rows.push([key, v]);
+    }
+    return rows;
+  }
+  function fmt(v) { return typeof v === "number" ? (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(4) : +v.toPrecision(6)) : String(v); }
+  function verdictClass(v) {
+    if (v === true || v === "pass" || v === "passed") return "pass";
+    if (v === false || v === "fail" || v === "failed") return "fail";
+    return "";
+  }
+
+  async function showResults(id) {
+    let run;
+    try { run = await api("GET", "/api/tests/" + encodeURIComponent(id)); } catch (e) { return; }
+    const body = $("results").tBodies[0];
+    body.innerHTML = "";
+    const rows = run.results ? flatten(run.results, "", []) : [];
+    if (!rows.length) {
+      body.innerHTML = `<tr><td class="muted">${run.status}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
+    }
+    for (const [k, v] of rows) {
+      const tr = document.createElement("tr");
+      const cls = verdictClass(v);
+      const shown = v === true ? "pass" : v === false ? "FAIL" : fmt(v);
+      tr.innerHTML = `<th>${escapeHtml(k)}</th><td class="${cls}">${escapeHtml(String(shown))}</td>`;
+      body.appendChild(tr);
+    }
+    const link = $("report-link");
+    link.href = "/api/tests/" + encodeURIComponent(id) + "/report";
+    link.hidden = false;
+  }
+
+  function escapeHtml(s) { return s.replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
+
+  async function loadHistory() {
+    let runs = [];
+    try { runs = await api("GET", "/api/tests?limit=8"); } catch (e) { return; }
+    const body = $("history").tBodies[0];
+    body.innerHTML = "";
+    for (const r of runs) {
+      const tr = document.createElement("tr");
+      tr.innerHTML = `<td>${escapeHtml(r.id)}</td><td>${escapeHtml(String(r.request.reducer || ""))}</td>` +
+        `<td>${escapeHtml(r.status)}</td><td><a href="/api/tests/${encodeURIComponent(r.id)}/report" target="_blank">report</a></td>`;
+      body.appendChild(tr);
+    }
+  }
+
+  async function syncBench() {
+    try {
+      const bench = await api("GET", "/api/bench");
+      $("bench-name").textContent = bench.name || "";
+      const sel = $("f-reducer");
+      if (!sel.options.length) {
+        for (const r of bench.reducers || []) {
+          const o = document.createElement("option");
+          o.value = r.name; o.textContent = `${r.name} (${r.rated_torque_nm} N·m)`;
+          sel.appendChild(o);
+        }
+      }
+      if (bench.active_test) {
+        const run = await api("GET", "/api/tests/" + encodeURIComponent(bench.active_test));
+        setTestState(run.id, run.status);
+      }
+      $("live-rate").textContent = Math.round(bench.live.acquisition_rate_samples_per_second);
+    } catch (e) { message("bench status: " + e.message, true); }
+  }
+  setInterval(async () => {
+    try {
+      const bench = await api("GET", "/api/bench");
+      $("live-rate").textContent = Math.round(bench.live.acquisition_rate_samples_per_second);
+    } catch (e) { /* service restarting */ }
+  }, 2000);
+
+  // ---- controls ----
+  $("f-profile").addEventListener("change", () => {
+    $("test-form").classList.toggle("stepped", $("f-profile").value === "stepped");
+  });
+
+  $("test-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const req = {
+      reducer: $("f-reducer").value,
+      max_torque_nm: parseFloat($("f-torque").value),
+      cycles: parseInt($("f-cycles").value, 10),
+      profile: $("f-profile").value,
+    };
+    const rate = parseFloat($("f-rate").value);
+    if (rate > 0) req.rate_nm_per_s = rate;
+    if (req.profile === "stepped") {
+      req.step_nm = parseFloat($("f-step").value);
+      req.dwell_s = parseFloat($("f-dwell").value);
+    }
+    if ($("f-serial").value.trim()) req.serial_number = $("f-serial").value.trim();
+    if ($("f-operator").value.trim()) req.operator = $("f-operator").value.trim();
+    try {
+      const res = await api("POST", "/api/tests", req);
+      resetLoop();
+      setTestState(res.id, res.status === "queued" ? "queued" : res.status);
+      message("test " + res.id + " started");
+    } catch (e) { message(e.message, true); }
+  });
+
+  $("abort").addEventListener("click", async () => {
+    if (!state.activeId) return;
+    try { await api("POST", "/api/tests/" + encodeURIComponent(state.activeId) + "/abort"); message("abort requested"); }
+    catch (e) { message(e.message, true); }
+  });
+
+  window.tcms = { state, loopPoints: () => state.loop.x.length };
+  connectEvents();
+  loadHistory();
+})();

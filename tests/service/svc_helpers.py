@@ -1,0 +1,165 @@
+"""Helpers of the service tests: a uvicorn server in a thread on an ephemeral loopback port.
+
+``ScriptedRunner`` is a test double of the bench runner (the Runner protocol of tcms_daq.service.runner): it
+produces a synthetic hysteresis loop (linear spring + constant-width friction band) in real time, so the HTTP,
+WebSocket, store and abort paths can be tested without the acquisition layer. End-to-end tests use the real
+runner over the simulated bench.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import httpx
+import numpy as np
+import uvicorn
+
+from tcms_daq.service.app import ServiceSettings, create_app
+from tcms_daq.service.runner import RUN_CHANNELS, RequestRejected, RunOutcome, TestPlan
+
+TOKEN = "test-token-123"
+
+
+class ScriptedRunner:
+    """Synthetic bench: idle noise at ``rate_hz`` and triangle torque profiles during tests (real time)."""
+
+    channels = RUN_CHANNELS
+
+    def __init__(self, rate_hz: float = 2000.0, batch_s: float = 0.01, speed: float = 10.0):
+        self.rate_hz = rate_hz
+        self.batch_s = batch_s
+        self.speed = speed  # simulated seconds per real second during a test
+        self._live = None
+        self._stop = threading.Event()
+        self._test_active = threading.Event()
+        self._t = 0.0
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self.compensation = "[compensator]\nterms = []\n"
+
+    def open(self, live_sink) -> None:
+        self._live = live_sink
+        self._thread = threading.Thread(target=self._idle, daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread:
+            self._thread.join(2)
+
+    def _emit(self, torque: np.ndarray, record=None) -> None:
+        with self._lock:
+            n = len(torque)
+            t = self._t + np.arange(n) / self.rate_hz
+            self._t = float(t[-1]) + 1 / self.rate_hz
+        direction = np.sign(np.gradient(torque)) if n > 1 else np.zeros(n)
+        enc = torque / 294.0 * 60.0 + 10.0 * direction
+        cols = {"time_s": t, "torque_nm": torque, "angle_arcsec": enc * 0.99, "encoder_arcsec": enc}
+        if record is not None:
+            record(cols)
+        self._live(cols)
+
+    def _idle(self) -> None:
+        n = int(self.rate_hz * self.batch_s)
+        rng = np.random.default_rng(0)
+        while not self._stop.wait(self.batch_s):
+            if not self._test_active.is_set():
+                self._emit(rng.normal(0, 0.3, n))
+
+    def status(self) -> dict:
+        return {"name": "scripted bench", "max_torque_nm": 1000.0,
+                "reducers": [{"name": "RV-110E", "rated_torque_nm": 1078.0}], "instruments": {}}
+
+    def config_snapshot(self) -> dict:
+        return {"bench": {"name": "scripted bench"}}
+
+    def compensator_toml(self) -> str:
+        return self.compensation
+
+    def set_compensator_toml(self, text: str) -> None:
+        if "[compensator]" not in text:
+            raise RequestRejected("compensation TOML needs a [compensator] table")
+        self.compensation = text
+
+    def plan(self, request) -> TestPlan:
+        if request.reducer != "RV-110E":
+            raise RequestRejected(f"unknown reducer {request.reducer!r} (known: RV-110E)")
+        if request.max_torque_nm > 1000.0:
+            raise RequestRejected(f"max_torque_nm {request.max_torque_nm:g} exceeds the bench limit 1000 N·m")
+        rate = request.rate_nm_per_s or 200.0
+        legs = [-1.0, 1.0] * request.cycles + [-1.0]
+        return TestPlan(request, {"kind": request.profile, "legs": len(legs)}, (rate, legs))
+
+    def execute(self, plan, *, record, on_phase, abort) -> RunOutcome:
+        rate, legs = plan.payload
+        T = plan.request.max_torque_nm
+        self._test_active.set()
+        try:
+            on_phase("loading")
+            torque_now = 0.0
+            step = rate * self.batch_s
+            for leg in legs:
+                target = leg * T
+                while abs(target - torque_now) > 1e-9:
+                    if abort.is_set():
+                        return RunOutcome("aborted")
+                    n = int(self.rate_hz * self.batch_s)
+                    nxt = torque_now + np.clip(target - torque_now, -step, step)
+                    self._emit(np.linspace(torque_now, nxt, n), record)
+                    torque_now = nxt
+                    time.sleep(self.batch_s / self.speed)
+            on_phase("evaluating")
+            return RunOutcome("completed", results={"rigidity_nm_per_arcmin": 294.0 * 1.0101, "passed": True})
+        finally:
+            self._test_active.clear()
+
+
+class LiveServer:
+    def __init__(self, app, sock: socket.socket):
+        self.app = app
+        self.port = sock.getsockname()[1]
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.ws_base = f"ws://127.0.0.1:{self.port}"
+        self.server = uvicorn.Server(uvicorn.Config(app, log_level="warning", ws_per_message_deflate=False))
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [sock]}, daemon=True)
+
+    def __enter__(self) -> LiveServer:
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("service did not start")
+            time.sleep(0.02)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.server.should_exit = True
+        self.thread.join(20)
+
+    def client(self, token: str | None = TOKEN) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.base, headers=headers, timeout=20)
+
+
+@contextmanager
+def serve(settings: ServiceSettings, runner=None) -> Iterator[LiveServer]:
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    app = create_app(settings, runner=runner)
+    with LiveServer(app, sock) as server:
+        yield server
+
+
+def wait_for(predicate: Callable[[], object], timeout_s: float = 20.0, interval_s: float = 0.05):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not met in time")
+        time.sleep(interval_s)
