@@ -32,7 +32,7 @@ def format_evaluation(ev: Evaluation) -> str:
         + f", test torque ±{ev.test_torque_nm:g} Nm, rated {ev.rated_torque_nm:g} Nm, "
         f"loading rate {_num(ev.loading_rate_nm_per_s, 1)} Nm/s",
         "",
-        f"{'quantity':<34}{'mean':>10}{'std':>9}{'positive':>10}{'negative':>10}"
+        f"{'quantity':<34}{'mean':>10}{'std':>10}{'positive':>10}{'negative':>10}"
         + (f"  {'limit':<12}result" if checks else ""),
     ]
     rows = [
@@ -55,20 +55,20 @@ def format_evaluation(ev: Evaluation) -> str:
     for label, key, value, p, n in rows:
         limit, result = limit_text(key)
         lines.append(
-            f"{label:<34}{_num(value):>10}{_num(ev.std.get(key)):>9}{_num(p):>10}{_num(n):>10}"
+            f"{label:<34}{_num(value):>10}{_num(ev.std.get(key)):>10}{_num(p):>10}{_num(n):>10}"
             + (f"  {limit:<12}{result}" if checks else "")
         )
     lines.append(
-        f"{'torsion at interval end [arcsec]':<34}{'':>10}{'':>9}"
+        f"{'torsion at interval end [arcsec]':<34}{'':>10}{'':>10}"
         f"{_num(pos.torsion_angle_arcsec):>10}{_num(neg.torsion_angle_arcsec):>10}"
     )
     if ev.hd_breakpoints_nm is not None:
         t1, t2 = ev.hd_breakpoints_nm
         for i, key in enumerate(("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"), start=1):
-            region = ("0…T1", "T1…T2", ">T2")[i - 1]
+            region = (f"0…{t1:g} Nm", f"{t1:g}…{t2:g} Nm", f">{t2:g} Nm")[i - 1]
             lines.append(
-                f"{f'K{i} [Nm/rad] {region} (T1 {t1:g}, T2 {t2:g})':<34}{_sci(getattr(ev, key)):>10}"
-                f"{_sci(ev.std.get(key)):>9}{_sci(getattr(pos, key)):>10}{_sci(getattr(neg, key)):>10}"
+                f"{f'K{i} [Nm/rad] {region}':<34}{_sci(getattr(ev, key)):>10}"
+                f"{_sci(ev.std.get(key)):>10}{_sci(getattr(pos, key)):>10}{_sci(getattr(neg, key)):>10}"
             )
     lines += ["", f"{'loop':<6}{'order':<9}{'t [s]':>16}{'rigidity':>10}{'lost m.':>9}{'backlash':>10}{'rate':>8}"]
     for r in ev.loops:

@@ -55,6 +55,29 @@ class LoopModel:
         return float(30.0 * (k_pos + k_neg))
 
 
+@dataclass(frozen=True)
+class HarmonicDriveModel:
+    """Harmonic Drive catalogue curve (three stiffness regions) as the midline, plus a closed hysteresis."""
+
+    t1_nm: float = 29.0  # HFUC-32-100 (domain.md §2.2)
+    t2_nm: float = 108.0
+    k1_nm_per_rad: float = 6.7e4
+    k2_nm_per_rad: float = 1.1e5
+    k3_nm_per_rad: float = 1.2e5
+    rated_torque_nm: float = 137.0  # assumption for the lost-motion level only
+    test_torque_nm: float = 160.0
+    backlash_arcsec: float = 20.0
+
+    def midline_arcsec(self, torque_nm):
+        return hd_model_angle(torque_nm, self.t1_nm, self.t2_nm, self.k1_nm_per_rad, self.k2_nm_per_rad,
+                              self.k3_nm_per_rad)
+
+    def angle_arcsec(self, torque_nm, direction):
+        t = np.asarray(torque_nm, dtype=float)
+        half_width = 0.5 * self.backlash_arcsec * (1.0 - (t / self.test_torque_nm) ** 2)
+        return self.midline_arcsec(t) - direction * half_width
+
+
 @dataclass
 class Record:
     time_s: np.ndarray
@@ -66,7 +89,7 @@ class Record:
 
 
 def make_record(
-    model: LoopModel | None = None,
+    model: LoopModel | HarmonicDriveModel | None = None,
     *,
     loops: int = 3,
     conditioning_loops: int = 1,
@@ -96,6 +119,48 @@ def make_record(
     return Record(time_s + time_offset_s, torque, angle, true_torque, model, rate_nm_per_s)
 
 
+def make_stepped_record(
+    model: LoopModel | None = None,
+    *,
+    loops: int = 2,
+    step_nm: float = 49.0,
+    dwell_s: float = 1.0,
+    ramp_rate_nm_per_s: float = 500.0,
+    sample_rate_hz: float = 200.0,
+    torque_noise_nm: float = 0.0,
+    angle_noise_arcsec: float = 0.0,
+    seed: int = 0,
+) -> Record:
+    """Stepped profile: equal torque steps (ramped at ``ramp_rate``), each held for ``dwell_s``."""
+    model = model or LoopModel()
+    amp = model.test_torque_nm
+    levels_up = np.arange(-amp, amp + step_nm / 2, step_nm)
+    levels_up[-1] = amp
+    one_loop = np.concatenate((levels_up, levels_up[::-1][1:]))
+    lead_in = np.arange(0.0, -amp - step_nm / 2, -step_nm)[:-1]
+    targets = np.concatenate((lead_in, np.tile(one_loop[:-1], loops), [-amp]))
+    # Waypoints: hold each target for dwell_s, then ramp to the next.
+    wp_torque = [0.0]
+    wp_time = [0.0]
+    for target in targets:
+        wp_time.append(wp_time[-1] + abs(target - wp_torque[-1]) / ramp_rate_nm_per_s)
+        wp_torque.append(target)
+        wp_time.append(wp_time[-1] + dwell_s)
+        wp_torque.append(target)
+    wp_time_arr, wp_torque_arr = np.array(wp_time), np.array(wp_torque)
+    time_s = np.arange(0.0, wp_time_arr[-1], 1.0 / sample_rate_hz)
+    true_torque = np.interp(time_s, wp_time_arr, wp_torque_arr)
+    # Direction = sign of the last nonzero ramp (holds keep the direction they arrived with).
+    d = np.sign(np.diff(true_torque, prepend=true_torque[0]))
+    nz = np.flatnonzero(d)
+    direction = d[nz][np.clip(np.searchsorted(nz, np.arange(d.size), side="right") - 1, 0, None)]
+    angle = model.angle_arcsec(true_torque, direction)
+    rng = np.random.default_rng(seed)
+    torque = true_torque + torque_noise_nm * rng.standard_normal(time_s.size)
+    angle = angle + angle_noise_arcsec * rng.standard_normal(time_s.size)
+    return Record(time_s, torque, angle, true_torque, model, float("nan"))
+
+
 @pytest.fixture
 def loop_model():
     return LoopModel
@@ -104,6 +169,16 @@ def loop_model():
 @pytest.fixture
 def synth():
     return make_record
+
+
+@pytest.fixture
+def synth_stepped():
+    return make_stepped_record
+
+
+@pytest.fixture
+def hd_model():
+    return HarmonicDriveModel
 
 
 @pytest.fixture
