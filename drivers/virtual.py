@@ -95,6 +95,13 @@ class VirtualBench:
         self._drive_enabled = False
         self._target_nm = 0.0
         self._applied_nm = 0.0
+        self._scheduled: list[tuple[float, Callable[[], Any]]] = []
+
+    def at(self, time_s: float, action: Callable[[], Any]) -> None:
+        """Run ``action()`` when the simulated clock reaches ``time_s`` (fault injection at a known instant)."""
+        with self._lock:
+            self._scheduled.append((float(time_s), action))
+            self._scheduled.sort(key=lambda item: item[0])
 
     # -- the simulated clock ------------------------------------------------------------------------
     def now_s(self) -> float:
@@ -106,6 +113,15 @@ class VirtualBench:
         if duration_s <= 0:
             return
         with self._lock:
+            end_s = float(self.physics.now_s) + duration_s
+            while self._scheduled and self._scheduled[0][0] <= end_s:
+                when, action = self._scheduled.pop(0)
+                self._advance(when - float(self.physics.now_s))
+                action()
+            self._advance(end_s - float(self.physics.now_s))
+
+    def _advance(self, duration_s: float) -> None:
+        if duration_s > 1e-12:
             samples = self.physics.advance(duration_s)
             if len(samples) == 0:
                 return
@@ -149,6 +165,13 @@ class VirtualBench:
         with self._lock:
             self.faults.drive_fault_code = int(code) or GENERIC_DRIVE_FAULT
             self.set_drive_enabled(False)
+
+    def lose_loader_link(self) -> None:
+        """The link to the drive is gone (heartbeat loss): the host sees Disconnected, and the drive's own
+        communication watchdog reacts as a CiA 402 drive does: torque off, FAULT 0x8130 (heartbeat error)."""
+        with self._lock:
+            self.faults.loader_lost = True
+            self.inject_drive_fault(0x8130)
 
 
 PhysicsFactory = Callable[[Any], Any]

@@ -61,6 +61,7 @@ class Subscription:
         self._cond = threading.Condition()
         self._closed = False
         self._fanout = fanout
+        self.thread: threading.Thread | None = None  # the delivering thread of a callback subscriber
 
     def _put(self, message: Message) -> None:
         with self._cond:
@@ -98,11 +99,14 @@ class Subscription:
     def closed(self) -> bool:
         return self._closed
 
-    def close(self) -> None:
+    def close(self, join_timeout_s: float = 2.0) -> None:
+        """Stop receiving; a callback subscriber's thread first delivers what is queued (joined here)."""
         self._fanout.unsubscribe(self)
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+        if self.thread is not None and self.thread is not threading.current_thread():
+            self.thread.join(join_timeout_s)
 
 
 class FanOut:
@@ -141,6 +145,7 @@ class FanOut:
 
         thread = threading.Thread(target=pump, name=f"tcms-sub-{sub.name}", daemon=True)
         thread.start()
+        sub.thread = thread
         self._threads.append(thread)
         return sub
 

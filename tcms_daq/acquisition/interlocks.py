@@ -59,14 +59,17 @@ class InterlockLimits:
 
 
 def check_torque_limit(time_s: np.ndarray, torque_nm: np.ndarray, limits: InterlockLimits) -> Trip | None:
-    for name, limit in (("bench", limits.bench_torque_limit_nm), ("reducer", limits.reducer_torque_limit_nm)):
-        if limit is None:
-            continue
-        over = np.flatnonzero(np.abs(torque_nm) > limit)
-        if over.size:
-            i = int(over[0])
-            return Trip("torque_limit", f"torque {torque_nm[i]:.1f} N·m exceeds the {name} limit "
-                                        f"±{limit:g} N·m", float(time_s[i]))
+    """The first sample above the lower of the bench and reducer limits (named in the reason)."""
+    candidates = [(limit, name) for name, limit in (("bench", limits.bench_torque_limit_nm),
+                                                    ("reducer", limits.reducer_torque_limit_nm)) if limit is not None]
+    if not candidates:
+        return None
+    limit, name = min(candidates)
+    over = np.flatnonzero(np.abs(torque_nm) > limit)
+    if over.size:
+        i = int(over[0])
+        return Trip("torque_limit", f"torque {torque_nm[i]:.1f} N·m exceeds the {name} limit ±{limit:g} N·m",
+                    float(time_s[i]))
     return None
 
 

@@ -296,7 +296,7 @@ class AcquisitionLoop:
             return
         self.trip = trip
         self.trip_event.set()
-        self.fanout.publish_event("interlock", trip.time_s, **trip.to_dict())
+        self.fanout.publish_event("interlock", trip.time_s, interlock=trip.interlock, reason=trip.reason)
         with self._tick:
             self._tick.notify_all()
 

@@ -332,7 +332,11 @@ class TestRun:
             acq.wait(seg.dwell_s, abort_event=self.abort_event)
 
     def _safe_stop(self, acq: AcquisitionLoop) -> None:
-        """Ramp to zero torque and disable; every step tried even if an earlier one failed. Idempotent."""
+        """Ramp to zero torque and disable; every step tried even if an earlier one failed. Idempotent.
+
+        While the measured torque is above the torque limit the ramp is not waited for: the loader is
+        disabled at once (a drive that does not follow its setpoints is stopped by removing its enable).
+        """
         with self._lock:
             if self.record.loader_final is not None:
                 return
@@ -342,9 +346,14 @@ class TestRun:
                 acq.loader_command(loader.set_torque, 0.0, slope)
                 ramp_s = abs(self._setpoint_nm) / slope
                 self._setpoint_nm = 0.0
-                acq.wait(ramp_s, check_trips=False)
-                acq.wait(self.options.ramp_down_timeout_s, check_trips=False,
-                         until=lambda: abs(acq.latest_torque_nm() or 0.0) <= self.tolerance_nm)
+                limit_nm = self.limits.torque_limit_nm
+
+                def over_limit() -> bool:  # a drive out of control: do not wait for the ramp, disable now
+                    return abs(acq.latest_torque_nm() or 0.0) > limit_nm
+
+                if not acq.wait(ramp_s, check_trips=False, until=over_limit):
+                    acq.wait(self.options.ramp_down_timeout_s, check_trips=False,
+                             until=lambda: over_limit() or abs(acq.latest_torque_nm() or 0.0) <= self.tolerance_nm)
             except Exception as exc:
                 self.record.notes.append(f"ramp to zero failed: {exc}")
             try:

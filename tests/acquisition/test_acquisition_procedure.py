@@ -64,19 +64,23 @@ def test_profile_above_the_bench_limit_is_rejected_before_anything_moves(make_be
 def test_abort_request_ramps_down_and_keeps_data(make_bench, profile):
     bench = make_bench()
     seen = []
-
-    def on_message(msg):
-        seen.append(msg)
-        if msg.kind == "data" and msg.samples.torque_nm.min() < -150 and not run.abort_event.is_set():
-            run.abort("operator pressed stop")
-
-    run = TestRun(bench, profile, subscribers=[on_message])
+    run = TestRun(bench, profile, subscribers=[seen.append])
+    # abort while loading towards -300 N·m (simulated time 0.8 s), deterministic on the simulated clock
+    bench.loader.bench.at(0.8, lambda: run.abort("operator pressed stop"))
     record = run.start().join(timeout=30)
     assert record.state == "aborted"
     assert record.reason == "operator pressed stop"
     assert record.loader_final["state"] == "SWITCH ON DISABLED"
     assert abs(record.loader_final["torque_actual_nm"]) < 1.0
+    assert record.samples.torque_nm.min() < -150
     assert len(record.samples) > 100
     assert record.samples.torque_nm[-1] == pytest.approx(0.0, abs=2.0)
+    # the subscriber saw every state and the data (lossy queue, but nothing dropped at this pace)
     states = [m.details["state"] for m in seen if m.kind == "event" and m.event == "state"]
-    assert states[0] == "preparing" and states[-1] == "aborted"
+    assert states == ["preparing", "loading", "aborted"]
+    n_data = sum(len(m.samples) for m in seen if m.kind == "data")
+    (stats,) = record.acquisition["subscribers"].values()
+    if stats["dropped"] == 0:
+        assert n_data == len(record.samples)
+    else:
+        assert n_data < len(record.samples)
