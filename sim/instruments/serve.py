@@ -134,7 +134,6 @@ class InstrumentSimulators:
         )
         if "modbus" in want or "modbus_rtu" in want:
             from drivers.cia402_modbus import load_register_map
-
             from sim.instruments.drive_modbus import DriveModbusServer
 
             regmap = load_register_map(Path(opts.modbus_map) if opts.modbus_map else None)

@@ -1,0 +1,406 @@
+"""CiA 402 servo loader over Modbus TCP or RTU (pymodbus==3.16.1 synchronous clients): Loader.
+
+The drive's objects sit in holding registers described by a register map (``config/modbus-drive.toml``,
+Kinco-style: controlword 0x3100, statusword 0x3200, 32-bit values low word first). URL:
+
+- ``tcp://host:port``                       Modbus TCP (MBAP framing)
+- anything else (``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``) a serial line with RTU framing,
+  opened through pyserial; ``socket://`` carries RTU frames over TCP (simulator, serial-to-Ethernet gateways)
+
+Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; Modbus exception 4 (device failure)
+→ DeviceFault, other exception responses → CommandRejected; connection lost and the bounded reconnect failed
+→ Disconnected; statusword FAULT → DeviceFault with the drive's error code (0x603F).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+from pymodbus import FramerType
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from drivers.base import (
+    Clock,
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    InstrumentTimeout,
+    LoaderStatus,
+    MalformedReply,
+)
+from drivers.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_ENABLE_OPERATION,
+    CW_FAULT_RESET,
+    CW_SHUTDOWN,
+    CW_SWITCH_ON,
+    MODE_PROFILE_TORQUE,
+    STATE_PATTERN,
+    TorqueScaling,
+    is_fault,
+    state_from_statusword,
+)
+from drivers.registry import register
+from tcms_daq.errors import ConfigError
+
+DEFAULT_MAP_PATH = Path(__file__).resolve().parent.parent / "config" / "modbus-drive.toml"
+REQUIRED_REGISTERS = (
+    "controlword", "statusword", "error_code", "mode", "mode_display", "position_actual",
+    "target_torque", "max_torque", "torque_actual", "torque_slope", "rated_torque",
+)
+TYPES = {"uint16": (1, False), "int16": (1, True), "uint32": (2, False), "int32": (2, True)}
+EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
+                   4: "device failure", 6: "device busy", 10: "gateway path unavailable",
+                   11: "gateway target did not respond"}
+
+
+# -- register map ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RegisterSpec:
+    name: str
+    address: int
+    type: str
+    writable: bool
+    object_index: int | None = None
+
+    @property
+    def words(self) -> int:
+        return TYPES[self.type][0]
+
+    @property
+    def signed(self) -> bool:
+        return TYPES[self.type][1]
+
+
+@dataclass(frozen=True)
+class RegisterMap:
+    device_id: int
+    word_order: str  # "little" = low word first
+    registers: dict[str, RegisterSpec]
+
+    def __getitem__(self, name: str) -> RegisterSpec:
+        return self.registers[name]
+
+    def by_address(self) -> dict[int, tuple[RegisterSpec, int]]:
+        """address -> (register, word index within it)."""
+        table = {}
+        for spec in self.registers.values():
+            for i in range(spec.words):
+                table[spec.address + i] = (spec, i)
+        return table
+
+    def encode(self, name: str, value: int) -> list[int]:
+        spec = self.registers[name]
+        bits = 16 * spec.words
+        lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if spec.signed else (0, (1 << bits) - 1)
+        if not lo <= value <= hi:
+            raise ValueError(f"{value} does not fit {spec.type} register {name!r}")
+        raw = value & ((1 << bits) - 1)
+        words = [(raw >> (16 * i)) & 0xFFFF for i in range(spec.words)]  # low word first
+        return words if self.word_order == "little" else words[::-1]
+
+    def decode(self, name: str, words: list[int]) -> int:
+        spec = self.registers[name]
+        if len(words) != spec.words:
+            raise ValueError(f"register {name!r} needs {spec.words} words, got {len(words)}")
+        ordered = list(words) if self.word_order == "little" else list(words)[::-1]
+        raw = sum((w & 0xFFFF) << (16 * i) for i, w in enumerate(ordered))
+        bits = 16 * spec.words
+        if spec.signed and raw & (1 << (bits - 1)):
+            raw -= 1 << bits
+        return raw
+
+
+def load_register_map(path: Path | str | None = None) -> RegisterMap:
+    """Read and validate a register map TOML (default ``config/modbus-drive.toml``)."""
+    path = Path(path) if path is not None else DEFAULT_MAP_PATH
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the Modbus register map: {exc}") from None
+    modbus = data.get("modbus", {})
+    word_order = modbus.get("word_order", "little")
+    if word_order not in ("little", "big"):
+        raise ConfigError(f"{path}: [modbus] word_order must be 'little' or 'big', got {word_order!r}")
+    device_id = modbus.get("device_id", 1)
+    if not (isinstance(device_id, int) and 0 <= device_id <= 247):
+        raise ConfigError(f"{path}: [modbus] device_id must be 0…247, got {device_id!r}")
+    registers: dict[str, RegisterSpec] = {}
+    for name, entry in data.get("registers", {}).items():
+        if not isinstance(entry, dict) or "address" not in entry or "type" not in entry:
+            raise ConfigError(f"{path}: [registers] {name} needs address and type")
+        if entry["type"] not in TYPES:
+            raise ConfigError(f"{path}: [registers] {name}: type must be one of {', '.join(TYPES)}")
+        address = entry["address"]
+        if not (isinstance(address, int) and 0 <= address <= 0xFFFF):
+            raise ConfigError(f"{path}: [registers] {name}: address must be 0…0xFFFF")
+        access = entry.get("access", "rw")
+        if access not in ("rw", "ro"):
+            raise ConfigError(f"{path}: [registers] {name}: access must be 'rw' or 'ro'")
+        registers[name] = RegisterSpec(name, address, entry["type"], access == "rw", entry.get("object"))
+    missing = [n for n in REQUIRED_REGISTERS if n not in registers]
+    if missing:
+        raise ConfigError(f"{path}: [registers] lacks {', '.join(missing)}")
+    taken: dict[int, str] = {}
+    for spec in registers.values():
+        for i in range(spec.words):
+            other = taken.setdefault(spec.address + i, spec.name)
+            if other != spec.name:
+                raise ConfigError(f"{path}: registers {other!r} and {spec.name!r} overlap at 0x{spec.address + i:04X}")
+    return RegisterMap(device_id, word_order, registers)
+
+
+# -- the driver -------------------------------------------------------------------------------------------------
+
+def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trace_packet=None):
+    """A pymodbus sync client for ``url`` (see module doc); automatic background reconnect is off."""
+    parsed = urlparse(url)
+    common = dict(timeout=timeout_s, retries=retries, reconnect_delay=0, trace_packet=trace_packet)
+    if parsed.scheme == "tcp":
+        if not parsed.hostname:
+            raise ConfigError(f"Modbus URL {url!r} lacks a host")
+        return ModbusTcpClient(parsed.hostname, port=parsed.port or 502, framer=FramerType.SOCKET, **common)
+    return ModbusSerialClient(url, framer=FramerType.RTU, baudrate=baudrate, bytesize=8, parity="N",
+                              stopbits=1, **common)
+
+
+@register("cia402-modbus")
+class CiA402Modbus:
+    """Loader: a CiA 402 drive in profile torque mode over Modbus TCP/RTU."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        name: str = "CiA 402 drive (Modbus)",
+        register_map: str | Path | RegisterMap | None = None,
+        device_id: int | None = None,
+        max_torque_nm: float | None = None,
+        torque_slope_nm_per_s: float = 200.0,
+        timeout_s: float = 0.5,
+        retries: int = 0,
+        baudrate: int = 115200,
+        reconnect_attempts: int = 3,
+        reconnect_delay_s: float = 0.2,
+        state_timeout_s: float = 2.0,
+        clock: Clock = time.monotonic,
+        trace_packet=None,
+    ):
+        self.name = name
+        self.url = url
+        self.map = register_map if isinstance(register_map, RegisterMap) else load_register_map(register_map)
+        self.device_id = self.map.device_id if device_id is None else int(device_id)
+        self.max_torque_nm = max_torque_nm
+        if not (math.isfinite(torque_slope_nm_per_s) and torque_slope_nm_per_s > 0):
+            raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
+        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
+        self.timeout_s = float(timeout_s)
+        self.reconnect_attempts = int(reconnect_attempts)
+        self.reconnect_delay_s = float(reconnect_delay_s)
+        self.state_timeout_s = float(state_timeout_s)
+        self.clock = clock
+        self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
+                                  trace_packet=trace_packet)
+        self.scaling: TorqueScaling | None = None
+        self._slope_permille: int | None = None
+        self.reconnects = 0
+
+    @property
+    def rated_torque_nm(self) -> float:
+        if self.scaling is None:
+            raise Disconnected(self.name, "not connected (rated torque unknown)")
+        return self.scaling.rated_torque_nm
+
+    # -- Modbus access with error mapping --------------------------------------------------------------
+
+    def _call(self, what: str, func, *args, **kwargs):
+        for attempt in range(2):
+            try:
+                if not self.client.connected and not self.client.connect():
+                    raise ConnectionException(f"cannot connect to {self.url}")
+                response = func(*args, device_id=self.device_id, **kwargs)
+            except ConnectionException as exc:
+                if attempt == 0:
+                    self._reconnect(exc)
+                    continue
+                raise Disconnected(self.name, f"{what}: {exc}") from exc
+            except ModbusIOException as exc:
+                text = str(exc)
+                if "No response" in text:
+                    raise InstrumentTimeout(self.name, f"{what}: no response within {self.timeout_s:g} s") from exc
+                raise MalformedReply(self.name, f"{what}: {text}") from exc
+            except ModbusException as exc:
+                raise MalformedReply(self.name, f"{what}: {exc}") from exc
+            except (OSError, ValueError) as exc:
+                if attempt == 0:
+                    self._reconnect(exc)
+                    continue
+                raise Disconnected(self.name, f"{what}: {exc}") from exc
+            if response is None:
+                raise InstrumentTimeout(self.name, f"{what}: no response")
+            if response.isError():
+                code = getattr(response, "exception_code", None)
+                text = f"{what}: Modbus exception {code} ({EXCEPTION_NAMES.get(code, 'unknown')})"
+                if code == 4:
+                    raise DeviceFault(self.name, text, code=code)
+                if code in (10, 11):
+                    raise InstrumentTimeout(self.name, text)
+                raise CommandRejected(self.name, text)
+            return response
+        raise AssertionError("unreachable")
+
+    def _reconnect(self, reason: BaseException) -> None:
+        self.client.close()
+        for attempt in range(self.reconnect_attempts):
+            if attempt:
+                time.sleep(self.reconnect_delay_s)
+            if self.client.connect():
+                self.reconnects += 1
+                return
+        raise Disconnected(
+            self.name, f"link to {self.url} lost ({reason}); {self.reconnect_attempts} reconnect attempts failed"
+        )
+
+    def read_register(self, name: str) -> int:
+        spec = self.map[name]
+        rr = self._call(f"read {name} @0x{spec.address:04X}", self.client.read_holding_registers,
+                        spec.address, count=spec.words)
+        if len(rr.registers) != spec.words:
+            raise MalformedReply(self.name, f"read {name}: {len(rr.registers)} registers, expected {spec.words}")
+        return self.map.decode(name, rr.registers)
+
+    def write_register(self, name: str, value: int) -> None:
+        spec = self.map[name]
+        try:
+            words = self.map.encode(name, value)
+        except ValueError as exc:
+            raise CommandRejected(self.name, str(exc)) from None
+        what = f"write {name} @0x{spec.address:04X} = {value}"
+        if spec.words == 1:
+            self._call(what, self.client.write_register, spec.address, words[0])
+        else:
+            self._call(what, self.client.write_registers, spec.address, words)
+
+    # -- Loader ------------------------------------------------------------------------------------------
+
+    def connect(self) -> None:
+        if not self.client.connect():
+            raise Disconnected(self.name, f"cannot connect to {self.url}")
+        rated_mnm = self.read_register("rated_torque")
+        self.scaling = TorqueScaling(self.name, rated_mnm / 1000.0, self.max_torque_nm)
+        self._slope_permille = None
+
+    def close(self) -> None:
+        self.client.close()
+
+    def _statusword(self) -> int:
+        return self.read_register("statusword")
+
+    def _raise_if_fault(self, statusword: int, doing: str) -> None:
+        if is_fault(statusword):
+            code = self.read_register("error_code")
+            raise DeviceFault(self.name, f"{doing}: drive in FAULT, error code 0x{code:04X}", code=code)
+
+    def _command(self, controlword: int, target_state: str) -> None:
+        self.write_register("controlword", controlword)
+        mask, value = STATE_PATTERN[target_state]
+        deadline = time.monotonic() + self.state_timeout_s
+        while True:
+            sw = self._statusword()
+            if sw & mask == value:
+                return
+            self._raise_if_fault(sw, f"waiting for {target_state}")
+            if time.monotonic() > deadline:
+                raise InstrumentTimeout(
+                    self.name, f"drive did not reach {target_state} within {self.state_timeout_s:g} s "
+                    f"(statusword 0x{sw:04X}: {state_from_statusword(sw)})"
+                )
+            time.sleep(0.005)
+
+    def _ensure_slope(self, slope_permille: int) -> None:
+        if slope_permille != self._slope_permille:
+            self.write_register("torque_slope", slope_permille)
+            self._slope_permille = slope_permille
+
+    def enable(self) -> None:
+        scaling = self._scaling()
+        sw = self._statusword()
+        self._raise_if_fault(sw, "enable")
+        self.write_register("target_torque", 0)
+        if self.max_torque_nm is not None:
+            self.write_register("max_torque", min(0xFFFF, scaling.permille(scaling.max_torque_nm)))
+        self._ensure_slope(scaling.slope_permille_per_s(self.default_slope_nm_per_s))
+        self.write_register("mode", MODE_PROFILE_TORQUE)
+        shown = self.read_register("mode_display")
+        if shown != MODE_PROFILE_TORQUE:
+            raise CommandRejected(self.name, f"drive shows mode {shown}, not profile torque (4)")
+        state = state_from_statusword(sw)
+        if state == "OPERATION ENABLED":
+            return
+        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
+            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
+        if state != "SWITCHED ON":
+            self._command(CW_SWITCH_ON, "SWITCHED ON")
+        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+
+    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        scaling = self._scaling()
+        permille = scaling.target_permille(target_nm)
+        slope = scaling.slope_permille_per_s(self.default_slope_nm_per_s if slope_nm_per_s is None else slope_nm_per_s)
+        self._ensure_slope(slope)
+        self.write_register("target_torque", permille)
+
+    def disable(self) -> None:
+        """Target 0, wait (bounded) for the torque to ramp down, then disable voltage."""
+        scaling = self._scaling()
+        self.write_register("target_torque", 0)
+        sw = self._statusword()
+        if state_from_statusword(sw) == "OPERATION ENABLED":
+            slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
+            actual_nm = abs(scaling.newton_metres(self.read_register("torque_actual")))
+            deadline = time.monotonic() + min(10.0, actual_nm / max(slope_nm_per_s, 1e-9) + 0.5)
+            while time.monotonic() < deadline:
+                if abs(self.read_register("torque_actual")) <= 5:
+                    break
+                time.sleep(0.01)
+        self.write_register("controlword", CW_DISABLE_VOLTAGE)
+
+    def status(self) -> LoaderStatus:
+        scaling = self._scaling()
+        time_s = self.clock()
+        sw = self._statusword()
+        torque = self.read_register("torque_actual")
+        position = self.read_register("position_actual")
+        error = self.read_register("error_code") if is_fault(sw) else 0
+        return LoaderStatus(
+            state=state_from_statusword(sw),
+            torque_actual_nm=scaling.newton_metres(torque),
+            fault=is_fault(sw),
+            error_code=error,
+            position_counts=position,
+            time_s=time_s,
+        )
+
+    def fault_reset(self) -> None:
+        self.write_register("controlword", CW_DISABLE_VOLTAGE)  # bit 7 low, so the next write is a rising edge
+        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED")
+
+    def _scaling(self) -> TorqueScaling:
+        if self.scaling is None:
+            raise Disconnected(self.name, "not connected; call connect() first")
+        return self.scaling
+
+    def __enter__(self) -> CiA402Modbus:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,285 @@
+"""A CiA 402 servo drive in profile torque mode, driving the shared bench physics.
+
+One model, two front ends (``drive_modbus``, ``drive_canopen``); both call into it under the physics lock.
+State machine (protocols.md §3.1): controlword commands shutdown / switch on / enable operation / disable
+voltage / quick stop, fault reset on the **rising edge** of bit 7 only. Statusword is computed, never stored.
+
+Profile torque (mode 4): in OPERATION ENABLED the target torque 0x6071 (‰ of the rated torque 0x6076),
+clamped by max torque 0x6072 (statusword bit 11 "internal limit active" while clamping), is handed to the
+bench as a ramp with slope 0x6087 (‰/s). Torque actual 0x6077 and position actual 0x6064 come from the
+physics (applied motor torque, true output twist in counts of ``counts_per_rev``). Bit 10 "target reached"
+when |actual − effective target| ≤ ``target_window_permille``.
+
+Safety: quick stop (option 0x605A = 2: ramp to zero with the quick-stop slope, then SWITCH ON DISABLED;
+5…8: stay in QUICK STOP ACTIVE); a fault (``inject_fault(code)``, or ``communication_lost()`` = 0x8130) goes
+FAULT REACTION ACTIVE → FAULT with the torque removed at once, sets 0x603F/0x1001 and notifies the EMCY
+listeners; leaving FAULT sends the EMCY error reset (code 0). Only mode 4 is supported (0x6502 = 0x0008).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable
+
+from sim.instruments.physics import PhysicsReading, SharedPhysics
+
+ARCSEC_PER_REV = 360.0 * 3600.0
+SUPPORTED_MODES = 0x0008  # bit 3: profile torque
+MODE_PROFILE_TORQUE = 4
+EMCY_COMMUNICATION = 0x8130  # heartbeat / life guard error
+ERROR_REGISTER_FOR = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10, 0x7: 0x80}  # by the code's first hex digit
+
+
+class State(enum.Enum):
+    NOT_READY_TO_SWITCH_ON = 0x0000
+    SWITCH_ON_DISABLED = 0x0040
+    READY_TO_SWITCH_ON = 0x0031
+    SWITCHED_ON = 0x0033
+    OPERATION_ENABLED = 0x0037
+    QUICK_STOP_ACTIVE = 0x0017
+    FAULT_REACTION_ACTIVE = 0x001F
+    FAULT = 0x0018
+
+    @property
+    def label(self) -> str:
+        return self.name.replace("_", " ")
+
+
+class DriveCommandError(ValueError):
+    """A write the drive refuses (value out of range, read-only object, not possible in this state)."""
+
+    def __init__(self, message: str, *, kind: str = "range"):
+        super().__init__(message)
+        self.kind = kind  # "range" | "readonly" | "state" | "unknown"
+
+
+EmcyListener = Callable[[int, int], None]  # (error code, error register)
+
+
+def _int16(value: int) -> int:
+    value &= 0xFFFF
+    return value - 0x10000 if value & 0x8000 else value
+
+
+class Drive402Model:
+    """The drive; every public method takes the shared physics lock."""
+
+    def __init__(
+        self,
+        physics: SharedPhysics,
+        *,
+        rated_torque_mnm: int = 2_000_000,
+        max_torque_permille: int = 1000,
+        torque_slope_permille_per_s: int = 1000,
+        quick_stop_slope_permille_per_s: int = 10_000,
+        quick_stop_option: int = 2,
+        target_window_permille: int = 5,
+        counts_per_rev: int = 1 << 20,
+    ):
+        self.physics = physics
+        self.lock = physics.lock
+        self.rated_torque_mnm = int(rated_torque_mnm)
+        self.max_torque_permille = int(max_torque_permille)
+        self.torque_slope_permille_per_s = int(torque_slope_permille_per_s)
+        self.quick_stop_slope_permille_per_s = int(quick_stop_slope_permille_per_s)
+        self.quick_stop_option = int(quick_stop_option)
+        self.target_window_permille = int(target_window_permille)
+        self.counts_per_rev = int(counts_per_rev)
+        self.state = State.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at power-on
+        self.controlword = 0
+        self.mode = 0
+        self.target_torque_permille = 0
+        self.error_code = 0
+        self.error_register = 0
+        self._emcy_listeners: list[EmcyListener] = []
+        self._latest = physics.latest()
+        physics.add_tick_hook(self._on_tick)
+        physics.set_drive_enabled(False)
+
+    def detach(self) -> None:
+        self.physics.remove_tick_hook(self._on_tick)
+
+    def add_emcy_listener(self, listener: EmcyListener) -> None:
+        with self.lock:
+            self._emcy_listeners.append(listener)
+
+    # -- derived values --------------------------------------------------------------------------------
+
+    @property
+    def rated_torque_nm(self) -> float:
+        return self.rated_torque_mnm / 1000.0
+
+    def _effective_target_permille(self) -> int:
+        return max(-self.max_torque_permille, min(self.max_torque_permille, self.target_torque_permille))
+
+    def torque_actual_permille(self) -> int:
+        with self.lock:
+            value = round(self._latest.applied_torque_nm / self.rated_torque_nm * 1000.0)
+            return max(-32768, min(32767, value))
+
+    def position_counts(self) -> int:
+        with self.lock:
+            value = round(self._latest.true_angle_arcsec / ARCSEC_PER_REV * self.counts_per_rev)
+            return max(-(1 << 31), min((1 << 31) - 1, value))
+
+    def mode_display(self) -> int:
+        return self.mode
+
+    def statusword(self) -> int:
+        with self.lock:
+            word = self.state.value | 0x0200  # bit 9 remote
+            if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_TORQUE:
+                if abs(self.torque_actual_permille() - self._effective_target_permille()) <= self.target_window_permille:
+                    word |= 0x0400  # target reached
+                if abs(self.target_torque_permille) > self.max_torque_permille:
+                    word |= 0x0800  # internal limit active
+            return word
+
+    # -- writes ----------------------------------------------------------------------------------------
+
+    def write_controlword(self, cw: int) -> None:
+        with self.lock:
+            cw &= 0xFFFF
+            rising_reset = bool(cw & 0x80) and not (self.controlword & 0x80)
+            self.controlword = cw
+            state = self.state
+            if state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+                if state is State.FAULT and rising_reset:
+                    self.error_code = 0
+                    self.error_register = 0
+                    self._set_state(State.SWITCH_ON_DISABLED)
+                    self._emcy(0x0000, 0)  # error reset
+                return
+            if cw & 0x80:
+                return  # bit 7 set: fault reset command, no other transition
+            if not cw & 0x02:
+                command = "disable voltage"
+            elif not cw & 0x04:
+                command = "quick stop"
+            elif not cw & 0x01:
+                command = "shutdown"
+            elif not cw & 0x08:
+                command = "switch on"
+            else:
+                command = "enable operation"
+            S = State
+            nxt = {
+                (S.SWITCH_ON_DISABLED, "shutdown"): S.READY_TO_SWITCH_ON,
+                (S.READY_TO_SWITCH_ON, "switch on"): S.SWITCHED_ON,
+                (S.READY_TO_SWITCH_ON, "enable operation"): S.OPERATION_ENABLED,
+                (S.READY_TO_SWITCH_ON, "disable voltage"): S.SWITCH_ON_DISABLED,
+                (S.READY_TO_SWITCH_ON, "quick stop"): S.SWITCH_ON_DISABLED,
+                (S.SWITCHED_ON, "enable operation"): S.OPERATION_ENABLED,
+                (S.SWITCHED_ON, "shutdown"): S.READY_TO_SWITCH_ON,
+                (S.SWITCHED_ON, "disable voltage"): S.SWITCH_ON_DISABLED,
+                (S.SWITCHED_ON, "quick stop"): S.SWITCH_ON_DISABLED,
+                (S.OPERATION_ENABLED, "switch on"): S.SWITCHED_ON,
+                (S.OPERATION_ENABLED, "shutdown"): S.READY_TO_SWITCH_ON,
+                (S.OPERATION_ENABLED, "disable voltage"): S.SWITCH_ON_DISABLED,
+                (S.OPERATION_ENABLED, "quick stop"): S.QUICK_STOP_ACTIVE,
+                (S.QUICK_STOP_ACTIVE, "disable voltage"): S.SWITCH_ON_DISABLED,
+            }.get((state, command))
+            if state is S.QUICK_STOP_ACTIVE and command == "enable operation" and 5 <= self.quick_stop_option <= 8:
+                nxt = S.OPERATION_ENABLED
+            if nxt is not None:
+                self._set_state(nxt)
+
+    def write_mode(self, mode: int) -> None:
+        with self.lock:
+            mode = _int16(mode) if mode > 127 else mode
+            if mode != 0 and not (mode in range(1, 32) and SUPPORTED_MODES & (1 << (mode - 1))):
+                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{SUPPORTED_MODES:04X})")
+            self.mode = mode
+            self._apply()
+
+    def write_target_torque(self, permille: int) -> None:
+        with self.lock:
+            self.target_torque_permille = _int16(permille)
+            self._apply()
+
+    def write_max_torque(self, permille: int) -> None:
+        with self.lock:
+            if not 0 <= permille <= 0xFFFF:
+                raise DriveCommandError(f"max torque {permille} ‰ out of range")
+            self.max_torque_permille = int(permille)
+            self._apply()
+
+    def write_torque_slope(self, permille_per_s: int) -> None:
+        with self.lock:
+            if not 0 < permille_per_s <= 0xFFFFFFFF:
+                raise DriveCommandError(f"torque slope {permille_per_s} ‰/s out of range (must be > 0)")
+            self.torque_slope_permille_per_s = int(permille_per_s)
+            self._apply()
+
+    def write_rated_torque(self, mnm: int) -> None:
+        with self.lock:
+            if self.state is State.OPERATION_ENABLED:
+                raise DriveCommandError("rated torque cannot change in OPERATION ENABLED", kind="state")
+            if not 0 < mnm <= 0xFFFFFFFF:
+                raise DriveCommandError(f"rated torque {mnm} mN·m out of range")
+            self.rated_torque_mnm = int(mnm)
+
+    def write_quick_stop_option(self, option: int) -> None:
+        with self.lock:
+            option = _int16(option)
+            if option not in (0, 1, 2, 5, 6):
+                raise DriveCommandError(f"quick stop option {option} not supported (0, 1, 2, 5, 6)")
+            self.quick_stop_option = option
+
+    # -- faults ----------------------------------------------------------------------------------------
+
+    def inject_fault(self, code: int, register: int | None = None) -> None:
+        """Drive fault (e.g. 0x2310 over-current): FAULT REACTION ACTIVE → FAULT, torque off, EMCY sent."""
+        with self.lock:
+            if register is None:
+                register = 0x01 | ERROR_REGISTER_FOR.get((code >> 12) & 0xF, 0)
+            self.error_code = code & 0xFFFF
+            self.error_register = register & 0xFF
+            self._set_state(State.FAULT_REACTION_ACTIVE)
+            self._set_state(State.FAULT)
+            self._emcy(self.error_code, self.error_register)
+
+    def communication_lost(self) -> None:
+        """The master's heartbeat or requests stopped: fault 0x8130 if the drive is powering the load."""
+        with self.lock:
+            if self.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+                self.inject_fault(EMCY_COMMUNICATION)
+
+    # -- internals -------------------------------------------------------------------------------------
+
+    def _emcy(self, code: int, register: int) -> None:
+        for listener in list(self._emcy_listeners):
+            listener(code, register)
+
+    def _set_state(self, state: State) -> None:
+        self.state = state
+        self._apply()
+
+    def _apply(self) -> None:
+        """Push the drive's present command to the physics."""
+        rated = self.rated_torque_nm
+        if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_TORQUE:
+            self.physics.set_drive_enabled(True)
+            self.physics.set_torque_target(
+                self._effective_target_permille() / 1000.0 * rated,
+                self.torque_slope_permille_per_s / 1000.0 * rated,
+            )
+        elif self.state is State.OPERATION_ENABLED:
+            # enabled without a torque mode: hold zero torque
+            self.physics.set_drive_enabled(True)
+            self.physics.set_torque_target(0.0, self.torque_slope_permille_per_s / 1000.0 * rated)
+        elif self.state is State.QUICK_STOP_ACTIVE and self.quick_stop_option != 0:
+            self.physics.set_drive_enabled(True)
+            self.physics.set_torque_target(0.0, self.quick_stop_slope_permille_per_s / 1000.0 * rated)
+        else:
+            if self.state is State.QUICK_STOP_ACTIVE:  # option 0: disable drive at once
+                self.state = State.SWITCH_ON_DISABLED
+            self.physics.set_torque_target(0.0, self.quick_stop_slope_permille_per_s / 1000.0 * rated)
+            self.physics.set_drive_enabled(False)
+
+    def _on_tick(self, reading: PhysicsReading) -> None:
+        # called by SharedPhysics after every advance, with the lock held
+        self._latest = reading
+        if self.state is State.QUICK_STOP_ACTIVE and self.quick_stop_option in (1, 2):
+            if abs(reading.applied_torque_nm) <= self.target_window_permille / 1000.0 * self.rated_torque_nm:
+                self._set_state(State.SWITCH_ON_DISABLED)

@@ -1,0 +1,198 @@
+"""Modbus front end of the simulated CiA 402 drive (pymodbus 3.16.1 server, TCP or RTU framing).
+
+Holding registers follow the register map (``config/modbus-drive.toml``); addresses outside the map answer
+exception 2. The SimDevice ``action`` refreshes measured registers from the drive model on every read and
+pushes writes into it; writes to read-only registers → exception 2, values the drive refuses → exception 3
+(4 when refused in the present state). Fault injection: ``inject("mute")`` makes the server swallow requests
+(the client times out). ``comm_timeout_s`` > 0 arms a communication watchdog: no request for that long while
+the drive is enabled → drive fault 0x8130.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+import time
+
+from pymodbus import FramerType
+from pymodbus.constants import ExcCodes
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from drivers.cia402_modbus import RegisterMap
+from sim.instruments.drive402 import Drive402Model, DriveCommandError
+
+FAULTS = ("mute",)
+
+
+def _free_port(host: str) -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+class DriveModbusServer:
+    name = "drive Modbus sim"
+
+    def __init__(
+        self,
+        drive: Drive402Model,
+        regmap: RegisterMap,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        framer: str = "tcp",
+        comm_timeout_s: float = 0.0,
+    ):
+        if framer not in ("tcp", "rtu"):
+            raise ValueError(f"framer must be 'tcp' or 'rtu', got {framer!r}")
+        self.drive = drive
+        self.map = regmap
+        self.host = host
+        self.port = port
+        self.framer = framer
+        self.comm_timeout_s = float(comm_timeout_s)
+        self.fault: str | None = None
+        self.requests = 0
+        self._by_address = regmap.by_address()
+        self._server = None
+        self._last_request = time.monotonic()
+        self._watchdog: asyncio.Task | None = None
+
+    def inject(self, fault: str | None) -> None:
+        if fault is not None and fault not in FAULTS:
+            raise ValueError(f"{self.name}: unknown fault {fault!r} (known: {', '.join(FAULTS)})")
+        self.fault = fault
+
+    # -- register access -------------------------------------------------------------------------------
+
+    def _value(self, name: str) -> int:
+        d = self.drive
+        getters = {
+            "controlword": lambda: d.controlword,
+            "statusword": d.statusword,
+            "error_code": lambda: d.error_code,
+            "error_register": lambda: d.error_register,
+            "mode": lambda: d.mode,
+            "mode_display": d.mode_display,
+            "position_actual": d.position_counts,
+            "target_torque": lambda: d.target_torque_permille,
+            "max_torque": lambda: d.max_torque_permille,
+            "torque_actual": d.torque_actual_permille,
+            "torque_slope": lambda: d.torque_slope_permille_per_s,
+            "rated_torque": lambda: d.rated_torque_mnm,
+            "quick_stop_option": lambda: d.quick_stop_option,
+        }
+        return getters[name]() if name in getters else 0
+
+    def _write(self, name: str, value: int) -> None:
+        d = self.drive
+        setters = {
+            "controlword": d.write_controlword,
+            "mode": d.write_mode,
+            "target_torque": d.write_target_torque,
+            "max_torque": d.write_max_torque,
+            "torque_slope": d.write_torque_slope,
+            "rated_torque": d.write_rated_torque,
+            "quick_stop_option": d.write_quick_stop_option,
+        }
+        if name not in setters:
+            raise DriveCommandError(f"{name} is read-only", kind="readonly")
+        setters[name](value)
+
+    async def _action(self, function_code, start_address, address, count, registers, set_values):
+        if self.fault == "mute":
+            raise NoSuchIdException("muted by fault injection")  # the server then sends nothing
+        self.requests += 1
+        self._last_request = time.monotonic()
+        with self.drive.lock:
+            names = []
+            for a in range(address, address + count):
+                spec, _ = self._by_address[a]
+                if spec.name not in names:
+                    names.append(spec.name)
+            if set_values is None:
+                for name in names:
+                    spec = self.map[name]
+                    words = self.map.encode(name, self._value(name)) if self._fits(name) else [0] * spec.words
+                    registers[spec.address - start_address: spec.address - start_address + spec.words] = words
+                return None
+            pending = {}
+            for i in range(len(set_values)):
+                spec, _ = self._by_address[address + i]
+                if not spec.writable:
+                    return ExcCodes.ILLEGAL_ADDRESS
+                pending.setdefault(spec.name, None)
+            # assemble whole values (a 32-bit register may be written one word at a time)
+            for name in pending:
+                spec = self.map[name]
+                base = spec.address - start_address
+                words = list(registers[base: base + spec.words])
+                for i, value in enumerate(set_values):
+                    a = address + i
+                    if spec.address <= a < spec.address + spec.words:
+                        words[a - spec.address] = int(value) & 0xFFFF
+                try:
+                    self._write(name, self.map.decode(name, words))
+                except DriveCommandError as exc:
+                    return ExcCodes.DEVICE_FAILURE if exc.kind == "state" else ExcCodes.ILLEGAL_VALUE
+            return None
+
+    def _fits(self, name: str) -> bool:
+        try:
+            self.map.encode(name, self._value(name))
+            return True
+        except ValueError:
+            return False
+
+    def _device(self) -> SimDevice:
+        blocks = [
+            SimData(spec.address, count=spec.words, values=0, datatype=DataType.REGISTERS)
+            for spec in sorted(self.map.registers.values(), key=lambda s: s.address)
+        ]
+        return SimDevice(id=self.map.device_id, action=self._action, simdata=blocks)
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        return self._server is not None
+
+    async def start(self) -> int:
+        if self._server is not None:
+            return self.port
+        if self.framer == "tcp":
+            server = ModbusTcpServer(self._device(), address=(self.host, self.port), ignore_missing_devices=True)
+            await server.serve_forever(background=True)
+            self.port = server.transport.sockets[0].getsockname()[1]
+        else:
+            if self.port == 0:
+                self.port = _free_port(self.host)
+            server = ModbusSerialServer(
+                self._device(), framer=FramerType.RTU, port=f"socket://{self.host}:{self.port}",
+                baudrate=115200, ignore_missing_devices=True,
+            )
+            await server.serve_forever(background=True)
+        self._server = server
+        self._last_request = time.monotonic()
+        if self.comm_timeout_s > 0:
+            self._watchdog = asyncio.create_task(self._watch())
+        return self.port
+
+    async def stop(self) -> None:
+        server, self._server = self._server, None
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._watchdog
+            self._watchdog = None
+        if server is not None:
+            await server.shutdown()
+
+    async def _watch(self) -> None:
+        while True:
+            await asyncio.sleep(self.comm_timeout_s / 4)
+            if time.monotonic() - self._last_request > self.comm_timeout_s:
+                self.drive.communication_lost()

@@ -1,0 +1,193 @@
+"""CiA 402 loader over Modbus TCP/RTU: exact ADU bytes, exchanges with the simulated drive, failures."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+from drivers.base import (
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    InstrumentTimeout,
+    Loader,
+    MalformedReply,
+)
+from drivers.cia402_modbus import CiA402Modbus, load_register_map
+from sim.instruments.proxy import FaultProxy
+from tcms_daq.errors import ConfigError
+
+
+@pytest.fixture
+def drive_sims(make_sims):
+    sims = make_sims(instruments=("modbus", "modbus_rtu"))
+    sims.physics.start(speed=1.0)
+    return sims
+
+
+def _tcp(sims, port=None, **kw):
+    kw.setdefault("timeout_s", 0.3)
+    kw.setdefault("reconnect_delay_s", 0.05)
+    return CiA402Modbus(f"tcp://127.0.0.1:{port or sims.ports['modbus']}", **kw)
+
+
+def _wait_for(predicate, timeout_s=2.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_register_map_file():
+    regmap = load_register_map()
+    assert regmap["controlword"].address == 0x3100 and regmap["statusword"].address == 0x3200
+    assert regmap["position_actual"].address == 0x3700 and regmap["position_actual"].words == 2
+    assert regmap["rated_torque"].address == 0x3C06
+    # 32-bit values low word first
+    assert regmap.encode("position_actual", 0x00085555) == [0x5555, 0x0008]
+    assert regmap.decode("position_actual", [0xFFFE, 0xFFFF]) == -2
+    assert regmap.encode("target_torque", -1) == [0xFFFF]
+
+
+def test_register_map_errors(tmp_path):
+    bad = tmp_path / "map.toml"
+    bad.write_text('[registers]\ncontrolword = { address = 0x3100, type = "uint16" }\n')
+    with pytest.raises(ConfigError, match="lacks statusword"):
+        load_register_map(bad)
+    bad.write_text('[modbus]\nword_order = "middle"\n')
+    with pytest.raises(ConfigError, match="word_order"):
+        load_register_map(bad)
+
+
+def test_adu_bytes_tcp_and_rtu(drive_sims):
+    sent = []
+    trace = lambda sending, data: (sent.append(bytes(data)) if sending else None, data)[1]  # noqa: E731
+    with _tcp(drive_sims, trace_packet=trace) as drive:
+        drive.enable()
+    pdus = [pkt[6:] for pkt in sent]  # strip the MBAP transaction/protocol/length
+    assert all(pkt[2:4] == b"\x00\x00" for pkt in sent)  # protocol id 0
+    assert bytes.fromhex("00 06 01 06 31 00 00 06") in [pkt[4:] for pkt in sent]  # length 6, unit 1, write 0x3100
+    assert pdus[0] == bytes.fromhex("01 03 3C 06 00 02")  # read rated torque (2 words)
+    writes = [p for p in pdus if p[1] == 0x06 and p[2:4] == b"\x31\x00"]
+    assert [w[4:] for w in writes] == [b"\x00\x06", b"\x00\x07", b"\x00\x0f"]
+    assert bytes.fromhex("01 06 35 00 00 04") in pdus  # mode 4
+
+    sent.clear()
+    rtu = CiA402Modbus(f"socket://127.0.0.1:{drive_sims.ports['modbus_rtu']}", timeout_s=0.3, trace_packet=trace)
+    with rtu:
+        rtu.disable()
+        rtu.enable()
+    # the Kinco manual's own example frame: enable operation = 01 06 31 00 00 0F C7 32 (CRC low byte first)
+    assert bytes.fromhex("01 06 31 00 00 0F C7 32") in sent
+    assert bytes.fromhex("01 03 32 00 00 01 8A B2") in sent  # read statusword
+
+
+def test_raw_socket_replies_and_exceptions(drive_sims):
+    with socket.create_connection(("127.0.0.1", drive_sims.ports["modbus"]), timeout=2) as sock:
+        def ask(hex_request: str) -> bytes:
+            sock.sendall(bytes.fromhex(hex_request))
+            return sock.recv(256)
+
+        # statusword in SWITCH ON DISABLED: 0x0240
+        assert ask("00 07 00 00 00 06 01 03 32 00 00 01") == bytes.fromhex("00 07 00 00 00 05 01 03 02 02 40")
+        # unmapped address -> exception 2; write to the read-only statusword -> exception 2
+        assert ask("00 08 00 00 00 06 01 03 40 00 00 01") == bytes.fromhex("00 08 00 00 00 03 01 83 02")
+        assert ask("00 09 00 00 00 06 01 06 32 00 00 01") == bytes.fromhex("00 09 00 00 00 03 01 86 02")
+        # unsupported mode (1 = profile position) -> exception 3
+        assert ask("00 0A 00 00 00 06 01 06 35 00 00 01") == bytes.fromhex("00 0A 00 00 00 03 01 86 03")
+
+
+def test_normal_exchange_torque_follows(drive_sims):
+    with _tcp(drive_sims, torque_slope_nm_per_s=10000.0) as drive:
+        assert isinstance(drive, Loader)
+        assert drive.rated_torque_nm == pytest.approx(2000.0)
+        drive.enable()
+        assert drive.status().state == "OPERATION ENABLED"
+        drive.set_torque(300.0, slope_nm_per_s=20000.0)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 300.0) <= 2.0)
+        status = drive.status()
+        assert not status.fault and status.position_counts > 0  # positive torque twists positive
+        drive.set_torque(-150.0)  # the default slope of the driver (10 kN·m/s)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm + 150.0) <= 2.0)
+        drive.disable()
+        assert drive.status().state == "SWITCH ON DISABLED"
+        assert abs(drive_sims.physics.latest().applied_torque_nm) < 20.0
+
+
+def test_commands_validated_before_any_byte(drive_sims):
+    sent = []
+    trace = lambda sending, data: (sent.append(data) if sending else None, data)[1]  # noqa: E731
+    with _tcp(drive_sims, max_torque_nm=500.0, trace_packet=trace) as drive:
+        drive.enable()
+        n = len(sent)
+        for bad in (500.1, -600.0, float("nan"), float("inf")):
+            with pytest.raises(CommandRejected, match="Modbus"):
+                drive.set_torque(bad)
+        with pytest.raises(CommandRejected, match="slope"):
+            drive.set_torque(100.0, slope_nm_per_s=0.0)
+        assert len(sent) == n
+        assert drive_sims.drive.max_torque_permille == 250  # 500 N·m of 2000 N·m rated
+
+
+def test_timeout_when_muted(drive_sims):
+    with _tcp(drive_sims) as drive:
+        drive_sims.inject("modbus", "mute")
+        with pytest.raises(InstrumentTimeout, match="Modbus.*no response"):
+            drive.status()
+        drive_sims.inject("modbus", None)
+        assert drive.status().state == "SWITCH ON DISABLED"
+
+
+def test_malformed_and_partial_replies(drive_sims):
+    proxy = FaultProxy("127.0.0.1", drive_sims.ports["modbus"])
+    port = drive_sims.loop.run(proxy.start())
+    try:
+        with _tcp(drive_sims, port=port) as drive:
+            proxy.inject("garbage")
+            with pytest.raises((MalformedReply, InstrumentTimeout)):
+                drive.status()
+            proxy.inject("partial")
+            with pytest.raises((MalformedReply, InstrumentTimeout)):
+                drive.status()
+    finally:
+        drive_sims.loop.run(proxy.stop())
+
+
+def test_reconnect_after_restart_and_disconnected(drive_sims):
+    with _tcp(drive_sims, reconnect_attempts=2) as drive:
+        drive.status()
+        drive_sims.restart("modbus")
+        assert drive.status().state == "SWITCH ON DISABLED"
+        assert drive.reconnects == 1
+        drive_sims.stop_server("modbus")
+        with pytest.raises(Disconnected, match="Modbus.*2 reconnect attempts"):
+            drive.status()
+
+
+def test_device_fault_and_reset(drive_sims):
+    with _tcp(drive_sims) as drive:
+        drive.enable()
+        drive.set_torque(200.0, slope_nm_per_s=20000.0)
+        drive_sims.inject("drive", 0x2310)
+        status = drive.status()
+        assert status.fault and status.state == "FAULT" and status.error_code == 0x2310
+        with pytest.raises(DeviceFault, match="0x2310") as info:
+            drive.enable()
+        assert info.value.code == 0x2310
+        drive.fault_reset()
+        assert drive.status().state == "SWITCH ON DISABLED"
+        drive.enable()
+        assert drive.status().state == "OPERATION ENABLED"
+
+
+def test_comm_watchdog_faults_the_drive(make_sims):
+    sims = make_sims(instruments=("modbus",), modbus_comm_timeout_s=0.2)
+    with _tcp(sims) as drive:
+        drive.enable()
+        time.sleep(0.4)  # the master goes quiet
+        status = drive.status()
+        assert status.fault and status.error_code == 0x8130
