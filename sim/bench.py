@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -28,7 +28,8 @@ import numpy as np
 from sim.drive import TorqueDrive
 from sim.physics import LoopTruth, ReducerPhysics, TwistState, loop_truth, physics_from_spec, twist_arcsec
 from sim.sensors import EncoderModel, TorqueSensorModel
-from tcms_daq.config.models import BenchConfig, ReducerSpec
+from tcms_daq.config.loader import get_reducer, load_reducers_for, validate
+from tcms_daq.config.models import BenchConfig, ReducerSpec, SimConfig
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import Samples
 
@@ -41,34 +42,64 @@ class SimulatedBench:
 
     def __init__(
         self,
-        physics: ReducerPhysics,
+        physics: ReducerPhysics | SimConfig | BenchConfig | Mapping[str, Any] | None = None,
         *,
         reducer: ReducerSpec | None = None,
-        sample_rate_hz: float = 500.0,
-        torque_loop_time_constant_s: float = 0.005,
-        max_torque_nm: float = 2000.0,
-        torque_noise_nm: float = 0.0,
-        torque_gain: float = 1.0,
-        torque_offset_nm: float = 0.0,
-        encoder_noise_arcsec: float = 0.0,
-        encoder_resolution_arcsec: float = 0.0,
-        encoder_signal_period_arcsec: float = 72.0,
-        encoder_interpolation_error_arcsec: float = 0.0,
-        seed: int = 0,
+        catalogue: Mapping[str, ReducerSpec] | None = None,
+        sample_rate_hz: float | None = None,
+        torque_loop_time_constant_s: float | None = None,
+        max_torque_nm: float | None = None,
+        torque_noise_nm: float | None = None,
+        torque_gain: float | None = None,
+        torque_offset_nm: float | None = None,
+        encoder_noise_arcsec: float | None = None,
+        encoder_resolution_arcsec: float | None = None,
+        encoder_signal_period_arcsec: float | None = None,
+        encoder_interpolation_error_arcsec: float | None = None,
+        seed: int | None = None,
         measuring_chain: MeasuringChain | None = None,
         effects: Effects | None = None,
     ):
-        self.physics = physics
+        """``physics``: forward-model parameters, or a config ([sim] table as SimConfig/mapping, or a whole
+        BenchConfig/mapping), or None (defaults: the [sim] defaults and the catalogue's ``sim.reducer``).
+
+        Keyword arguments left at None come from the config ([sim] and [bench] max_torque_nm); with a
+        ReducerPhysics and no config they come from the SimConfig defaults (config/bench-sim.toml has the same).
+        The reducer is ``reducer``, else ``sim.reducer`` looked up in ``catalogue`` (default: the config's catalogue).
+        """
+        cfg = _as_bench_config(None if isinstance(physics, ReducerPhysics) else physics)
+        sim = cfg.sim
+        if isinstance(physics, ReducerPhysics):
+            params = physics
+        else:
+            if reducer is None:
+                cat = catalogue if catalogue is not None else load_reducers_for(cfg)
+                reducer = get_reducer(dict(cat), sim.reducer, cfg.source_path)
+            params = physics_from_spec(reducer)
+
+        def pick(value, default):
+            return default if value is None else value
+
+        self.physics = params
         self.reducer = reducer
-        self.sample_rate_hz = float(sample_rate_hz)
-        self.seed = int(seed)
-        self.max_torque_nm = float(max_torque_nm)
-        self.drive = TorqueDrive(self.sample_rate_hz, torque_loop_time_constant_s, max_torque_nm)
+        self.config = cfg
+        self.sample_rate_hz = float(pick(sample_rate_hz, sim.sample_rate_hz))
+        self.seed = int(pick(seed, sim.seed))
+        self.max_torque_nm = float(pick(max_torque_nm, cfg.bench.max_torque_nm))
+        self.drive = TorqueDrive(self.sample_rate_hz, pick(torque_loop_time_constant_s, sim.torque_loop_time_constant_s),
+                                 self.max_torque_nm)
         torque_rng, angle_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(2))
-        self.torque_sensor = TorqueSensorModel(torque_rng, torque_noise_nm, torque_gain, torque_offset_nm)
-        self.encoder = EncoderModel(angle_rng, encoder_noise_arcsec, encoder_resolution_arcsec,
-                                    encoder_signal_period_arcsec, encoder_interpolation_error_arcsec)
+        self.torque_sensor = TorqueSensorModel(
+            torque_rng, pick(torque_noise_nm, sim.torque_noise_nm), pick(torque_gain, sim.torque_gain),
+            pick(torque_offset_nm, sim.torque_offset_nm))
+        self.encoder = EncoderModel(
+            angle_rng, pick(encoder_noise_arcsec, sim.encoder_noise_arcsec),
+            pick(encoder_resolution_arcsec, sim.encoder_resolution_arcsec),
+            pick(encoder_signal_period_arcsec, sim.encoder_signal_period_arcsec),
+            pick(encoder_interpolation_error_arcsec, sim.encoder_interpolation_error_arcsec))
         self.measuring_chain = measuring_chain
+        if effects is None and sim.effects:
+            effects = _effects_from_config(sim.effects, seed=self.seed, source=cfg.source_path)
         self.effects = effects
         self._twist_state = TwistState()
         self._n = 0  # samples emitted; sample k is at k / sample_rate_hz
@@ -85,33 +116,14 @@ class SimulatedBench:
     def from_config(
         cls,
         cfg: BenchConfig,
-        reducer: ReducerSpec,
+        reducer: ReducerSpec | None = None,
         *,
         seed: int | None = None,
         measuring_chain: MeasuringChain | None = None,
         effects: Effects | None = None,
     ) -> SimulatedBench:
-        """A bench from the [sim] table of a bench config and a catalogue reducer."""
-        s = cfg.sim
-        if effects is None and s.effects:
-            effects = _effects_from_config(s.effects, seed=s.seed if seed is None else seed, source=cfg.source_path)
-        return cls(
-            physics_from_spec(reducer),
-            reducer=reducer,
-            sample_rate_hz=s.sample_rate_hz,
-            torque_loop_time_constant_s=s.torque_loop_time_constant_s,
-            max_torque_nm=cfg.bench.max_torque_nm,
-            torque_noise_nm=s.torque_noise_nm,
-            torque_gain=s.torque_gain,
-            torque_offset_nm=s.torque_offset_nm,
-            encoder_noise_arcsec=s.encoder_noise_arcsec,
-            encoder_resolution_arcsec=s.encoder_resolution_arcsec,
-            encoder_signal_period_arcsec=s.encoder_signal_period_arcsec,
-            encoder_interpolation_error_arcsec=s.encoder_interpolation_error_arcsec,
-            seed=s.seed if seed is None else seed,
-            measuring_chain=measuring_chain,
-            effects=effects,
-        )
+        """A bench from a bench config ([sim], [bench]) and a catalogue reducer (default: ``sim.reducer``)."""
+        return cls(cfg, reducer=reducer, seed=seed, measuring_chain=measuring_chain, effects=effects)
 
     # ------------------------------------------------------------------------------------------ commands
 
@@ -232,6 +244,20 @@ class SimulatedBench:
 def _empty_samples() -> Samples:
     e = np.empty(0)
     return Samples(e, e, e, {"applied_torque_nm": e, "true_angle_arcsec": e, "demand_nm": e})
+
+
+def _as_bench_config(cfg: SimConfig | BenchConfig | Mapping[str, Any] | None) -> BenchConfig:
+    if cfg is None:
+        return BenchConfig()
+    if isinstance(cfg, BenchConfig):
+        return cfg
+    if isinstance(cfg, SimConfig):
+        return BenchConfig(sim=cfg)
+    if isinstance(cfg, Mapping):
+        if {"sim", "bench", "instruments", "procedure"} & set(cfg):
+            return validate(BenchConfig, dict(cfg), "<bench config>")
+        return BenchConfig(sim=validate(SimConfig, dict(cfg), "<sim config>", prefix="sim"))
+    raise TypeError(f"SimulatedBench: cannot build from {type(cfg).__name__}")
 
 
 def _effects_from_config(table: dict[str, Any], *, seed: int, source: str | None) -> Effects | None:

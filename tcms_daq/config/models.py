@@ -24,7 +24,8 @@ class ReducerSimSpec(BaseModel):
     lost_motion_zone_arcsec: full height of the smooth lost-motion zone (L/2)·tanh(T/T_b) on the midline.
     lost_motion_zone_pct: T_b in % of the rated torque (the torque over which the zone is taken up).
     friction_transition_pct: T_z of the Dahl loop in % of the rated torque (how fast a branch saturates after a
-        torque reversal; 3·T_z ≈ 95 % of the width is built up).
+        torque reversal; 3·T_z ≈ 95 % of the width is built up). Large values (≈ 50 %) give a lens-shaped loop
+        whose branches converge smoothly at the tips, small ones a parallelogram with sharp corners.
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -32,7 +33,7 @@ class ReducerSimSpec(BaseModel):
     backlash_arcsec: float = Field(25.0, ge=0.0)
     lost_motion_zone_arcsec: float = Field(12.0, ge=0.0)
     lost_motion_zone_pct: float = Field(1.0, gt=0.0, le=50.0)
-    friction_transition_pct: float = Field(3.0, gt=0.0, le=50.0)
+    friction_transition_pct: float = Field(50.0, gt=0.0, le=200.0)
 
 
 class ReducerSpec(BaseModel):
@@ -101,13 +102,15 @@ class ReducerSpec(BaseModel):
         return (hi - lo) / d_arcsec * ARCSEC_PER_ARCMIN
 
     def limits(self) -> dict[str, float]:
-        """Pass/fail limits: maxima for backlash and lost motion, a minimum rigidity when the catalogue has one."""
+        """Pass/fail limits (keyword arguments of ``tcms_daq.analysis.Limits``): maxima for backlash and lost
+        motion, a minimum rigidity only when the entry sets ``rigidity_min_nm_per_arcmin`` (the catalogue rigidity
+        is a central value, not a limit)."""
         out = {
-            "backlash_arcsec_max": self.backlash_limit_arcsec,
-            "lost_motion_arcsec_max": self.lost_motion_limit_arcsec,
+            "backlash_max_arcsec": self.backlash_limit_arcsec,
+            "lost_motion_max_arcsec": self.lost_motion_limit_arcsec,
         }
         if self.rigidity_min_nm_per_arcmin is not None:
-            out["rigidity_nm_per_arcmin_min"] = self.rigidity_min_nm_per_arcmin
+            out["rigidity_min_nm_per_arcmin"] = self.rigidity_min_nm_per_arcmin
         return out
 
 

@@ -1,0 +1,228 @@
+"""``tcms run``: a stiffness test on the simulated bench (in-process), evaluated like ``tcms analyze``.
+
+The bench, reducer and profile come from a bench config (default ``config/bench-sim.toml``); options override
+them. The evaluation is ``tcms_daq.analysis.evaluate`` on the evaluated loops (the conditioning loop is
+recorded but not evaluated); ``--out`` writes exactly those samples as canonical CSV, so
+``tcms analyze FILE --rated-torque T`` (plus the options the run prints) gives the same numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tcms_daq.config import (
+    BenchConfig,
+    ReducerSpec,
+    get_reducer,
+    load_bench_config,
+    load_reducers_for,
+)
+from tcms_daq.errors import TcmsError
+from tcms_daq.procedure import Profile, build_profile, evaluated_samples, run_stiffness_test
+from tcms_daq.samples import Samples, write_csv
+
+CSV_COLUMNS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec", "applied_torque_nm", "true_angle_arcsec",
+               "loop_index")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run a stiffness test on the simulated bench and evaluate it",
+        description="Run a GB-style stiffness test (−T → 0 → +T → 0 → −T; conditioning loop, then N loops) on the "
+        "simulated bench and print the evaluation (rigidity, lost motion, backlash) next to the simulated "
+        "reducer's true values.",
+    )
+    p.add_argument("--config", type=Path, default=None, metavar="FILE",
+                   help="bench config (default: config/bench-sim.toml)")
+    p.add_argument("--reducer", default=None, metavar="NAME", help="catalogue reducer (default: [sim] reducer)")
+    p.add_argument("--max-torque", type=_positive, default=None, metavar="NM",
+                   help="test torque T in N·m (default: the reducer's rated torque)")
+    p.add_argument("--cycles", type=_count, default=None, metavar="N", help="evaluated loops (default 3)")
+    p.add_argument("--conditioning", type=_count, default=None, metavar="N",
+                   help="conditioning loops before the evaluated ones (default 1)")
+    p.add_argument("--seed", type=_seed, default=None, metavar="S", help="noise seed (default: [sim] seed)")
+    p.add_argument("--profile", choices=("continuous", "stepped"), default=None,
+                   help="continuous torque rate or equal steps with dwell (default: [procedure] kind)")
+    p.add_argument("--rate", type=_positive, default=None, metavar="NM_PER_S",
+                   help="loading rate in N·m/s (default: a quarter of the test torque per second)")
+    p.add_argument("--step", type=_positive, default=None, metavar="NM", help="stepped profile: torque step")
+    p.add_argument("--dwell", type=float, default=None, metavar="S", help="stepped profile: dwell per step")
+    p.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
+                   help="write the evaluated samples as canonical CSV")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    p.set_defaults(func=run)
+
+
+@dataclass
+class SimulatedRun:
+    """What a simulated run produced: the whole record, the evaluated part, the profile and the truth."""
+
+    config: BenchConfig
+    reducer: ReducerSpec
+    profile: Profile
+    seed: int
+    record: Samples
+    evaluated: Samples
+    truth: dict[str, Any]
+
+
+def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int | None = None,
+             progress=None) -> SimulatedRun:
+    """Run ``profile`` on a fresh simulated bench built from ``cfg`` for ``reducer``."""
+    from sim.bench import SimulatedBench  # sim depends on the core, not the other way round at import time
+
+    bench = SimulatedBench.from_config(cfg, reducer, seed=seed)
+    record = run_stiffness_test(bench, profile, progress=progress)
+    record.extra["encoder_arcsec"] = record.angle_arcsec.copy()
+    truth = bench.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
+    truth["physics"] = {k: v for k, v in bench.physics.to_dict().items() if k != "name"}
+    return SimulatedRun(cfg, reducer, profile, bench.seed, record, evaluated_samples(record), truth)
+
+
+def evaluate_run(result: SimulatedRun):
+    from tcms_daq.analysis import Limits, evaluate
+
+    ev = result.evaluated
+    return evaluate(
+        ev.time_s,
+        ev.torque_nm,
+        ev.angle_arcsec,
+        rated_torque_nm=result.reducer.rated_torque_nm,
+        test_torque_nm=result.profile.test_torque_nm,
+        lost_motion_pct=result.reducer.lost_motion_pct,
+        hd_breakpoints_nm=result.reducer.hd_breakpoints_nm,
+        limits=Limits(**result.reducer.limits()),
+    )
+
+
+def _profile_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Profile:
+    overrides = {
+        "kind": args.profile,
+        "max_torque_nm": args.max_torque,
+        "cycles": args.cycles,
+        "conditioning_loops": args.conditioning,
+        "rate_nm_per_s": args.rate,
+        "step_nm": args.step,
+        "dwell_s": args.dwell,
+    }
+    data = cfg.procedure.model_dump()
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    if data["dwell_s"] < 0:
+        raise TcmsError(f"--dwell must be >= 0 s, got {data['dwell_s']}")
+    from tcms_daq.config import load_test_profile
+
+    test = load_test_profile(data, source=cfg.source_path or "<config>")
+    profile = build_profile(test, reducer)
+    if profile.test_torque_nm > cfg.bench.max_torque_nm:
+        raise TcmsError(
+            f"test torque {profile.test_torque_nm:g} N·m exceeds the bench limit {cfg.bench.max_torque_nm:g} N·m "
+            f"([bench] max_torque_nm in {cfg.source_path})"
+        )
+    return profile
+
+
+def _analyze_hint(path: Path, result: SimulatedRun) -> str:
+    r, p = result.reducer, result.profile
+    cmd = f"tcms analyze {path} --rated-torque {r.rated_torque_nm:g} --test-torque {p.test_torque_nm:g}"
+    if r.lost_motion_pct != 3.0:
+        cmd += f" --lost-motion-pct {r.lost_motion_pct:g}"
+    if r.hd_breakpoints_nm is not None:
+        cmd += " --hd-breakpoints {:g} {:g}".format(*r.hd_breakpoints_nm)
+    return cmd
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_bench_config(args.config)
+    catalogue = load_reducers_for(cfg)
+    reducer = get_reducer(catalogue, args.reducer or cfg.sim.reducer, cfg.resolve(cfg.bench.reducers))
+    profile = _profile_from_args(cfg, reducer, args)
+
+    bar = None
+    progress = None
+    if sys.stderr.isatty():
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(profile.duration_s(), 1), unit="s", desc=f"{reducer.name} (sim time)",
+                   file=sys.stderr, leave=False)
+
+        def progress(done_s: float, total_s: float) -> None:
+            bar.n = round(done_s, 1)
+            bar.refresh()
+
+    try:
+        result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    ev = evaluate_run(result)
+
+    if args.out is not None:
+        try:
+            write_csv(args.out, result.evaluated, CSV_COLUMNS)
+        except OSError as exc:
+            raise TcmsError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
+
+    if args.json:
+        out = {
+            **ev.to_dict(),
+            "reducer": reducer.name,
+            "seed": result.seed,
+            "profile": result.profile.to_dict(),
+            "truth": result.truth,
+            "sample_rate_hz": cfg.sim.sample_rate_hz,
+            "n_samples_recorded": len(result.record),
+        }
+        if args.out is not None:
+            out["out"] = str(args.out)
+        print(json.dumps(out, allow_nan=False))
+        return 0
+
+    from tcms_daq.analysis import format_evaluation
+
+    p, t = result.profile, result.truth
+    print(f"simulated bench: {reducer.name}, {p.kind} profile ±{p.test_torque_nm:g} N·m at "
+          f"{p.mean_rate_nm_per_s:.4g} N·m/s, {p.conditioning_loops} conditioning + {p.cycles} loops, "
+          f"seed {result.seed}, {len(result.record)} samples ({p.duration_s():.1f} s simulated)")
+    print(format_evaluation(ev))
+    print()
+    print(f"simulated truth: rigidity {t['rigidity_nm_per_arcmin']:.2f} N·m/arcmin, lost motion "
+          f"{t['lost_motion_arcsec']:.2f}″, backlash {t['backlash_arcsec']:.2f}″")
+    if args.out is not None:
+        print(f"wrote {len(result.evaluated)} samples to {args.out}; re-evaluate with: {_analyze_hint(args.out, result)}")
+    return 0
