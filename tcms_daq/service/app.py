@@ -33,6 +33,7 @@ from tcms_daq.store import RunStore
 
 STATIC_DIR = Path(__file__).parent / "static"
 STORE_FILENAME = "tcms-runs.sqlite3"
+COMPENSATION_FILENAME = "compensation-active.toml"  # the last PUT /api/compensation, reloaded at start
 
 
 @dataclass
@@ -69,6 +70,9 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         bench = runner or await asyncio.to_thread(
             BenchRunner.from_config, settings.config_path, sim_speed=settings.sim_speed
         )
+        saved_compensation = settings.data_dir / COMPENSATION_FILENAME
+        if saved_compensation.is_file():
+            await asyncio.to_thread(bench.set_compensator_toml, saved_compensation.read_text(encoding="utf-8"))
         live = LiveHub(settings.frame_rate_hz, settings.live_queue_frames, settings.live_stall_timeout_s)
         events = EventHub()
         events.bind_loop(asyncio.get_running_loop())
@@ -204,6 +208,8 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         if state.manager.active_id is not None:
             raise Conflict(f"test {state.manager.active_id} is running; change the compensation after it")
         await asyncio.to_thread(state.runner.set_compensator_toml, text)
+        path = state.settings.data_dir / COMPENSATION_FILENAME
+        await asyncio.to_thread(path.write_text, text, "utf-8")
         state.events.publish("compensation_changed")
         return PlainTextResponse(state.runner.compensator_toml(), media_type="application/toml")
 

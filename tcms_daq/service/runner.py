@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -67,6 +67,7 @@ class Runner(Protocol):
         self,
         plan: TestPlan,
         *,
+        run_id: str,
         record: BatchSink,
         on_phase: Callable[..., None],
         abort: threading.Event,
@@ -74,17 +75,287 @@ class Runner(Protocol):
 
 
 @dataclass
-class _Subscribers:
-    live: BatchSink | None = None
-    record: BatchSink | None = None
-    lock: threading.Lock = field(default_factory=threading.Lock)
+class _Plan:
+    profile: Any  # tcms_daq.procedure.Profile
+    reducer: Any  # tcms_daq.config.ReducerSpec
+
+
+def _columns(samples: Any) -> dict[str, np.ndarray]:
+    return {
+        "time_s": samples.time_s,
+        "torque_nm": samples.torque_nm,
+        "angle_arcsec": samples.angle_arcsec,
+        "encoder_arcsec": samples.extra.get("encoder_arcsec", samples.angle_arcsec),
+    }
 
 
 class BenchRunner:
-    """Placeholder until the acquisition layer lands (replaced in the next commit)."""
+    """The service's bench: an :class:`~tcms_daq.acquisition.AcquisitionLoop` that runs for the life of the
+    service (feeding the live hub while idle, too) and :class:`~tcms_daq.acquisition.TestRun` state machines
+    executed on that same loop.
+
+    On a simulated clock, time only moves when someone waits on the loop: an idle pump thread waits in short
+    steps between tests, and a test holds ``_clock_lock`` for its whole run so exactly one thread drives the
+    clock. ``sim_speed`` sets simulated seconds per real second.
+    """
 
     channels = RUN_CHANNELS
 
+    def __init__(self, config: Any, config_path: Path, bench: Any, reducers: Mapping[str, Any],
+                 sim_speed: float = 1.0, idle_step_s: float = 0.02):
+        self.config = config
+        self.config_path = config_path
+        self.bench = bench
+        self.reducers = dict(reducers)
+        self.sim_speed = sim_speed
+        self.idle_step_s = idle_step_s
+        self.acq: Any = None
+        self._live: BatchSink | None = None
+        self._clock_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._live_sub: Any = None
+
     @classmethod
-    def from_config(cls, config_path: Path | None, sim_speed: float = 1.0) -> BenchRunner:
-        raise TcmsError("the bench runner needs tcms_daq.acquisition (not available yet)")
+    def from_config(cls, config_path: Path | None = None, sim_speed: float = 1.0, **bench_kwargs: Any) -> BenchRunner:
+        """Compose the bench of a config file (default ``config/bench-sim.toml``); ``bench_kwargs`` go to
+        :func:`~tcms_daq.acquisition.compose_bench` (e.g. ``compensator``, ``physics_factory``)."""
+        from tcms_daq.acquisition import compose_bench
+        from tcms_daq.config import load_bench_config, load_reducers_for
+        from tcms_daq.config.loader import default_bench_config_path
+
+        path = Path(config_path) if config_path is not None else default_bench_config_path()
+        config = load_bench_config(path)
+        reducers = load_reducers_for(config)
+        bench = compose_bench(config, config_dir=path.parent, speed=sim_speed, **bench_kwargs)
+        return cls(config, path, bench, reducers, sim_speed=sim_speed)
+
+    # -- life cycle ------------------------------------------------------------------------------------------
+    def open(self, live_sink: BatchSink) -> None:
+        from tcms_daq.acquisition import AcquisitionLoop
+
+        self._live = live_sink
+        self.bench.connect()
+        self.acq = AcquisitionLoop(self.bench)
+        self._live_sub = self.acq.fanout.subscribe("live", maxsize=64)
+        self._spawn(self._pump_live, "tcms-live-pump")
+        self.acq.start()
+        if self.acq.clock.stepped:
+            self._spawn(self._pump_idle_clock, "tcms-idle-clock")
+
+    def _spawn(self, target: Callable[[], None], name: str) -> None:
+        thread = threading.Thread(target=target, name=name, daemon=True)
+        thread.start()
+        self._threads.append(thread)
+
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(5.0)
+        self._threads.clear()
+        if self.acq is not None:
+            self.acq.close()
+        self.bench.close()
+
+    def _pump_live(self) -> None:
+        from tcms_daq.acquisition import DataMessage
+
+        sub = self._live_sub
+        while not self._stop.is_set():
+            msg = sub.get(timeout=0.2)
+            if isinstance(msg, DataMessage) and self._live is not None:
+                self._live(_columns(msg.samples))
+
+    def _pump_idle_clock(self) -> None:
+        """Between tests, let simulated time pass (paced by the clock's speed) so the live view keeps moving."""
+        while not self._stop.is_set():
+            if not self._clock_lock.acquire(timeout=0.1):
+                continue
+            try:
+                self.acq.wait(self.idle_step_s, check_trips=False)
+            except TcmsError:
+                pass
+            finally:
+                self._clock_lock.release()
+
+    # -- state -----------------------------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        loader = None
+        trip = None
+        if self.acq is not None:
+            st = self.acq.last_status
+            if st is not None:
+                loader = {"state": st.state, "torque_actual_nm": st.torque_actual_nm, "fault": st.fault,
+                          "error_code": st.error_code}
+            trip = self.acq.trip.to_dict() if self.acq.trip is not None else None
+        stats = self.acq.channel_stats() if self.acq is not None else {}
+        instruments = {
+            kind: {**{k: v for k, v in dict(self.bench.description.get(kind, {})).items()},
+                   **stats.get(kind, {}), **({"status": loader} if kind == "loader" else {})}
+            for kind in ("angle", "torque", "loader")
+        }
+        return {
+            "name": self.bench.name,
+            "config": str(self.config_path),
+            "max_torque_nm": self.bench.max_torque_nm,
+            "clock": "simulated" if getattr(self.bench.clock, "stepped", False) else "monotonic",
+            "sim_speed": self.sim_speed if getattr(self.bench.clock, "stepped", False) else None,
+            "connected": bool(self.bench.connected),
+            "compensation": self.bench.description.get("compensation"),
+            "instruments": instruments,
+            "last_interlock": trip,
+            "samples_published": self.acq.samples_published if self.acq is not None else 0,
+            "reducers": [{"name": r.name, "kind": r.kind, "rated_torque_nm": r.rated_torque_nm}
+                         for r in self.reducers.values()],
+        }
+
+    def config_snapshot(self) -> dict[str, Any]:
+        dump = getattr(self.config, "model_dump", None)
+        data = dump(mode="json") if dump is not None else dict(self.config)
+        return {"source": str(self.config_path), "sim_speed": self.sim_speed, **data}
+
+    # -- compensation ----------------------------------------------------------------------------------------
+    def compensator_toml(self) -> str:
+        to_toml = getattr(self.bench.compensator, "to_toml", None)
+        if to_toml is not None:
+            return to_toml()
+        from tcms_daq.compensation import Compensator
+
+        return Compensator.identity().to_toml()
+
+    def set_compensator_toml(self, text: str) -> None:
+        """Replace the compensator (compensator TOML or geometry TOML). RequestRejected when it does not load."""
+        import tempfile
+        import tomllib
+
+        from tcms_daq.compensation import Compensator
+
+        try:
+            tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise RequestRejected(f"compensation: invalid TOML ({exc})") from None
+        with tempfile.TemporaryDirectory(prefix="tcms-comp-") as tmp:
+            path = Path(tmp) / "compensation.toml"
+            path.write_text(text, encoding="utf-8")
+            try:
+                compensator = Compensator.load(path)
+            except TcmsError as exc:
+                raise RequestRejected(f"compensation: {str(exc).replace(str(path), 'body')}") from None
+        self.bench.compensator = compensator  # one attribute swap: the next batch uses it
+        self.bench.description["compensation"] = "uploaded (PUT /api/compensation)"
+
+    # -- tests -----------------------------------------------------------------------------------------------
+    def plan(self, request: TestRequest) -> TestPlan:
+        from tcms_daq.config.models import TestProfile
+        from tcms_daq.procedure import build_profile
+
+        spec = self.reducers.get(request.reducer)
+        if spec is None:
+            raise RequestRejected(f"unknown reducer {request.reducer!r} (known: {', '.join(self.reducers)})")
+        torque = request.max_torque_nm
+        if torque > self.bench.max_torque_nm:
+            raise RequestRejected(
+                f"max_torque_nm {torque:g} N·m exceeds the bench limit {self.bench.max_torque_nm:g} N·m"
+            )
+        if torque > spec.rated_torque_nm:
+            raise RequestRejected(
+                f"max_torque_nm {torque:g} N·m exceeds the rated torque {spec.rated_torque_nm:g} N·m of {spec.name}"
+            )
+        defaults = self.config.procedure
+        fields: dict[str, Any] = {
+            "kind": request.profile,
+            "max_torque_nm": torque,
+            "rate_nm_per_s": request.rate_nm_per_s,
+            "cycles": request.cycles,
+            "conditioning_loops": defaults.conditioning_loops,
+            "tip_dwell_s": defaults.tip_dwell_s,
+            "start": defaults.start,
+            "step_nm": request.step_nm if request.step_nm is not None else defaults.step_nm,
+            "dwell_s": request.dwell_s if request.dwell_s is not None else defaults.dwell_s,
+        }
+        try:
+            profile = build_profile(TestProfile(**fields), spec)
+        except ValueError as exc:
+            raise RequestRejected(f"profile: {exc}") from None
+        summary = {**profile.to_dict(), "reducer": spec.name, "rated_torque_nm": spec.rated_torque_nm,
+                   "segments": len(profile.segments)}
+        return TestPlan(request, summary, _Plan(profile, spec))
+
+    def _evaluator(self, plan: _Plan) -> Callable[[Any], dict[str, Any]]:
+        from tcms_daq.analysis import Limits, evaluate
+
+        spec, profile = plan.reducer, plan.profile
+        limits = Limits(
+            rigidity_min_nm_per_arcmin=spec.rigidity_min_nm_per_arcmin,
+            backlash_max_arcsec=spec.backlash_limit_arcsec,
+            lost_motion_max_arcsec=spec.lost_motion_limit_arcsec,
+        )
+
+        def once(samples: Any, skip: int) -> Any:
+            return evaluate(
+                samples.time_s, samples.torque_nm, samples.angle_arcsec,
+                rated_torque_nm=spec.rated_torque_nm, test_torque_nm=profile.test_torque_nm,
+                lost_motion_pct=spec.lost_motion_pct, hd_breakpoints_nm=spec.hd_breakpoints_nm,
+                limits=limits, skip_loops=skip,
+            )
+
+        def run(samples: Any) -> dict[str, Any]:
+            # The evaluated loops are the last `cycles` full loops of the record; what comes before them
+            # (conditioning) is reported but not averaged. Counting from the end keeps this right however the
+            # analysis delimits the first loop after the approach ramp.
+            result = once(samples, 0)
+            extra = len(result.loops) - profile.cycles
+            if extra > 0:
+                result = once(samples, extra)
+            return result.to_dict()
+
+        return run
+
+    def execute(self, plan: TestPlan, *, run_id: str, record: BatchSink, on_phase: Callable[..., None],
+                abort: threading.Event) -> RunOutcome:
+        from tcms_daq.acquisition import DataMessage, EventMessage, ProfileRejected, TestRun
+
+        payload: _Plan = plan.payload
+        if self.acq is None:
+            raise TcmsError("the bench is not open")
+        sub = self.acq.fanout.subscribe(f"store-{run_id}", maxsize=None)  # lossless
+        def handle(msg: Any) -> None:
+            if isinstance(msg, DataMessage):
+                record(_columns(msg.samples))
+            elif isinstance(msg, EventMessage):
+                if msg.event == "state":
+                    on_phase(msg.details.get("state", "?"), reason=msg.details.get("reason"))
+                else:
+                    on_phase(msg.event, **msg.details)
+
+        def pump() -> None:  # get() hands out what is queued even after close(), then None
+            while True:
+                msg = sub.get(timeout=0.1)
+                if msg is None:
+                    if sub.closed:
+                        return
+                    continue
+                handle(msg)
+
+        pump_thread = threading.Thread(target=pump, name=f"tcms-store-{run_id}", daemon=True)
+        pump_thread.start()
+        try:
+            with self._clock_lock:
+                try:
+                    run = TestRun(
+                        self.bench, payload.profile,
+                        reducer_torque_limit_nm=1.1 * payload.reducer.rated_torque_nm,
+                        evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
+                        run_id=run_id, profile_info={"reducer": payload.reducer.name},
+                    )
+                    result = run.run()
+                except ProfileRejected as exc:
+                    return RunOutcome("failed", error=str(exc))
+                finally:
+                    sub.close()  # before the idle clock resumes: nothing after the run reaches the store
+        finally:
+            pump_thread.join(30.0)
+        if result.state == "completed":
+            return RunOutcome("completed", results=result.evaluation)
+        return RunOutcome(result.state if result.state in ("aborted", "failed") else "failed",
+                          error=result.reason, results=result.evaluation)

@@ -112,7 +112,7 @@ class TestManager:
         self.store.set_status(run_id, "running")
         self.events.publish("test_state", id=run_id, status="running")
         try:
-            outcome = self.runner.execute(plan, record=record, on_phase=on_phase, abort=abort)
+            outcome = self.runner.execute(plan, run_id=run_id, record=record, on_phase=on_phase, abort=abort)
         except TcmsError as exc:
             outcome = RunOutcome(status="failed", error=str(exc))
         except Exception as exc:  # an internal bug must still end the run visibly, not leave it 'running'

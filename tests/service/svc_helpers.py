@@ -94,7 +94,7 @@ class ScriptedRunner:
         legs = [-1.0, 1.0] * request.cycles + [-1.0]
         return TestPlan(request, {"kind": request.profile, "legs": len(legs)}, (rate, legs))
 
-    def execute(self, plan, *, record, on_phase, abort) -> RunOutcome:
+    def execute(self, plan, *, run_id, record, on_phase, abort) -> RunOutcome:
         rate, legs = plan.payload
         T = plan.request.max_torque_nm
         self._test_active.set()
@@ -155,9 +155,13 @@ def serve(settings: ServiceSettings, runner=None) -> Iterator[LiveServer]:
 
 
 def wait_for(predicate: Callable[[], object], timeout_s: float = 20.0, interval_s: float = 0.05):
+    """Poll ``predicate`` until it returns something truthy (connection errors count as not yet)."""
     deadline = time.monotonic() + timeout_s
     while True:
-        value = predicate()
+        try:
+            value = predicate()
+        except httpx.TransportError:
+            value = None
         if value:
             return value
         if time.monotonic() > deadline:

@@ -1,0 +1,146 @@
+"""End to end over HTTP and WebSocket with the real bench runner (acquisition loop, procedure state machine,
+compensation, analysis) on the in-process simulated bench, the simulated clock running faster than real time."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import websocket
+from svc_helpers import TOKEN, serve, wait_for
+from test_service_api import LiveReader
+
+from tcms_daq.samples import parse_csv_text
+
+REQUEST = {"reducer": "RV-110E", "max_torque_nm": 500, "cycles": 1, "profile": "continuous", "rate_nm_per_s": 250}
+
+
+def test_http_and_websocket_end_to_end(settings_factory, sim_config, tmp_path):
+    settings = settings_factory(config_path=sim_config, sim_speed=20.0)
+    with serve(settings) as srv, srv.client() as c, srv.client(None) as anon:
+        bench = c.get("/api/bench").json()
+        assert bench["clock"] == "simulated" and {r["name"] for r in bench["reducers"]} >= {"RV-110E", "RV-60N"}
+        assert anon.post("/api/tests", json=REQUEST).status_code == 401
+        r = c.post("/api/tests", json={**REQUEST, "reducer": "RV-1"})
+        assert r.status_code == 422 and r.json()["detail"].startswith("unknown reducer 'RV-1' (known: RV-110E")
+        r = c.post("/api/tests", json={**REQUEST, "max_torque_nm": 1500})
+        assert r.status_code == 422 and "rated torque 1078 N·m of RV-110E" in r.json()["detail"]
+        r = c.post("/api/tests", json={**REQUEST, "max_torque_nm": 2500, "reducer": "RV-110E"})
+        assert r.status_code == 422 and "bench limit 2000 N·m" in r.json()["detail"]
+        r = c.post("/api/tests", json={**REQUEST, "rate_nm_per_s": -5})
+        assert r.status_code == 422 and r.json()["detail"].startswith("rate_nm_per_s:")
+        assert c.get("/api/tests/does-not-exist").status_code == 404
+
+        live = LiveReader(f"{srv.ws_base}/ws/live")
+        live.start()
+        events = websocket.create_connection(f"{srv.ws_base}/ws/events", timeout=10)
+        r = c.post("/api/tests", json=REQUEST)
+        assert r.status_code == 202 and r.json()["status"] == "queued"
+        run_id = r.json()["id"]
+        assert c.post("/api/tests", json=REQUEST).status_code == 409
+        run = wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"] in
+                       ("completed", "failed", "aborted") and t, timeout_s=60)
+        live.close()
+        assert run["status"] == "completed", run["error"]
+        res = run["results"]
+        assert 200 < res["rigidity_nm_per_arcmin"] < 400 and res["verdict"]["passed"] in (True, False)
+        assert {"lost_motion_arcsec", "backlash_arcsec", "loops", "per_direction"} <= set(res)
+
+        seqs = [f.sequence for f in live.frames]
+        assert len(seqs) > 10 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+        assert all(f.dropped == 0 for f in live.frames)
+        peak = max(np.abs(f.columns["torque_nm"]).max() for f in live.frames)
+        assert 450 < peak < 560  # the test's torque went through the live stream
+
+        phases = []
+        while "completed" not in phases:
+            e = json.loads(events.recv())
+            if e.get("id") == run_id:
+                phases.append(e.get("status") or e.get("phase"))
+        events.close()
+        assert phases[0] == "queued" and "loading" in phases and "evaluating" in phases
+
+        n = run["sample_count"]
+        csv = parse_csv_text(c.get(f"/api/tests/{run_id}/samples?format=csv").text)
+        assert len(csv["time_s"]) == n > 1000 and np.all(np.diff(csv["time_s"]) > 0)
+        assert 450 < np.abs(csv["torque_nm"]).max() < 560
+        js = c.get(f"/api/tests/{run_id}/samples?format=json").json()
+        np.testing.assert_array_equal(js["data"]["angle_arcsec"], csv["angle_arcsec"])
+        pq_table = pq.read_table(io.BytesIO(c.get(f"/api/tests/{run_id}/samples?format=parquet").content))
+        np.testing.assert_array_equal(pq_table.column("encoder_arcsec").to_numpy(), csv["encoder_arcsec"])
+        (tmp_path / "r.mf4").write_bytes(c.get(f"/api/tests/{run_id}/samples?format=mdf4").content)
+        from asammdf import MDF
+
+        with MDF(tmp_path / "r.mf4") as mdf:
+            np.testing.assert_array_equal(mdf.get("angle_arcsec").samples, csv["angle_arcsec"])
+        report = c.get(f"/api/tests/{run_id}/report").text
+        assert "<svg" in report and "rigidity_nm_per_arcmin" in report
+
+        comp = c.get("/api/compensation")
+        assert comp.status_code == 200 and "[compensator]" in comp.text
+        assert c.put("/api/compensation", content="[compensator\n").status_code == 422
+        assert c.put("/api/compensation", content=comp.text).status_code == 200
+
+
+def _start_service(data_dir, config, port_file_timeout_s=30.0):
+    env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tcms_daq.cli", "serve", "--port", "0", "--data-dir", str(data_dir),
+         "--config", str(config), "--sim-speed", "5"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+    )
+    deadline = time.monotonic() + port_file_timeout_s
+    line = ""
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if "service on http://" in line:
+            return proc, line.split("http://", 1)[1].split("/", 1)[0]
+        if not line and proc.poll() is not None:
+            break
+    proc.kill()
+    raise AssertionError(f"tcms serve did not start: {line!r}")
+
+
+@pytest.mark.timeout(120)
+def test_killed_service_marks_run_interrupted_and_keeps_samples(sim_config, tmp_path):
+    import httpx
+
+    data_dir = tmp_path / "data"
+    proc, hostport = _start_service(data_dir, sim_config)
+    try:
+        c = httpx.Client(base_url=f"http://{hostport}", headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
+        wait_for(lambda: c.get("/api/health").status_code == 200)
+        run_id = c.post("/api/tests", json={**REQUEST, "rate_nm_per_s": 50, "cycles": 3}).json()["id"]
+        wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"] == "running"
+                 and t["sample_count"] > 500, timeout_s=60)
+        os.kill(proc.pid, signal.SIGKILL)  # no shutdown hook runs
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+    proc2, hostport2 = _start_service(data_dir, sim_config)
+    try:
+        c2 = httpx.Client(base_url=f"http://{hostport2}", timeout=20)
+        run = wait_for(lambda: c2.get(f"/api/tests/{run_id}").json())
+        assert run["status"] == "interrupted" and run["sample_count"] > 500
+        assert "stopped" in run["error"]
+        csv = parse_csv_text(c2.get(f"/api/tests/{run_id}/samples?format=csv").text)
+        assert len(csv["time_s"]) == run["sample_count"]
+        assert c2.get("/api/bench").json()["active_test"] is None
+    finally:
+        proc2.send_signal(signal.SIGTERM)
+        try:
+            proc2.wait(20)
+        except subprocess.TimeoutExpired:
+            proc2.kill()
+            proc2.wait(10)
