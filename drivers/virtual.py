@@ -179,28 +179,41 @@ PhysicsFactory = Callable[[Any], Any]
 
 @dataclass
 class VirtualContext:
-    """What the bench composer hands to virtual drivers: the shared benches (by name) and how to build one."""
+    """What the bench composer hands to virtual drivers: the bench config, the shared benches (by name) and
+    how to build the physics of one (``physics_factory(bench_config)``)."""
 
-    sim_config: Any = None
+    config: Any = None
     physics_factory: PhysicsFactory | None = None
     benches: dict[str, VirtualBench] = field(default_factory=dict)
 
     def bench(self, name: str) -> VirtualBench:
         if name not in self.benches:
             factory = self.physics_factory or default_physics_factory
-            self.benches[name] = VirtualBench(factory(self.sim_config), name=name)
+            self.benches[name] = VirtualBench(factory(self.config), name=name)
         return self.benches[name]
 
 
-def default_physics_factory(sim_config: Any) -> Any:
-    """Build ``sim.bench.SimulatedBench`` from the ``[sim]`` config section (the core's simulated bench)."""
-    try:
-        from sim.bench import SimulatedBench
-    except ImportError as exc:  # pragma: no cover - only before the core lands
-        raise ConfigError(f"virtual bench needs sim.bench.SimulatedBench ({exc})") from None
-    if sim_config is None:
-        return SimulatedBench()
-    return SimulatedBench(sim_config)
+def _section(config: Any, key: str) -> Any:
+    if isinstance(config, Mapping):
+        return config.get(key)
+    return getattr(config, key, None)
+
+
+def default_physics_factory(config: Any) -> Any:
+    """``sim.bench.SimulatedBench`` from a whole bench config ([sim], [bench]); when ``[sim] geometry`` names a
+    measuring-chain geometry file, the encoder reads through that chain's errors (the compensation module's
+    forward model), so the compensator has something real to correct."""
+    from sim.bench import SimulatedBench
+
+    chain = None
+    geometry = _section(_section(config, "sim") or {}, "geometry")
+    if geometry:
+        from tcms_daq.compensation import Compensator
+
+        resolve = getattr(config, "resolve", None)
+        path = resolve(geometry) if resolve is not None else geometry
+        chain = Compensator.from_geometry(path).encoder_reading
+    return SimulatedBench(config, measuring_chain=chain)
 
 
 def parse_virtual_url(url: str) -> str:
@@ -373,7 +386,8 @@ class VirtualDriver:
         raise ConfigError(f"virtual driver: unknown instrument kind {kind!r} (angle, torque, loader)")
 
     @classmethod
-    def from_config(cls, kind: str, options: Mapping[str, Any], context: Mapping[str, Any]):
-        ctx = context.setdefault("virtual", VirtualContext(sim_config=context.get("sim_config"),
-                                                          physics_factory=context.get("physics_factory")))
+    def from_config(cls, kind: str, options: Mapping[str, Any], context: dict[str, Any]):
+        ctx = context.get("virtual")
+        if ctx is None:
+            ctx = context["virtual"] = VirtualContext(context.get("config"), context.get("physics_factory"))
         return cls(kind=kind, context=ctx, **dict(options))

@@ -12,6 +12,7 @@ monotonic time. Mixing the two on one bench is refused.
 
 from __future__ import annotations
 
+import inspect
 import math
 import tomllib
 from collections.abc import Callable, Mapping
@@ -128,12 +129,22 @@ def load_compensator(path: str | Path) -> Any:
     raise ConfigError(f"compensation model {path}: Compensator has no TOML loader")
 
 
-def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: float = math.inf,
+def _accepts(cls: Any, name: str) -> bool:
+    try:
+        params = inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        return False
+    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
+def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: float | None = None,
                   physics_factory: Callable[[Any], Any] | None = None, compensator: Any = None) -> Bench:
     """Build a :class:`Bench` (not yet connected) from a bench config (mapping or the core's config model).
 
-    speed: simulated seconds per real second when the bench runs on a simulated clock (inf = as fast as
-    possible). physics_factory: builds the simulated physics from the ``[sim]`` section (tests inject one).
+    speed: on a simulated clock, simulated seconds per real second (default inf: as fast as possible); on real
+    time, the speed of the protocol simulators' physics (default 1; real instruments: 1). Drivers that take a
+    ``clock`` get the bench clock's ``now``, so every reading is stamped on the bench's time base.
+    physics_factory: builds the simulated physics from the bench config (tests inject one).
     compensator: overrides the ``bench.compensation`` file.
     """
     bench_cfg = _as_dict(_section(config, "bench"))
@@ -142,11 +153,12 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         raise ConfigError("bench config: missing [instruments] (angle, torque, loader)")
     max_torque_nm = float(bench_cfg.get("max_torque_nm", math.inf))
     context: dict[str, Any] = {
-        "sim_config": _section(config, "sim"),
+        "config": config,
         "physics_factory": physics_factory,
         "bench_max_torque_nm": max_torque_nm,
         "config_dir": config_dir,
     }
+    real_clock = MonotonicClock(1.0 if speed is None or not math.isfinite(speed) else speed)
     drivers: dict[str, Any] = {}
     description: dict[str, Any] = {}
     for kind in KINDS:
@@ -161,21 +173,23 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
             opts.setdefault("max_torque_nm", max_torque_nm if math.isfinite(max_torque_nm) else 2000.0)
         cls = registry.driver_class(driver_name)
         from_config = getattr(cls, "from_config", None)
+        if from_config is None and "clock" not in opts and _accepts(cls, "clock"):
+            opts["clock"] = real_clock.now
         try:
             drivers[kind] = from_config(kind, opts, context) if from_config else cls(**opts)
         except TypeError as exc:
             raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r}: {exc}") from None
-        description[kind] = {"driver": driver_name, **{k: v for k, v in opts.items() if k != "context"}}
+        description[kind] = {"driver": driver_name, **{k: v for k, v in opts.items() if k != "clock"}}
 
     sources = [getattr(d, "time_source", None) for d in drivers.values()]
     if all(s is not None for s in sources):
         if any(s is not sources[0] for s in sources):
             raise ConfigError("bench config: the simulated instruments must share one bench (same url)")
-        clock: Clock = SimulatedClock(sources[0], speed=speed)
+        clock: Clock = SimulatedClock(sources[0], speed=math.inf if speed is None else speed)
     elif any(s is not None for s in sources):
         raise ConfigError("bench config: cannot mix simulated (virtual) and real instruments on one bench")
     else:
-        clock = MonotonicClock()
+        clock = real_clock
 
     comp_source = "identity"
     if compensator is None:

@@ -38,16 +38,25 @@ class TimeSource(Protocol):
 
 
 class MonotonicClock:
-    """Real time: ``time.monotonic``; drivers of real instruments stamp with the same clock."""
+    """Real time (``time.monotonic``) × ``speed``; drivers of real instruments stamp with this clock's ``now``.
+
+    ``speed`` > 1 only makes sense against protocol simulators whose physics also runs at that speed
+    (``tcms sim serve --speed``): then ramps, dwells and timeouts are in the simulation's seconds.
+    """
 
     stepped = False
 
+    def __init__(self, speed: float = 1.0):
+        if not (speed > 0 and math.isfinite(speed)):
+            raise ValueError(f"real-time clock speed must be finite and > 0, got {speed}")
+        self.speed = float(speed)
+
     def now(self) -> float:
-        return time.monotonic()
+        return time.monotonic() * self.speed
 
     def sleep(self, duration_s: float) -> None:
         if duration_s > 0:
-            time.sleep(duration_s)
+            time.sleep(duration_s / self.speed)
 
 
 class SimulatedClock:

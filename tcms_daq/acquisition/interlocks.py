@@ -45,7 +45,7 @@ class InterlockLimits:
     angle_min_arcsec: float | None = None
     angle_max_arcsec: float | None = None
     torque_rate_limit_nm_per_s: float | None = None
-    rate_window_s: float = 0.05
+    rate_window_s: float = 0.2
     stale_timeout_s: float = 1.0
     max_consecutive_errors: int = 3
 

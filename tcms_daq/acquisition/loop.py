@@ -232,6 +232,7 @@ class AcquisitionLoop:
             self._on_error(ch, Disconnected(ch.name, f"{type(exc).__name__}: {exc}"))
             return None
         ch.errors_in_row = 0
+        ch.readings += 1
         ch.last_arrival_s = self.clock.now()
         self.last_status = status
         trip = check_loader_status(status)

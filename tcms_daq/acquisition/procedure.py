@@ -27,6 +27,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
+import numpy as np
+
 from drivers.base import InstrumentError, LoaderStatus
 from tcms_daq.acquisition.bench import Bench
 from tcms_daq.acquisition.fanout import DataMessage, Message
@@ -44,6 +46,7 @@ from tcms_daq.acquisition.record import (
     StateChange,
 )
 from tcms_daq.errors import TcmsError
+from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment
 from tcms_daq.samples import Samples
 
 
@@ -53,16 +56,6 @@ class ProcedureError(TcmsError):
 
 class ProfileRejected(TcmsError):
     """The profile violates a limit; raised before anything is commanded."""
-
-
-@dataclass(frozen=True)
-class Segment:
-    """Ramp the torque to ``target_nm`` at ``slope_nm_per_s``, then hold for ``dwell_s``."""
-
-    target_nm: float
-    slope_nm_per_s: float
-    dwell_s: float = 0.0
-    label: str = ""
 
 
 @dataclass(frozen=True)
@@ -93,11 +86,9 @@ def _get(obj: Any, *names: str, default: Any = None) -> Any:
 
 
 def as_segments(profile: Any) -> list[Segment]:
-    """Profile segments → :class:`Segment` list.
-
-    Accepts a sequence of segments (objects or mappings with ``target_nm``, ``slope_nm_per_s`` or
-    ``rate_nm_per_s``, optional ``dwell_s``) or an object with a ``segments`` attribute/method.
-    """
+    """Profile segments (``tcms_daq.procedure.profiles.Segment``) from a ``Profile`` (its ``segments``) or a
+    sequence of segments or mappings with ``target_nm``, ``slope_nm_per_s`` (or ``rate_nm_per_s``), optional
+    ``dwell_s`` and ``loop_index`` (default 1: evaluated)."""
     seq = _get(profile, "segments")
     if seq is not None:
         profile = seq() if callable(seq) else seq
@@ -106,21 +97,22 @@ def as_segments(profile: Any) -> list[Segment]:
         if isinstance(seg, Segment):
             out.append(seg)
             continue
-        target = _get(seg, "target_nm", "torque_nm", "end_nm")
+        target = _get(seg, "target_nm")
         slope = _get(seg, "slope_nm_per_s", "rate_nm_per_s")
         if target is None or slope is None:
-            raise ProfileRejected(f"profile segment {i}: needs target_nm and slope_nm_per_s/rate_nm_per_s")
-        out.append(Segment(float(target), float(slope), float(_get(seg, "dwell_s", "hold_s", default=0.0) or 0.0),
-                           str(_get(seg, "label", "kind", default="") or "")))
+            raise ProfileRejected(f"profile segment {i}: needs target_nm and slope_nm_per_s")
+        out.append(Segment(float(target), float(slope), float(_get(seg, "dwell_s", default=0.0) or 0.0),
+                           int(_get(seg, "loop_index", default=1))))
     if not out:
         raise ProfileRejected("profile has no segments")
     return out
 
 
-def default_limits(bench: Bench, segments: Sequence[Segment], reducer_torque_limit_nm: float | None = None,
+def default_limits(bench: Bench, profile: Any, reducer_torque_limit_nm: float | None = None,
                    **overrides: Any) -> InterlockLimits:
     """Interlock limits for a run: bench and reducer torque, a rate limit of twice the steepest profile slope
     (+5 % of the peak per second for sensor noise); ``overrides`` replace any field."""
+    segments = as_segments(profile)
     peak = max(abs(s.target_nm) for s in segments)
     slope = max(s.slope_nm_per_s for s in segments)
     values: dict[str, Any] = {
@@ -194,9 +186,12 @@ class TestRun:
         peak = max(abs(s.target_nm) for s in self.segments)
         self.tolerance_nm = (self.options.tolerance_nm if self.options.tolerance_nm is not None
                              else max(0.02 * peak, 1.0))
+        info = profile.to_dict() if hasattr(profile, "to_dict") else {}
         self.record = RunRecord(run_id or uuid.uuid4().hex[:12], bench_name=bench.name,
-                                profile={"segments": [asdict(s) for s in self.segments], **(profile_info or {})},
+                                profile={**info, **(profile_info or {}),
+                                         "segments": [asdict(s) for s in self.segments]},
                                 limits=self.limits.to_dict())
+        self._marks: list[tuple[float, int]] = []  # (clock time a segment was commanded, its loop index)
         self._thread: threading.Thread | None = None
         self._done = threading.Event()
         self._setpoint_nm = 0.0
@@ -261,8 +256,7 @@ class TestRun:
             self._transition(EVALUATING)
             self._collect(recorder)
             if self.evaluate is not None:
-                loading = self.record.loading_samples()
-                self.record.evaluation = self.evaluate(loading)
+                self.record.evaluation = self.evaluate(self.record.evaluated_samples())
             self._transition(COMPLETED)
         except (InterlockTripped, AbortRequested) as exc:
             self._finish_early(acq, recorder, ABORTED, exc)
@@ -316,6 +310,7 @@ class TestRun:
 
     def _run_segment(self, acq: AcquisitionLoop, seg: Segment) -> None:
         start_nm = self._setpoint_nm
+        self._marks.append((acq.clock.now(), seg.loop_index))
         acq.loader_command(self.bench.loader.set_torque, seg.target_nm, seg.slope_nm_per_s)
         self._setpoint_nm = seg.target_nm
         ramp_s = abs(seg.target_nm - start_nm) / seg.slope_nm_per_s
@@ -394,8 +389,23 @@ class TestRun:
             return
         parts = [m.samples for m in recorder.drain() if isinstance(m, DataMessage)]
         if parts:
-            self.record.samples = Samples.concat([self.record.samples, *parts]) if len(self.record.samples) \
-                else Samples.concat(parts)
+            if len(self.record.samples):
+                parts.insert(0, self.record.samples)
+            self.record.samples = Samples.concat(parts)
+        self._tag_loops()
+
+    def _tag_loops(self) -> None:
+        """``loop_index`` column: the loop index of the segment being run at each sample (−1 outside)."""
+        s = self.record.samples
+        loop = np.full(len(s), float(OUTSIDE_LOOPS))
+        if self._marks and len(s):
+            times = np.array([m[0] for m in self._marks])
+            idx = np.searchsorted(times, s.time_s, side="right") - 1
+            inside = idx >= 0
+            if self.record.loading_window_s is not None:
+                inside &= s.time_s <= self.record.loading_window_s[1]
+            loop[inside] = np.array([m[1] for m in self._marks], dtype=float)[idx[inside]]
+        s.extra["loop_index"] = loop
 
     # -- state machine -------------------------------------------------------------------------------
     def _transition(self, state: str, reason: str | None = None) -> None:

@@ -50,7 +50,7 @@ class StateChange:
 
 
 def _empty_samples() -> Samples:
-    return Samples(np.empty(0), np.empty(0), np.empty(0), {"encoder_arcsec": np.empty(0)})
+    return Samples(np.empty(0), np.empty(0), np.empty(0), {"encoder_arcsec": np.empty(0), "loop_index": np.empty(0)})
 
 
 @dataclass
@@ -87,6 +87,13 @@ class RunRecord:
             return self.samples
         t0, t1 = self.loading_window_s
         return self.samples.select((self.samples.time_s >= t0) & (self.samples.time_s <= t1))
+
+    def evaluated_samples(self) -> Samples:
+        """The samples of the evaluated loops (loop_index ≥ 1), or the loading phase if no loop is marked."""
+        loop = self.samples.extra.get("loop_index")
+        if loop is not None and np.any(loop >= 1):
+            return self.samples.select(loop >= 1)
+        return self.loading_samples()
 
     def to_dict(self, include_samples: bool = False) -> dict[str, Any]:
         out: dict[str, Any] = {

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tcms_daq.acquisition import Segment, compose_bench
+from tcms_daq.acquisition import compose_bench
+from tcms_daq.procedure.profiles import continuous_profile
 from tcms_daq.samples import Samples
 
 RIGIDITY_NM_PER_ARCMIN = 300.0
@@ -82,13 +83,9 @@ def make_bench():
     return make
 
 
-def gb_profile(peak_nm: float = 300.0, slope_nm_per_s: float = 600.0, loops: int = 2) -> list[Segment]:
-    """−T → 0 → +T → 0 → −T repeated ``loops`` times (starting from 0 to −T)."""
-    segs = [Segment(-peak_nm, slope_nm_per_s, 0.05, "to -T")]
-    for _ in range(loops):
-        segs += [Segment(0.0, slope_nm_per_s, 0.0, "unload"), Segment(peak_nm, slope_nm_per_s, 0.05, "load +"),
-                 Segment(0.0, slope_nm_per_s, 0.0, "unload"), Segment(-peak_nm, slope_nm_per_s, 0.05, "load -")]
-    return segs
+def gb_profile(peak_nm: float = 300.0, slope_nm_per_s: float = 600.0, cycles: int = 1):
+    """The core's GB-style continuous profile: 0 → −T, a conditioning loop, ``cycles`` evaluated loops, → 0."""
+    return continuous_profile(peak_nm, slope_nm_per_s, cycles=cycles, conditioning_loops=1, tip_dwell_s=0.05)
 
 
 @pytest.fixture

@@ -40,7 +40,7 @@ def test_completed_run_walks_the_states_and_ends_safe(make_bench, profile):
     cmds = bench.loader.commands
     assert cmds[0][0] == "enable" and cmds[-1][0] == "disable"
     targets = [v for c, v, _ in cmds if c == "torque"]
-    assert targets[: len(profile)] == [s.target_nm for s in profile]
+    assert targets[: len(profile.segments)] == [s.target_nm for s in profile.segments]
     assert targets[-1] == 0.0
 
 
