@@ -115,7 +115,7 @@ def test_stale_angle_data(make_bench, profile):
 def test_torque_rate_spike(make_bench, profile):
     bench = make_bench()
     vb = bench.loader.bench
-    record = run_with_fault(bench, profile, lambda: setattr(vb.faults, "torque_offset_nm", 100.0))
+    record = run_with_fault(bench, profile, lambda: setattr(vb.faults, "torque_offset_nm", 300.0))
     assert_safe_abort(record, "torque rate", "torque_rate")
     assert_loader_safe(bench)
 
