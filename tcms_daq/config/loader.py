@@ -121,10 +121,11 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
 
 
 def load_reducers_for(cfg: BenchConfig) -> dict[str, ReducerSpec]:
-    """The catalogue a bench config names (``[bench] reducers``, relative to the file; default reducers.toml)."""
+    """The catalogue a bench config names (``[bench] reducers``, relative to the file; default reducers.toml, and
+    the shipped catalogue when no reducers.toml lies next to the file)."""
     candidate = Path(cfg.resolve(cfg.bench.reducers))
-    if not candidate.exists() and "reducers" not in cfg.bench.model_fields_set:
-        return load_reducer_catalogue()
+    if not candidate.exists() and cfg.bench.reducers == "reducers.toml":
+        return load_reducer_catalogue()  # a copied bench file without its catalogue: the shipped one
     return load_reducer_catalogue(candidate)
 
 

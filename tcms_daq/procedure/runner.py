@@ -53,7 +53,7 @@ def run_stiffness_test(
     done_s = 0.0
     parts: list[Samples] = []
 
-    def record(duration_s: float, loop_index: int) -> None:
+    def record(duration_s: float, loop_index: int, callbacks: bool = True) -> None:
         nonlocal done_s
         remaining = duration_s
         while remaining > 1e-12:
@@ -63,26 +63,34 @@ def run_stiffness_test(
             done_s += dt
             if len(batch):
                 parts.append(batch)
-                if on_batch is not None:
+                if on_batch is not None and callbacks:
                     on_batch(batch)
-            if progress is not None:
+            if progress is not None and callbacks:
                 progress(min(done_s, total_s), total_s)
 
-    level = 0.0
+    peak = 0.0  # the largest |demand| the present segment can have reached
+    completed = False
     bench.set_drive_enabled(True)
     try:
+        level = 0.0
         for seg in profile.segments:
+            peak = max(abs(level), abs(seg.target_nm))
             bench.set_torque_target(seg.target_nm, seg.slope_nm_per_s)
             record(seg.duration_s(level), seg.loop_index)
             level = seg.target_nm
+            peak = abs(level)
+        completed = True
     finally:
-        # Every exit ramps to zero at the profile rate, then lets the torque loop settle and disables the drive.
-        if level != 0.0:
+        # Every exit ramps to zero at the profile rate, lets the torque loop settle and disables the drive. After
+        # an error the callbacks are not called again (they may be what failed).
+        try:
             bench.set_torque_target(0.0, profile.rate_nm_per_s)
-            record(abs(level) / profile.rate_nm_per_s, OUTSIDE_LOOPS)
-        if settle_s > 0 and math.isfinite(settle_s):
-            record(settle_s, OUTSIDE_LOOPS)
-        bench.set_drive_enabled(False)
+            if peak > 0.0:
+                record(peak / profile.rate_nm_per_s, OUTSIDE_LOOPS, callbacks=completed)
+            if settle_s > 0 and math.isfinite(settle_s):
+                record(settle_s, OUTSIDE_LOOPS, callbacks=completed)
+        finally:
+            bench.set_drive_enabled(False)
     return Samples.concat(parts)
 
 

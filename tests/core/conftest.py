@@ -1,0 +1,39 @@
+"""Fixtures for the core tests: the catalogue, the default bench config, and TOML files to break."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tcms_daq.config import default_config_dir, load_bench_config, load_reducer_catalogue
+
+
+@pytest.fixture(scope="session")
+def catalogue():
+    return load_reducer_catalogue()
+
+
+@pytest.fixture(scope="session")
+def bench_config():
+    return load_bench_config()
+
+
+@pytest.fixture
+def reducers_text() -> str:
+    return (default_config_dir() / "reducers.toml").read_text(encoding="utf-8")
+
+
+@pytest.fixture
+def bench_text() -> str:
+    return (default_config_dir() / "bench-sim.toml").read_text(encoding="utf-8")
+
+
+@pytest.fixture
+def write(tmp_path: Path):
+    def _write(name: str, text: str) -> Path:
+        path = tmp_path / name
+        path.write_text(text, encoding="utf-8")
+        return path
+
+    return _write

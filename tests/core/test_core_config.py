@@ -1,0 +1,143 @@
+"""Configuration: the shipped files load; every invalid file names the file, the key and the problem."""
+
+from __future__ import annotations
+
+import pytest
+
+from tcms_daq.config import (
+    BenchConfig,
+    get_reducer,
+    hd_twist_arcsec,
+    load_bench_config,
+    load_reducer_catalogue,
+    load_test_profile,
+)
+from tcms_daq.errors import ConfigError
+from tcms_daq.units import ARCSEC_PER_RAD
+
+
+def test_catalogue_has_the_issue_values(catalogue):
+    rv110 = catalogue["RV-110E"]
+    assert (rv110.kind, rv110.rated_torque_nm, rv110.rigidity_nm_per_arcmin) == ("rv", 1078.0, 294.0)
+    assert catalogue["RV-100C"].rigidity_nm_per_arcmin == 510.0
+    assert catalogue["RV-60N"].rigidity_nm_per_arcmin == 200.0
+    hd = catalogue["HFUC-32-100"]
+    assert (hd.t1_nm, hd.t2_nm) == (29.0, 108.0)
+    assert (hd.k1_nm_per_rad, hd.k2_nm_per_rad, hd.k3_nm_per_rad) == (6.7e4, 1.1e5, 1.2e5)
+    for spec in catalogue.values():
+        assert spec.sources, f"{spec.name} has no sources"
+        assert spec.backlash_limit_arcsec > 0 and spec.lost_motion_limit_arcsec > 0
+    assert "rated_torque_nm" in catalogue["RV-60N"].assumed
+
+
+def test_hd_catalogue_curve_worked_example(catalogue):
+    # HFUC-32-100 at 60 N·m: 29/6.7e4 + 31/1.1e5 = 7.15e-4 rad (Harmonic Drive manual)
+    phi_rad = hd_twist_arcsec(60.0, catalogue["HFUC-32-100"]) / ARCSEC_PER_RAD
+    assert phi_rad == pytest.approx(29 / 6.7e4 + 31 / 1.1e5, rel=1e-12)
+    assert phi_rad == pytest.approx(7.15e-4, abs=0.005e-4)
+
+
+def test_default_bench_config(bench_config):
+    assert isinstance(bench_config, BenchConfig)
+    assert bench_config.bench.max_torque_nm == 2000.0
+    assert bench_config.instruments.angle.driver == "virtual"
+    assert bench_config.sim.reducer == "RV-110E"
+    assert bench_config.sim.effects == {}
+    assert bench_config.resolve("geometry-sim.toml").endswith("config/geometry-sim.toml")
+
+
+def _error(exc_info) -> str:
+    msg = str(exc_info.value)
+    assert "\n" not in msg
+    return msg
+
+
+def test_missing_key_names_file_key_problem(write, reducers_text):
+    path = write("reducers.toml", reducers_text.replace("rated_torque_nm = 1078.0\n", "", 1))
+    with pytest.raises(ConfigError) as exc:
+        load_reducer_catalogue(path)
+    msg = _error(exc)
+    assert str(path) in msg and "reducers.RV-110E.rated_torque_nm" in msg and "missing key" in msg
+
+
+def test_wrong_type_names_file_key_problem(write, reducers_text):
+    path = write("reducers.toml", reducers_text.replace("rigidity_nm_per_arcmin = 294.0", 'rigidity_nm_per_arcmin = "stiff"'))
+    with pytest.raises(ConfigError) as exc:
+        load_reducer_catalogue(path)
+    msg = _error(exc)
+    assert str(path) in msg and "reducers.RV-110E.rigidity_nm_per_arcmin" in msg and "'stiff'" in msg
+
+
+def test_negative_rigidity_is_rejected(write, reducers_text):
+    path = write("reducers.toml", reducers_text.replace("rigidity_nm_per_arcmin = 510.0", "rigidity_nm_per_arcmin = -510.0"))
+    with pytest.raises(ConfigError) as exc:
+        load_reducer_catalogue(path)
+    msg = _error(exc)
+    assert str(path) in msg and "reducers.RV-100C.rigidity_nm_per_arcmin" in msg and "greater than 0" in msg
+
+
+def test_harmonic_without_k3_and_bad_breakpoints(write, reducers_text):
+    path = write("a.toml", reducers_text.replace("k3_nm_per_rad = 1.2e5\n", ""))
+    with pytest.raises(ConfigError, match=r"reducers\.HFUC-32-100.*needs k3_nm_per_rad"):
+        load_reducer_catalogue(path)
+    path = write("b.toml", reducers_text.replace("t2_nm = 108.0", "t2_nm = 20.0"))
+    with pytest.raises(ConfigError, match=r"t2_nm \(20.0\) must be greater than t1_nm"):
+        load_reducer_catalogue(path)
+
+
+def test_sources_must_name_fields(write, reducers_text):
+    path = write("reducers.toml", reducers_text.replace('assumed = ["lost_motion_limit_arcsec"]', 'assumed = ["stiffnes"]', 1))
+    with pytest.raises(ConfigError, match=r"reducers\.RV-110E.*unknown field 'stiffnes'"):
+        load_reducer_catalogue(path)
+
+
+def test_unknown_reducer_lists_known_ones(catalogue):
+    with pytest.raises(ConfigError) as exc:
+        get_reducer(catalogue, "RV-999X", "config/reducers.toml")
+    msg = _error(exc)
+    assert "config/reducers.toml" in msg and "'RV-999X'" in msg and "RV-110E" in msg
+    assert get_reducer(catalogue, "rv-110e").name == "RV-110E"
+
+
+def test_invalid_toml_and_missing_file(write, tmp_path):
+    path = write("broken.toml", "[sim\nseed = 1\n")
+    with pytest.raises(ConfigError, match=r"broken\.toml: invalid TOML"):
+        load_bench_config(path)
+    with pytest.raises(ConfigError, match=r"nothere\.toml: no such file"):
+        load_bench_config(tmp_path / "nothere.toml")
+
+
+def test_bench_config_errors(write, bench_text):
+    path = write("bench.toml", bench_text.replace("sample_rate_hz = 500.0", "sample_rate_hz = -5.0"))
+    with pytest.raises(ConfigError) as exc:
+        load_bench_config(path)
+    msg = _error(exc)
+    assert str(path) in msg and "sim.sample_rate_hz" in msg and "greater than 0" in msg and "-5.0" in msg
+
+    path = write("bench2.toml", bench_text.replace("seed = 0", "seed = 0\nsede = 1"))
+    with pytest.raises(ConfigError, match=r"sim\.sede: unknown key"):
+        load_bench_config(path)
+
+    path = write("bench3.toml", bench_text.replace('kind = "continuous"', 'kind = "wobbly"'))
+    with pytest.raises(ConfigError, match=r"procedure\.kind: .*'wobbly'"):
+        load_bench_config(path)
+
+    path = write("bench4.toml", bench_text.replace("max_torque_nm = 2000.0", 'max_torque_nm = "lots"'))
+    with pytest.raises(ConfigError, match=r"bench\.max_torque_nm: .*'lots'"):
+        load_bench_config(path)
+
+
+def test_other_modules_may_add_tables(write, bench_text):
+    cfg = load_bench_config(write("bench.toml", bench_text + "\n[service]\nport = 8000\n"))
+    assert cfg.model_extra["service"] == {"port": 8000}
+
+
+def test_missing_reducers_table(write):
+    with pytest.raises(ConfigError, match=r"empty\.toml: reducers: missing key"):
+        load_reducer_catalogue(write("empty.toml", "title = 'x'\n"))
+
+
+def test_test_profile_validation():
+    assert load_test_profile({"kind": "stepped", "step_nm": 25}).step_nm == 25
+    with pytest.raises(ConfigError, match=r"<api>: cycles: .*greater than or equal to 1"):
+        load_test_profile({"cycles": 0}, source="<api>")
