@@ -1,0 +1,249 @@
+"""The aligned measured/simulated pair as the discrepancy workflow sees it (pure numpy).
+
+Derived signals every catalogue term is built from: load direction (+1 while the torque increases,
+−1 while it decreases, from a hysteresis turning-point detector so noise does not flip it), the local
+slope dθ_sim/dT of the simulated curve, the groups for blocked cross-validation (runs, else loops between
+torque minima, else contiguous blocks) and the time-continuous segments (for re-evaluating the simulation
+at t + τ).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tcms_daq.errors import DataFormatError
+from tcms_daq.samples import Samples
+
+REVERSAL_FRACTION = 0.02  # a reversal needs the torque to leave its extreme by 2 % of the torque span
+MIN_GROUPS = 3  # fewer loops/runs than this: fall back to contiguous blocks
+N_BLOCKS = 6
+
+
+def load_direction(torque_nm: np.ndarray, threshold_nm: float | None = None) -> np.ndarray:
+    """+1 where the torque is increasing (loading towards +), −1 where decreasing, by turning points.
+
+    A turning point is accepted once the torque has moved ``threshold_nm`` (default 2 % of the span) away
+    from the running extreme; the samples after the extreme get the new direction, so sensor noise never
+    flips it. Samples before the first clear movement get the first direction found.
+    """
+    t = np.asarray(torque_nm, dtype=float)
+    n = len(t)
+    if n == 0:
+        return np.zeros(0, dtype=np.int8)
+    span = float(np.ptp(t))
+    h = threshold_nm if threshold_nm is not None else max(REVERSAL_FRACTION * span, 1e-12)
+    d = 0
+    hi = lo = ext = float(t[0])
+    hi_i = lo_i = ext_i = 0
+    first = 0
+    turns: list[int] = []
+    for i in range(1, n):
+        v = float(t[i])
+        if d == 0:
+            if v > hi:
+                hi, hi_i = v, i
+            if v < lo:
+                lo, lo_i = v, i
+            if hi - lo > h:
+                d = first = 1 if hi_i > lo_i else -1
+                ext, ext_i = (hi, hi_i) if d == 1 else (lo, lo_i)
+        elif d == 1:
+            if v > ext:
+                ext, ext_i = v, i
+            elif ext - v > h:
+                turns.append(ext_i + 1)
+                d, ext, ext_i = -1, v, i
+        else:
+            if v < ext:
+                ext, ext_i = v, i
+            elif v - ext > h:
+                turns.append(ext_i + 1)
+                d, ext, ext_i = 1, v, i
+    if d == 0:
+        return np.full(n, 1 if t[-1] >= t[0] else -1, dtype=np.int8)
+    out = np.empty(n, dtype=np.int8)
+    bounds = [0, *turns, n]
+    sign = first
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        out[a:b] = sign
+        sign = -sign
+    return out
+
+
+def _moving_sum(x: np.ndarray, w: int) -> np.ndarray:
+    c = np.concatenate(([0.0], np.cumsum(x)))
+    n = len(x)
+    lo = np.clip(np.arange(n) - w // 2, 0, n)
+    hi = np.clip(np.arange(n) + w // 2 + 1, 0, n)
+    return c[hi] - c[lo]
+
+
+def local_slope(torque_nm: np.ndarray, angle_arcsec: np.ndarray, segments: np.ndarray,
+                window: int) -> np.ndarray:
+    """dθ/dT in ″/N·m of a trace by moving-window regression of angle on torque (robust to torque noise).
+
+    Windows where the torque barely moves (dwells) get the slope of the nearest window that moves.
+    """
+    slope = np.full(len(torque_nm), np.nan)
+    for seg in np.unique(segments):
+        idx = np.flatnonzero(segments == seg)
+        if len(idx) < 3:
+            continue
+        t = torque_nm[idx]
+        a = angle_arcsec[idx]
+        w = max(3, min(window, len(idx)))
+        cnt = _moving_sum(np.ones(len(idx)), w)
+        mt = _moving_sum(t, w) / cnt
+        ma = _moving_sum(a, w) / cnt
+        tt = _moving_sum(t * t, w) / cnt - mt * mt
+        ta = _moving_sum(t * a, w) / cnt - mt * ma
+        span = float(np.ptp(t)) or 1.0
+        ok = tt > (1e-4 * span) ** 2
+        s = np.where(ok, ta / np.where(ok, tt, 1.0), np.nan)
+        slope[idx] = s
+    bad = ~np.isfinite(slope)
+    if bad.all():
+        return np.zeros(len(torque_nm))
+    if bad.any():
+        good = np.flatnonzero(~bad)
+        slope[bad] = np.interp(np.flatnonzero(bad), good, slope[good])
+    return slope
+
+
+def time_segments(time_s: np.ndarray, run_id: np.ndarray | None) -> np.ndarray:
+    """Labels of stretches with continuous, increasing time (a new run or a time jump starts a new one)."""
+    n = len(time_s)
+    if n == 0:
+        return np.zeros(0, dtype=int)
+    dt = np.diff(time_s)
+    pos = dt[dt > 0]
+    typical = float(np.median(pos)) if len(pos) else 1.0
+    brk = (dt <= 0) | (dt > 20 * typical)
+    if run_id is not None:
+        brk |= np.diff(run_id) != 0
+    return np.concatenate(([0], np.cumsum(brk))).astype(int)
+
+
+def loop_groups(direction: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Loops between torque minima (reversals from unloading to loading), never across segments.
+
+    Pieces shorter than 30 % of the median loop are merged into their neighbour in the same segment.
+    """
+    n = len(direction)
+    start = np.zeros(n, dtype=bool)
+    start[0] = True
+    start[1:] |= (direction[1:] == 1) & (direction[:-1] == -1)
+    start[1:] |= segments[1:] != segments[:-1]
+    labels = np.cumsum(start) - 1
+    counts = np.bincount(labels)
+    if len(counts) > 2:
+        typical = float(np.median(counts))
+        seg_of = segments[np.flatnonzero(start)]
+        merged = np.arange(len(counts))
+        for k in range(len(counts)):
+            if counts[k] < 0.3 * typical:
+                if k > 0 and seg_of[k - 1] == seg_of[k]:
+                    merged[k] = merged[k - 1]
+                elif k + 1 < len(counts) and seg_of[k + 1] == seg_of[k]:
+                    merged[k] = k + 1
+        # resolve forward merges (k -> k+1) transitively
+        for k in range(len(counts) - 1, -1, -1):
+            if merged[k] == k + 1:
+                merged[k] = merged[k + 1]
+        labels = np.unique(merged, return_inverse=True)[1][labels]
+    return labels.astype(int)
+
+
+def block_groups(n: int, n_blocks: int = N_BLOCKS) -> np.ndarray:
+    n_blocks = max(2, min(n_blocks, n // 3 if n >= 6 else 2))
+    return (np.arange(n) * n_blocks // max(n, 1)).astype(int)
+
+
+@dataclass
+class DesignData:
+    """Aligned arrays of one measured/simulated comparison; r = measured − simulated (″)."""
+
+    time_s: np.ndarray
+    has_time: bool
+    torque_nm: np.ndarray
+    sim_angle_arcsec: np.ndarray
+    measured_angle_arcsec: np.ndarray
+    direction: np.ndarray
+    slope_arcsec_per_nm: np.ndarray
+    segments: np.ndarray
+    groups: np.ndarray
+    group_kind: str  # "runs" | "loops" | "blocks"
+    signal_period_arcsec: float
+
+    @property
+    def residual_arcsec(self) -> np.ndarray:
+        return self.measured_angle_arcsec - self.sim_angle_arcsec
+
+    def __len__(self) -> int:
+        return len(self.torque_nm)
+
+    def subset(self, idx: np.ndarray) -> DesignData:
+        """Rows ``idx`` (signals derived on the full trace are kept, not recomputed)."""
+        return DesignData(
+            self.time_s[idx], self.has_time, self.torque_nm[idx], self.sim_angle_arcsec[idx],
+            self.measured_angle_arcsec[idx], self.direction[idx], self.slope_arcsec_per_nm[idx],
+            self.segments[idx], self.groups[idx], self.group_kind, self.signal_period_arcsec,
+        )
+
+
+def build_design(measured: Samples, simulated: Samples, *, signal_period_arcsec: float = 72.0,
+                 has_time: bool = True, torque_tolerance_nm: float | None = None,
+                 time_tolerance_s: float = 1e-6) -> DesignData:
+    """Check alignment (same rows, same order) and derive the signals. Raises DataFormatError."""
+    n = len(measured)
+    if len(simulated) != n:
+        raise DataFormatError(f"measured has {n} rows, simulated has {len(simulated)}: they must be the same rows")
+    if n < 12:
+        raise DataFormatError(f"only {n} rows: the discrepancy workflow needs at least 12 aligned samples")
+    if not signal_period_arcsec > 0:
+        raise DataFormatError(f"signal period must be > 0 arcsec, got {signal_period_arcsec}")
+    if has_time:
+        dt = np.abs(measured.time_s - simulated.time_s)
+        if np.any(dt > time_tolerance_s * max(1.0, float(np.max(np.abs(measured.time_s))))):
+            i = int(np.argmax(dt))
+            raise DataFormatError(
+                f"time_s differs at row {i + 2}: measured {measured.time_s[i]!r}, simulated {simulated.time_s[i]!r}"
+            )
+    span = float(np.ptp(measured.torque_nm))
+    tol = torque_tolerance_nm if torque_tolerance_nm is not None else max(1e-6 * max(span, 1.0), 1e-9)
+    dtq = np.abs(measured.torque_nm - simulated.torque_nm)
+    if np.any(dtq > tol):
+        i = int(np.argmax(dtq))
+        raise DataFormatError(
+            f"torque_nm differs at row {i + 2}: measured {measured.torque_nm[i]!r}, "
+            f"simulated {simulated.torque_nm[i]!r} (files are not aligned)"
+        )
+    if span <= 0:
+        raise DataFormatError("torque_nm is constant: there is no torque–angle curve to compare")
+    run_id = measured.extra.get("run_id")
+    if run_id is None:
+        run_id = simulated.extra.get("run_id")
+    time_s = measured.time_s if has_time else np.arange(n, dtype=float)
+    segments = time_segments(time_s, run_id) if has_time else (
+        np.concatenate(([0], np.cumsum(np.diff(run_id) != 0))).astype(int) if run_id is not None
+        else np.zeros(n, dtype=int))
+    torque = measured.torque_nm
+    direction = load_direction(torque)
+    theta = simulated.angle_arcsec
+    window = 3  # central differences: the lost-motion zone is crossed in a few samples
+    slope = local_slope(torque, theta, segments, window)
+    groups, kind = None, ""
+    if run_id is not None:
+        labels = np.unique(run_id, return_inverse=True)[1]
+        if labels.max() + 1 >= MIN_GROUPS:
+            groups, kind = labels.astype(int), "runs"
+    if groups is None:
+        loops = loop_groups(direction, segments)
+        if loops.max() + 1 >= MIN_GROUPS:
+            groups, kind = loops, "loops"
+        else:
+            groups, kind = block_groups(n), "blocks"
+    return DesignData(time_s, has_time, torque, theta, measured.angle_arcsec, direction.astype(float), slope,
+                      segments, groups, kind, float(signal_period_arcsec))

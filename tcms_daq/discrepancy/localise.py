@@ -1,0 +1,116 @@
+"""Where do measurement and simulation disagree? Summaries of the residual r = measured − simulated (″).
+
+* against each signal (torque, angle, angle mod signal period, time, angle rate): the share of the residual
+  variance explained by the bin means (correlation ratio η², 0…1) and the binned means themselves;
+* direction-even and -odd parts in torque bins: even = ½(r↑ + r↓), odd = ½(r↑ − r↓);
+* periodograms of r in the simulated angle and in time (amplitude of the best sinusoid per period).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tcms_daq.discrepancy.design import DesignData
+
+N_BINS = 24
+
+
+def _binned(x: np.ndarray, r: np.ndarray, n_bins: int = N_BINS) -> tuple[np.ndarray, np.ndarray, float]:
+    """(bin centres, bin means, η²) of r in equal-count bins of x."""
+    if np.ptp(x) <= 0 or len(x) < 2 * n_bins:
+        return np.zeros(0), np.zeros(0), 0.0
+    edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
+    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    cnt = np.bincount(k, minlength=len(edges) - 1).astype(float)
+    ok = cnt > 0
+    mean = np.bincount(k, weights=r, minlength=len(edges) - 1)[ok] / cnt[ok]
+    centre = np.bincount(k, weights=x, minlength=len(edges) - 1)[ok] / cnt[ok]
+    var = float(np.var(r))
+    eta2 = float(np.sum(cnt[ok] * (mean - r.mean()) ** 2) / (len(r) * var)) if var > 0 else 0.0
+    return centre, mean, eta2
+
+
+def angle_rate(data: DesignData) -> np.ndarray:
+    if not data.has_time:
+        return np.zeros(len(data))
+    return np.gradient(data.sim_angle_arcsec, data.time_s) if len(data) > 2 else np.zeros(len(data))
+
+
+def periodogram(x: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.ndarray:
+    """Amplitude (″) of the least-squares sinusoid (with offset) of r at each period in the coordinate x."""
+    if len(periods) == 0:
+        return np.zeros(0)
+    stride = max(1, len(x) // 8000)
+    xs, rs = x[::stride], r[::stride] - r[::stride].mean()
+    amp = np.empty(len(periods))
+    for i, p in enumerate(periods):
+        w = 2.0 * math.pi / p * xs
+        s, c = np.sin(w), np.cos(w)
+        s -= s.mean()
+        c -= c.mean()
+        a = np.array([[s @ s, s @ c], [s @ c, c @ c]])
+        b = np.array([s @ rs, c @ rs])
+        try:
+            beta = np.linalg.solve(a + 1e-12 * np.eye(2), b)
+        except np.linalg.LinAlgError:
+            beta = np.zeros(2)
+        amp[i] = math.hypot(*beta)
+    return amp
+
+
+def localise(data: DesignData, residual: np.ndarray) -> dict:
+    """JSON-ready localisation summary of ``residual`` (see the module docstring)."""
+    r = residual - residual.mean()
+    signals = {
+        "torque_nm": data.torque_nm,
+        "angle_arcsec": data.sim_angle_arcsec,
+        "angle_mod_signal_period_arcsec": np.mod(data.sim_angle_arcsec, data.signal_period_arcsec),
+    }
+    if data.has_time:
+        signals["time_s"] = data.time_s
+        signals["angle_rate_arcsec_per_s"] = angle_rate(data)
+    against = {}
+    for name, x in signals.items():
+        centre, mean, eta2 = _binned(x, r)
+        against[name] = {"explained_fraction": eta2, "bin_centre": centre.tolist(), "bin_mean_arcsec": mean.tolist()}
+    # direction-even / -odd parts on common torque bins
+    up = data.direction > 0
+    edges = np.linspace(data.torque_nm.min(), data.torque_nm.max(), N_BINS + 1)
+    k = np.clip(np.searchsorted(edges, data.torque_nm, side="right") - 1, 0, N_BINS - 1)
+    even, odd, centres = [], [], []
+    for b in range(N_BINS):
+        m_up = (k == b) & up
+        m_dn = (k == b) & ~up
+        if m_up.sum() >= 2 and m_dn.sum() >= 2:
+            ru, rd = r[m_up].mean(), r[m_dn].mean()
+            even.append(0.5 * (ru + rd))
+            odd.append(0.5 * (ru - rd))
+            centres.append(0.5 * (edges[b] + edges[b + 1]))
+    parity = {
+        "torque_bin_centre_nm": centres,
+        "even_arcsec": even,
+        "odd_arcsec": odd,
+        "even_rms_arcsec": float(np.sqrt(np.mean(np.square(even)))) if even else None,
+        "odd_rms_arcsec": float(np.sqrt(np.mean(np.square(odd)))) if odd else None,
+    }
+    span = float(np.ptp(data.sim_angle_arcsec))
+    out = {"against": against, "direction_parts": parity}
+    if span > 0:
+        p_angle = np.geomspace(max(2.0, data.signal_period_arcsec / 8), max(span, 4.0), 160)
+        amp = periodogram(data.sim_angle_arcsec, r, p_angle)
+        i = int(np.argmax(amp))
+        out["periodogram_angle"] = {"period_arcsec": p_angle.tolist(), "amplitude_arcsec": amp.tolist(),
+                                    "peak_period_arcsec": float(p_angle[i]), "peak_amplitude_arcsec": float(amp[i])}
+    if data.has_time and np.ptp(data.time_s) > 0:
+        dt = np.diff(data.time_s)
+        step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
+        p_time = np.geomspace(4 * step, float(np.ptp(data.time_s)), 120)
+        amp = periodogram(data.time_s, r, p_time)
+        i = int(np.argmax(amp))
+        out["periodogram_time"] = {"period_s": p_time.tolist(), "amplitude_arcsec": amp.tolist(),
+                                   "peak_period_s": float(p_time[i]), "peak_amplitude_arcsec": float(amp[i])}
+    ranked = sorted(((v["explained_fraction"], k) for k, v in against.items()), reverse=True)
+    out["strongest_signal"] = ranked[0][1] if ranked else None
+    return out

@@ -1,0 +1,240 @@
+"""The discrepancy workflow: residual → localisation → identifiability → selection → model → re-simulation.
+
+:func:`run_discrepancy` is the one entry point (CLI, service, trials). Steps (DESIGN §8):
+
+1. r = measured − simulated on aligned rows; baseline: RMS/max of r and the blocked-CV RMS of the
+   offset-only model (groups: runs, else loops between torque minima, else contiguous blocks).
+2. Localisation of r (``localise``).
+3. Candidates: every catalogue effect that is identifiable in this design at all (e.g. no ``backlash``
+   without load reversals, no time terms without ``time_s``).
+4. Forward selection by leave-one-group-out CV with the 1-SE rule; look-alike candidates (within one SE and
+   strongly correlated) form an alias group reported with the experiment that would separate them.
+5. The whole selection is repeated inside every outer fold (nested CV): its held-out RMS is the reported
+   error after the workflow, and how often each effect is selected there is its stability; an effect
+   selected in fewer than 80 % of the outer folds is not accepted.
+6. Accepted effects are fitted on all rows and added to the simulation; the re-simulated angle is compared
+   again (RMS, max, per load direction).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tcms_daq.discrepancy import catalogue as cat
+from tcms_daq.discrepancy.design import DesignData, build_design
+from tcms_daq.discrepancy.localise import localise
+from tcms_daq.discrepancy.selection import Columns, cv_score, fit_model, make_folds, nested_cv, select
+from tcms_daq.samples import Samples
+
+STABILITY = 0.8
+
+
+@dataclass
+class NamedEffect:
+    name: str
+    parameters: dict[str, float]
+    cv_rms_before_arcsec: float
+    cv_rms_after_arcsec: float
+    inclusion: float  # share of outer folds whose selection included it
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "parameters": dict(self.parameters),
+            "cv_rms_before_arcsec": self.cv_rms_before_arcsec,
+            "cv_rms_after_arcsec": self.cv_rms_after_arcsec,
+            "inclusion": self.inclusion,
+        }
+
+
+@dataclass
+class AliasGroup:
+    names: list[str]
+    separating_experiment: str
+    representative: str  # the member whose form was added to the model (it predicts as well as the others)
+    parameters: dict[str, float]
+    in_model: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"names": list(self.names), "separating_experiment": self.separating_experiment,
+                "representative": self.representative, "parameters": dict(self.parameters),
+                "in_model": self.in_model}
+
+
+@dataclass
+class DiscrepancyResult:
+    """Outcome of the workflow; ``to_dict()`` is the JSON contract (CLI ``--json``, API)."""
+
+    effects: list[NamedEffect]
+    aliases: list[AliasGroup]
+    rms_before_arcsec: float
+    rms_after_arcsec: float
+    max_before_arcsec: float
+    max_after_arcsec: float
+    cv_rms_before_arcsec: float
+    cv_rms_after_arcsec: float
+    offset_arcsec: float
+    model_terms: list[tuple[str, dict[str, float]]]  # (name, parameters) in order, incl. alias representatives
+    per_direction: dict[str, dict[str, float]]
+    rejected: list[dict[str, str]]
+    unavailable: dict[str, str]
+    inclusion: dict[str, float]
+    localisation: dict[str, Any]
+    groups: dict[str, Any]
+    signal_period_arcsec: float
+    data: DesignData = field(repr=False)
+    residual_before_arcsec: np.ndarray = field(repr=False)
+    residual_after_arcsec: np.ndarray = field(repr=False)
+    resimulated_angle_arcsec: np.ndarray = field(repr=False)
+    held_out_residual_arcsec: np.ndarray = field(repr=False)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    def to_dict(self, *, localisation: bool = False) -> dict[str, Any]:
+        out = {
+            "effects": [e.to_dict() for e in self.effects],
+            "aliases": [a.to_dict() for a in self.aliases],
+            "rms_before_arcsec": self.rms_before_arcsec,
+            "rms_after_arcsec": self.rms_after_arcsec,
+            "max_before_arcsec": self.max_before_arcsec,
+            "max_after_arcsec": self.max_after_arcsec,
+            "cv_rms_before_arcsec": self.cv_rms_before_arcsec,
+            "cv_rms_after_arcsec": self.cv_rms_after_arcsec,
+            "offset_arcsec": self.offset_arcsec,
+            "per_direction": self.per_direction,
+            "rejected": self.rejected,
+            "unavailable": self.unavailable,
+            "inclusion": self.inclusion,
+            "groups": self.groups,
+            "signal_period_arcsec": self.signal_period_arcsec,
+            "strongest_signal": self.localisation.get("strongest_signal"),
+        }
+        if localisation:
+            out["localisation"] = self.localisation
+        return out
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def _per_direction(data: DesignData, before: np.ndarray, after: np.ndarray) -> dict[str, dict[str, float]]:
+    out = {}
+    for label, mask in (("loading", data.direction > 0), ("unloading", data.direction < 0)):
+        if mask.any():
+            out[label] = {"samples": int(mask.sum()), "rms_before_arcsec": _rms(before[mask]),
+                          "rms_after_arcsec": _rms(after[mask]), "mean_before_arcsec": float(before[mask].mean()),
+                          "mean_after_arcsec": float(after[mask].mean())}
+    return out
+
+
+def run_discrepancy(measured: Samples, simulated: Samples, *, signal_period_arcsec: float = 72.0,
+                    has_time: bool = True, effects: list[str] | None = None) -> DiscrepancyResult:
+    """Compare ``measured`` with ``simulated`` (same rows, same order), name the missing effects.
+
+    ``has_time=False`` when the data carry no real time stamps (time-dependent effects are then not
+    candidates). ``effects`` restricts the candidate catalogue (default: all of it).
+    """
+    data = build_design(measured, simulated, signal_period_arcsec=signal_period_arcsec, has_time=has_time)
+    return analyse(data, effects)
+
+
+def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyResult:
+    y = data.residual_arcsec
+    wanted = list(effects) if effects is not None else list(cat.EFFECT_NAMES)
+    for name in wanted:
+        if name not in cat.CATALOGUE:
+            raise KeyError(f"unknown effect {name!r}")
+    unavailable: dict[str, str] = {}
+    candidates = []
+    for name in wanted:
+        reason = cat.available(name, data)
+        if reason is None:
+            candidates.append(name)
+        else:
+            unavailable[name] = reason
+    cols = Columns(data)
+    rows = np.arange(len(y))
+    sel = select(cols, y, rows, candidates)
+    nested = nested_cv(cols, y, candidates)
+    rejected = [{"name": k, "reason": v} for k, v in sel.excluded.items()]
+    kept_steps = []
+    for step in sel.steps[: sel.chosen]:
+        members = [step.name, *step.aliases]
+        inc = min(1.0, sum(nested.inclusion.get(a, 0.0) for a in members))
+        if inc < STABILITY:
+            rejected.append({"name": step.name,
+                             "reason": f"unstable: selected in {inc:.0%} of the outer folds (< {STABILITY:.0%})"})
+            continue
+        kept_steps.append(step)
+    model_names = [s.name for s in kept_steps]
+    final = fit_model(cols, y, rows, model_names, rescan=tuple(model_names))
+    params = final.parameters()
+    # an implausible value on all rows (it was plausible when selected) drops the term
+    for name in list(model_names):
+        reason = cat.plausibility(name, params[name], data)
+        if reason is not None:
+            rejected.append({"name": name, "reason": reason})
+            model_names.remove(name)
+            kept_steps = [s for s in kept_steps if s.name != name]
+    if len(model_names) != len(params):
+        final = fit_model(cols, y, rows, model_names, rescan=tuple(model_names))
+        params = final.parameters()
+    path = sel.path()
+    index = {s.name: i for i, s in enumerate(sel.steps)}
+    named: list[NamedEffect] = []
+    aliases: list[AliasGroup] = []
+    for step in kept_steps:
+        i = index[step.name]
+        if step.aliases:
+            members = [step.name, *step.aliases]
+            aliases.append(AliasGroup(members, cat.separating_experiment(members), step.name, params[step.name],
+                                      True))
+        else:
+            named.append(NamedEffect(step.name, params[step.name], path[i].rms, path[i + 1].rms,
+                                     nested.inclusion.get(step.name, 0.0)))
+    # aliases among candidates that were not accepted are still worth reporting when they tied at a step
+    for step in sel.steps[sel.chosen:]:
+        if step.aliases:
+            members = [step.name, *step.aliases]
+            aliases.append(AliasGroup(members, cat.separating_experiment(members), step.name, {}, False))
+    fitted = final.predict(cols, rows)
+    after = y - fitted
+    if not model_names:
+        cv_after = sel.base.rms
+    elif model_names == sel.names:
+        cv_after = nested.rms
+    else:
+        cv_after = cv_score(cols, y, make_folds(rows, data.groups), model_names).rms
+    n_groups = int(len(np.unique(data.groups)))
+    return DiscrepancyResult(
+        effects=named,
+        aliases=aliases,
+        rms_before_arcsec=_rms(y),
+        rms_after_arcsec=_rms(after),
+        max_before_arcsec=float(np.max(np.abs(y))),
+        max_after_arcsec=float(np.max(np.abs(after))),
+        cv_rms_before_arcsec=sel.base.rms,
+        cv_rms_after_arcsec=float(cv_after),
+        offset_arcsec=final.offset_arcsec,
+        model_terms=[(n, params[n]) for n in model_names],
+        per_direction=_per_direction(data, y, after),
+        rejected=rejected,
+        unavailable=unavailable,
+        inclusion={k: float(v) for k, v in nested.inclusion.items()},
+        localisation=localise(data, y),
+        groups={"kind": data.group_kind, "count": n_groups,
+                "nested_selections": [list(n) for n in nested.fold_names]},
+        signal_period_arcsec=data.signal_period_arcsec,
+        data=data,
+        residual_before_arcsec=y,
+        residual_after_arcsec=after,
+        resimulated_angle_arcsec=data.sim_angle_arcsec + fitted,
+        held_out_residual_arcsec=nested.residual,
+    )
+
