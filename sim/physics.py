@@ -206,11 +206,36 @@ class LoopTruth:
     lost_motion_arcsec: float
     lost_motion_torque_nm: float
     rigidity_interval: tuple[float, float]
+    k1_nm_per_rad: float | None = None
+    k2_nm_per_rad: float | None = None
+    k3_nm_per_rad: float | None = None
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["rigidity_interval"] = list(self.rigidity_interval)
         return d
+
+
+def _hd_truth(params: ReducerPhysics, amplitude_nm: float, points: int = 41) -> list[float | None]:
+    """K1, K2, K3 (N·m/rad): least-squares lines on the exact steady midline over [0, T1], [T1, T2], [T2, A],
+    both sides averaged (the Harmonic Drive definition applied to the simulated loop)."""
+    t1, t2 = params.hd_breakpoints_nm  # type: ignore[misc]
+    out: list[float | None] = []
+    for lo, hi in ((0.0, t1), (t1, t2), (t2, amplitude_nm)):
+        hi = min(hi, amplitude_nm)
+        if hi <= lo:
+            out.append(None)
+            continue
+        grid = np.linspace(lo, hi, points)
+        ks = []
+        for sign in (1.0, -1.0):
+            up, down = loop_branches(params, amplitude_nm, sign * grid)
+            mid = 0.5 * (up + down)
+            x = sign * grid - np.mean(sign * grid)
+            compliance = float(np.dot(x, mid - mid.mean()) / np.dot(x, x))
+            ks.append(ARCSEC_PER_RAD / compliance)
+        out.append(float(np.mean(ks)))
+    return out
 
 
 def loop_truth(params: ReducerPhysics, test_torque_nm: float, rated_torque_nm: float,
@@ -233,6 +258,8 @@ def loop_truth(params: ReducerPhysics, test_torque_nm: float, rated_torque_nm: f
         lost_motion_arcsec=mid[1] - mid[2],
         lost_motion_torque_nm=p_t,
         rigidity_interval=(float(rigidity_interval[0]), float(rigidity_interval[1])),
+        **(dict(zip(("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"), _hd_truth(params, a), strict=True))
+           if params.hd_breakpoints_nm is not None and params.compliance_arcsec_per_nm is None else {}),
     )
 
 

@@ -61,6 +61,15 @@ def test_table_output_and_stepped_harmonic_drive(capsys):
     assert "K1 [Nm/rad]" in out and "simulated truth: rigidity" in out
 
 
+def test_run_harmonic_drive_recovers_truth(capsys):
+    res = _run_json(capsys, "--reducer", "HFUC-32-100", "--cycles", "2")
+    truth = res["truth"]
+    assert res["rigidity_nm_per_arcmin"] == pytest.approx(truth["rigidity_nm_per_arcmin"], rel=0.01)
+    assert res["backlash_arcsec"] == pytest.approx(truth["backlash_arcsec"], abs=1.0)
+    for key in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"):
+        assert res[key] == pytest.approx(truth[key], rel=0.02), key
+
+
 def test_run_with_smaller_torque(capsys):
     res = _run_json(capsys, "--reducer", "RV-100C", "--max-torque", "600", "--cycles", "1", "--rate", "600")
     assert res["test_torque_nm"] == 600.0 and res["truth"]["test_torque_nm"] == 600.0
