@@ -270,4 +270,8 @@ def _effects_from_config(table: dict[str, Any], *, seed: int, source: str | None
     build = getattr(effects_module, "from_config", None)
     if build is None:
         raise ConfigError(f"{where}: sim.effects: sim/effects.py has no from_config(table, seed=...)")
-    return build(table, seed=seed)
+    try:
+        return build(table, seed=seed)
+    except ConfigError as exc:
+        message = str(exc)
+        raise ConfigError(message if message.startswith(where) else f"{where}: {message}") from None

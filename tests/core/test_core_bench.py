@@ -158,3 +158,16 @@ def test_truth_and_snapshot(catalogue):
     assert bench.truth(539.0).rigidity_nm_per_arcmin > 294.0  # the secant depends on the amplitude
     snap = bench.snapshot()
     assert snap["reducer"] == "RV-110E" and snap["now_s"] == 0.0 and "last" in snap
+
+
+def test_effects_table_is_built_by_sim_effects(write, bench_text):
+    from tcms_daq.config import load_bench_config
+
+    on = bench_text.replace("[sim.effects]", "[sim.effects.time_skew]\nskew_s = 0.004\n", 1)
+    bench = SimulatedBench(load_bench_config(write("on.toml", on)))
+    assert bench.effects is not None
+    bad = bench_text.replace("[sim.effects]", "[sim.effects.warp_drive]\nfactor = 9\n", 1)
+    path = write("bad.toml", bad)
+    with pytest.raises(ConfigError) as exc:
+        SimulatedBench(load_bench_config(path))
+    assert str(path) in str(exc.value) and "warp_drive" in str(exc.value)
