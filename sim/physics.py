@@ -22,13 +22,16 @@ How the parameters map to the evaluated quantities (DESIGN §2) for a steady loo
 * backlash (loop width at T = 0) = the width formula above: only h and T_z. :func:`physics_from_spec` solves h so
   that it equals the catalogue entry's ``sim.backlash_arcsec`` exactly at A = rated torque (≈ 2h for A ≫ T_z).
 * the hysteresis part of the midline m = (θ_↑ + θ_↓)/2 is m_z(T) = −h·(1 + tanh(A/T_z))·e^{−A/T_z}·sinh(T/T_z):
-  zero at T = 0, negligible for |T| ≪ A, but ≈ ∓h at the loop tips ±A, where the two branches meet.
-* lost motion = m(+pT_r) − m(−pT_r) = 2·θ_el(pT_r) + L·tanh(pT_r/T_b) + 2·m_z(pT_r) (the last term negligible).
-* rigidity (secant of the midline over [0.5A, A], both sides averaged): the elastic part plus m_z, which is not
-  negligible near the tips — the secant rigidity depends on the test amplitude, as it does on a real reducer. For an RV reducer
-  :func:`physics_from_spec` therefore sets the elastic compliance c so that the midline secant over the default
-  interval of a rated-torque loop equals the catalogue rigidity exactly. For a Harmonic Drive the elastic curve
-  is the catalogue K1/K2/K3 curve itself (the worked example HFUC-32-100 at 60 N·m gives 7.15e-4 rad).
+  zero at T = 0 and odd; at the loop tips ±A, where the two branches meet, it is ∓h·tanh(A/T_z). With the
+  catalogue's T_z = 50 % of rated torque the loop is lens-shaped and m_z grows smoothly towards the tips.
+* lost motion = m(+pT_r) − m(−pT_r) = 2·θ_el(pT_r) + L·tanh(pT_r/T_b) + 2·m_z(pT_r) (the last term is small:
+  2·m_z = −0.55″ for the RV-110E entry at rated torque).
+* rigidity (secant of the midline over [0.5A, A], both sides averaged): elastic part plus m_z, which matters
+  towards the tips, so the secant rigidity depends on the test amplitude (as on a real reducer). For an RV
+  reducer :func:`physics_from_spec` therefore sets the elastic compliance c so that the midline secant over the
+  default interval of a rated-torque loop equals the catalogue rigidity exactly. For a Harmonic Drive the
+  elastic curve is the catalogue K1/K2/K3 curve itself (the worked example HFUC-32-100 at 60 N·m gives
+  7.15e-4 rad); the loop's K1/K2/K3 (least-squares lines on its midline) then differ from the catalogue's.
 
 :func:`loop_truth` computes the exact (noise-free) backlash, lost motion and rigidity of the steady loop for any
 amplitude from these same functions; that is the truth tests compare evaluations against.
