@@ -21,14 +21,14 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from tcms_daq.analysis import harmonic
-from tcms_daq.analysis.interpolation import angle_at_torque, fit_window
+from tcms_daq.analysis.interpolation import MAX_SPAN_FRACTION, angle_at_torque, fit_window
 from tcms_daq.analysis.noise import white_noise_std
 from tcms_daq.analysis.segmentation import Branch, Loop, segment_loops
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
 MIN_SAMPLES = 20
-TIP_MARGIN = 0.02  # evaluate at most at 98 % of the torque reached at a turning point
+TIP_MARGIN = 0.0  # fraction below the reached turning-point torque where the rigidity interval may end
 SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken as a test at rated torque
 RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
 SCALE_PERCENTILE = 99.5
@@ -241,11 +241,8 @@ def evaluate(
     torque_noise = white_noise_std(torque)
     angle_noise = white_noise_std(angle)
 
-    # Pilot pass on the raw torque: branch density and overall compliance size the fitting window.
+    # Pilot pass on the raw torque: the overall compliance sizes the fitting window.
     pilot_branches, _ = segment_loops(torque, scale)
-    samples_per_nm = float(
-        np.median([(b.stop - b.start) / max(abs(b.stop_torque_nm - b.start_torque_nm), 1e-9) for b in pilot_branches])
-    )
     tips = [(b.start, b.start_torque_nm) for b in pilot_branches] + [
         (pilot_branches[-1].stop, pilot_branches[-1].stop_torque_nm)
     ]
@@ -254,8 +251,13 @@ def evaluate(
     compliance = abs(
         (angle[pos].mean() - angle[neg].mean()) / (torque[pos].mean() - torque[neg].mean())
     ) if pos and neg else 0.0
-    window = fit_window(angle_noise, torque_noise, compliance, samples_per_nm, scale)
-    torque_smooth = _smooth(torque, window)
+    window = fit_window(angle_noise, torque_noise, compliance)
+    # Smoothing (for locating crossings and turning points) never spans more than the fit's torque span.
+    samples_per_nm = float(
+        np.median([(b.stop - b.start) / max(abs(b.stop_torque_nm - b.start_torque_nm), 1e-9) for b in pilot_branches])
+    )
+    max_span_nm = MAX_SPAN_FRACTION * scale
+    torque_smooth = _smooth(torque, min(window, max(1, int(max_span_nm * samples_per_nm))))
 
     _, loops = segment_loops(torque_smooth, scale)
     if skip_loops >= len(loops):
@@ -276,7 +278,7 @@ def evaluate(
 
     loop_results = [
         _evaluate_loop(
-            k, k >= skip_loops, loop, t, torque, angle, torque_smooth, window,
+            k, k >= skip_loops, loop, t, torque, angle, torque_smooth, window, max_span_nm,
             test_torque_nm, lm_torque, lo_frac, hi_frac, hd_breakpoints_nm, warnings,
         )
         for k, loop in enumerate(loops)
@@ -353,6 +355,7 @@ def _evaluate_loop(
     angle: np.ndarray,
     torque_smooth: np.ndarray,
     window: int,
+    max_span_nm: float,
     test_torque_nm: float,
     lm_torque: float,
     lo_frac: float,
@@ -393,7 +396,8 @@ def _evaluate_loop(
 
     def branch_angles(branch: Branch) -> np.ndarray:
         sl = branch.slice
-        return angle_at_torque(torque[sl], angle[sl], torque_smooth[sl], branch.direction, levels_arr, window)
+        return angle_at_torque(t[sl], torque[sl], angle[sl], torque_smooth[sl], branch.direction, levels_arr,
+                               window, max_span_nm)
 
     up = branch_angles(loop.up)
     down = branch_angles(loop.down)

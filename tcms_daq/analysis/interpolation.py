@@ -1,10 +1,12 @@
 """The angle on one hysteresis branch at given torque levels.
 
 For each level the first sample where the branch's (smoothed, running-extreme) torque reaches the level is
-found; a local least-squares line θ = a + b·T (a parabola from MIN_SAMPLES_QUADRATIC samples on) is fitted
-to the ``window`` samples centred there (measured torque as regressor) and evaluated at the level. With
-``window = 2`` this is exact linear interpolation between the two bracketing samples, which is what
-noiseless data need; noisy data get a longer window (see ``fit_window``). Vectorised over the levels.
+found. Torque and angle of the ``window`` samples centred there are fitted by least-squares polynomials in
+time (lines, parabolas from MIN_SAMPLES_QUADRATIC samples on); the angle is read at the time where the torque
+polynomial equals the level. If the angle is locally linear in torque the result is exact whatever the torque
+profile does inside the window (the LS projection is linear), and noisy torque causes no errors-in-variables
+bias. With ``window = 2`` this is exact linear interpolation between the two bracketing samples, which is
+what noiseless data need; noisy data get a longer window (see ``fit_window``). Vectorised over the levels.
 """
 
 from __future__ import annotations
@@ -14,61 +16,83 @@ import math
 import numpy as np
 
 TARGET_STD_ARCSEC = 0.025  # aim for this std of a single interpolated angle
-MAX_SPAN_FRACTION = 0.01  # but never let a window span more than 1 % of the test torque
+MAX_SPAN_FRACTION = 0.02  # but a window never spans more than 2 % of the test torque
+MAX_WINDOW = 2000  # samples; beyond this more averaging gains nothing measurable
 MIN_SAMPLES_QUADRATIC = 8  # windows this long fit a parabola (no curvature bias in the lost-motion zone)
 QUADRATIC_DEGREE = 2
 
 
-def fit_window(
-    angle_noise_arcsec: float,
-    torque_noise_nm: float,
-    compliance_arcsec_per_nm: float,
-    samples_per_nm: float,
-    test_torque_nm: float,
-) -> int:
-    """Number of samples in a local fit: 2 (exact interpolation) for clean data, more for noisy data."""
+def fit_window(angle_noise_arcsec: float, torque_noise_nm: float, compliance_arcsec_per_nm: float) -> int:
+    """Samples wanted in a local fit: 2 (exact interpolation) for clean data, more for noisy data.
+
+    The effective angle noise at a fixed torque is √(σ_θ² + (c·σ_T)²) with c the compliance (″/N·m); the window
+    averages it down to TARGET_STD_ARCSEC. ``angle_at_torque`` also limits the torque span of the window.
+    """
     effective = math.hypot(angle_noise_arcsec, compliance_arcsec_per_nm * torque_noise_nm)
     wanted = math.ceil((effective / TARGET_STD_ARCSEC) ** 2)
-    cap = math.floor(MAX_SPAN_FRACTION * test_torque_nm * samples_per_nm)
-    return int(max(2, min(wanted, cap)))
+    return int(max(2, min(wanted, MAX_WINDOW)))
+
+
+def _solve(u: np.ndarray, weight: np.ndarray, values: np.ndarray, degree: int) -> np.ndarray:
+    """Weighted LS polynomial coefficients (levels, degree+1, columns) of ``values`` (levels, n, columns) in u."""
+    design = np.stack([u**k for k in range(degree + 1)], axis=2)  # (levels, n, degree+1)
+    weighted = design * weight[:, :, None]
+    normal = np.einsum("lik,lij->lkj", weighted, design)
+    rhs = np.einsum("lik,lic->lkc", weighted, values)
+    return np.linalg.solve(normal, rhs)
 
 
 def angle_at_torque(
+    time_s: np.ndarray,
     torque_nm: np.ndarray,
     angle_arcsec: np.ndarray,
     torque_smooth_nm: np.ndarray,
     direction: int,
     levels_nm: np.ndarray,
     window: int,
+    max_span_nm: float = math.inf,
 ) -> np.ndarray:
     """θ (arcsec) of one branch at each torque level (N·m); NaN where the branch does not reach the level.
 
-    ``torque_nm``/``angle_arcsec``/``torque_smooth_nm`` are the branch's samples in time order;
-    ``direction`` is +1 for a B↑ (rising torque) branch, −1 for B↓.
+    ``time_s``/``torque_nm``/``angle_arcsec``/``torque_smooth_nm`` are the branch's samples in time order;
+    ``direction`` is +1 for a B↑ (rising torque) branch, −1 for B↓. At most ``window`` samples are used per
+    level, only those whose torque lies within ±max_span_nm/2 of the level, and always the two
+    samples bracketing it.
     """
     levels = np.atleast_1d(np.asarray(levels_nm, dtype=float))
     n_samples = torque_nm.size
     progress = np.maximum.accumulate(direction * torque_smooth_nm)
     target = direction * levels
     reached = (target >= progress[0]) & (target <= progress[-1])
-    first = np.searchsorted(progress, target, side="left")
+    first = np.clip(np.searchsorted(progress, target, side="left"), 1, n_samples - 1)
     n = int(min(max(window, 2), n_samples))
     start = np.clip(first - n // 2, 0, n_samples - n)
     idx = start[:, None] + np.arange(n)[None, :]
-    t = torque_nm[idx]
-    a = angle_arcsec[idx]
-    # Regress on x = T − level, scaled to O(1): the intercept is the angle at the level.
-    x = t - levels[:, None]
-    scale = np.maximum(np.abs(x).max(axis=1, keepdims=True), 1e-12)
-    x = x / scale
-    degree = QUADRATIC_DEGREE if n >= MIN_SAMPLES_QUADRATIC else 1
-    design = np.stack([x**k for k in range(degree + 1)], axis=2)  # (levels, n, degree+1)
-    normal = np.einsum("lik,lij->lkj", design, design)
-    rhs = np.einsum("lik,li->lk", design, a)
-    # Ill-conditioned windows (all samples at one torque, e.g. a dwell) fall back to their mean angle.
-    cond_ok = np.linalg.cond(normal) < 1e10
-    out = a.mean(axis=1)
-    if cond_ok.any():
-        out[cond_ok] = np.linalg.solve(normal[cond_ok], rhs[cond_ok][..., None])[:, 0, 0]
+    weight = np.abs(torque_nm[idx] - levels[:, None]) <= 0.5 * max_span_nm
+    weight |= (idx == first[:, None]) | (idx == first[:, None] - 1)
+    count = weight.sum(axis=1)
+    # Time, exact, is the regressor: fitting torque and angle against it avoids the errors-in-variables bias of
+    # regressing angle on noisy torque. u spans [−1, 1] over the samples used.
+    t = time_s[idx]
+    t_lo = np.where(weight, t, np.inf).min(axis=1, keepdims=True)
+    t_hi = np.where(weight, t, -np.inf).max(axis=1, keepdims=True)
+    u = np.clip(2.0 * (t - t_lo) / (t_hi - t_lo) - 1.0, -1.0, 1.0)
+    values = np.stack([torque_nm[idx], angle_arcsec[idx]], axis=2)
+    coef = np.zeros((levels.size, QUADRATIC_DEGREE + 1, 2))
+    quadratic = count >= MIN_SAMPLES_QUADRATIC
+    for degree, rows in ((QUADRATIC_DEGREE, quadratic), (1, ~quadratic)):
+        if rows.any():
+            coef[rows, : degree + 1] = _solve(u[rows], weight[rows].astype(float), values[rows], degree)
+    c = coef[:, :, 0]  # torque polynomial in u
+    p = coef[:, :, 1]  # angle polynomial in u
+    # Solve torque(u*) = level for the root inside the window (stable quadratic formula; linear if c2 = 0).
+    d = c[:, 0] - levels
+    c1, c2 = c[:, 1], c[:, 2]
+    disc = c1 * c1 - 4.0 * c2 * d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u_star = np.where(disc >= 0.0, -2.0 * d / (c1 + np.copysign(np.sqrt(np.maximum(disc, 0.0)), c1)), -d / c1)
+    # A flat window (dwell at one torque) has no defined crossing: any time in it gives the same angle.
+    u_star = np.clip(np.nan_to_num(u_star, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
+    out = p[:, 0] + p[:, 1] * u_star + p[:, 2] * u_star**2
     out[~reached] = np.nan
     return out
