@@ -46,32 +46,45 @@ class VirtualFaults:
     loader_lost: bool = False  # loader calls raise Disconnected
 
 
+@dataclass(frozen=True)
+class ExtraBatch(Batch):
+    """A batch with extra per-reading columns (the simulation's ground truth: ``applied_torque_nm``,
+    ``true_angle_arcsec`` …); the acquisition carries them along into the recorded samples."""
+
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+
 class _ChannelBuffer:
-    """Append-only time/value buffer drained by ``take``; bounded, drops the oldest."""
+    """Append-only time/value(/extra) buffer drained by ``take``; bounded, drops the oldest."""
 
     def __init__(self) -> None:
         self._time: list[np.ndarray] = []
         self._value: list[np.ndarray] = []
+        self._extra: list[dict[str, np.ndarray]] = []
         self._count = 0
         self.dropped = 0
 
-    def append(self, time_s: np.ndarray, value: np.ndarray) -> None:
+    def append(self, time_s: np.ndarray, value: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> None:
         if len(time_s) == 0:
             return
         self._time.append(np.asarray(time_s, dtype=float))
         self._value.append(np.asarray(value, dtype=float))
+        self._extra.append(dict(extra or {}))
         self._count += len(time_s)
         while self._count > MAX_BUFFERED_SAMPLES and len(self._time) > 1:
             self._count -= len(self._time[0])
             self.dropped += len(self._time[0])
-            del self._time[0], self._value[0]
+            del self._time[0], self._value[0], self._extra[0]
 
     def take(self) -> Batch:
         if not self._time:
             return Batch.empty()
-        out = Batch(np.concatenate(self._time), np.concatenate(self._value))
+        keys = set(self._extra[0]).intersection(*self._extra[1:])
+        out = ExtraBatch(np.concatenate(self._time), np.concatenate(self._value),
+                         {k: np.concatenate([x[k] for x in self._extra]) for k in sorted(keys)})
         self._time.clear()
         self._value.clear()
+        self._extra.clear()
         self._count = 0
         return out
 
@@ -125,7 +138,7 @@ class VirtualBench:
             samples = self.physics.advance(duration_s)
             if len(samples) == 0:
                 return
-            self._angle.append(samples.time_s, samples.angle_arcsec)
+            self._angle.append(samples.time_s, samples.angle_arcsec, samples.extra)
             self._torque.append(samples.time_s, samples.torque_nm)
             applied = samples.extra.get("applied_torque_nm")
             self._applied_nm = float(applied[-1]) if applied is not None else float(samples.torque_nm[-1])
@@ -199,10 +212,10 @@ def _section(config: Any, key: str) -> Any:
     return getattr(config, key, None)
 
 
-def default_physics_factory(config: Any) -> Any:
-    """``sim.bench.SimulatedBench`` from a whole bench config ([sim], [bench]); when ``[sim] geometry`` names a
-    measuring-chain geometry file, the encoder reads through that chain's errors (the compensation module's
-    forward model), so the compensator has something real to correct."""
+def default_physics_factory(config: Any, *, reducer: Any = None, seed: int | None = None) -> Any:
+    """``sim.bench.SimulatedBench`` from a whole bench config ([sim], [bench]) (``reducer``/``seed`` override
+    ``[sim]``); when ``[sim] geometry`` names a measuring-chain geometry file, the encoder reads through that
+    chain's errors (the compensation module's forward model), so the compensator has something to correct."""
     from sim.bench import SimulatedBench
 
     chain = None
@@ -213,7 +226,7 @@ def default_physics_factory(config: Any) -> Any:
         resolve = getattr(config, "resolve", None)
         path = resolve(geometry) if resolve is not None else geometry
         chain = Compensator.from_geometry(path).encoder_reading
-    return SimulatedBench(config, measuring_chain=chain)
+    return SimulatedBench(config, reducer=reducer, seed=seed, measuring_chain=chain)
 
 
 def parse_virtual_url(url: str) -> str:
@@ -248,7 +261,7 @@ class VirtualAngleSource:
             self.bench.take_angle()
             raise DeviceFault(self.name, "encoder fault (display shows '?')")
         batch = self.bench.take_angle()
-        return Batch.empty() if self.bench.faults.angle_muted else batch
+        return Batch.empty() if self.bench.faults.angle_muted else batch  # an ExtraBatch with the sim's truth
 
 
 class VirtualTorqueSource:

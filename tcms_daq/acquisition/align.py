@@ -10,7 +10,8 @@ stalled) held readings are released with the latest torque (zero-order hold) rat
 stamped before the first torque reading take the first torque value.
 
 When both channels come from one instrument (the virtual bench), the stamps coincide and the interpolation
-returns the torque readings unchanged.
+returns the torque readings unchanged. Extra per-reading columns of the angle source (the simulation's truth)
+travel with their angle readings.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ _KEEP_S = 1.0
 
 
 class Aligner:
-    """Stateful, batch-wise aligner; ``push`` returns (time_s, torque_nm, angle_arcsec) ready so far."""
+    """Stateful, batch-wise aligner; ``push`` returns (time_s, torque_nm, angle_arcsec) ready so far, and
+    ``released_extra`` holds the extra angle columns of those readings."""
 
     def __init__(self, max_wait_s: float = 0.5):
         self.max_wait_s = float(max_wait_s)
@@ -30,9 +32,27 @@ class Aligner:
         self._tq_v = np.empty(0)
         self._ang_t = np.empty(0)
         self._ang_v = np.empty(0)
+        self._ang_x: dict[str, np.ndarray] | None = None  # extra columns held with the angle readings
+
+    def _hold_extra(self, n_new: int, extra: dict[str, np.ndarray] | None) -> None:
+        extra = extra or {}
+        if self._ang_x is None:
+            self._ang_x = {k: np.asarray(v, float) for k, v in extra.items()}
+            return
+        # keep only the columns every batch has (a column missing in one batch cannot be aligned)
+        self._ang_x = {k: np.concatenate([v, np.asarray(extra[k], float)]) for k, v in self._ang_x.items()
+                       if k in extra}
+
+    def _release_extra(self, n: int) -> dict[str, np.ndarray]:
+        if not self._ang_x:
+            return {}
+        out = {k: v[:n] for k, v in self._ang_x.items()}
+        self._ang_x = {k: v[n:] for k, v in self._ang_x.items()}
+        return out
 
     def push(self, angle_t: np.ndarray, angle_v: np.ndarray, torque_t: np.ndarray, torque_v: np.ndarray,
-             now_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             now_s: float, angle_extra: dict[str, np.ndarray] | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if len(torque_t):
             order = np.argsort(torque_t, kind="stable")
             self._tq_t = np.concatenate([self._tq_t, np.asarray(torque_t, float)[order]])
@@ -40,6 +60,8 @@ class Aligner:
         if len(angle_t):
             self._ang_t = np.concatenate([self._ang_t, np.asarray(angle_t, float)])
             self._ang_v = np.concatenate([self._ang_v, np.asarray(angle_v, float)])
+            self._hold_extra(len(angle_t), angle_extra)
+        self.released_extra: dict[str, np.ndarray] = {}
         if not len(self._ang_t) or not len(self._tq_t):
             return np.empty(0), np.empty(0), np.empty(0)
 
@@ -54,6 +76,7 @@ class Aligner:
         t = self._ang_t[:n]
         a = self._ang_v[:n]
         tq = np.interp(t, self._tq_t, self._tq_v)
+        self.released_extra = self._release_extra(n)
         self._ang_t = self._ang_t[n:]
         self._ang_v = self._ang_v[n:]
         keep_from = np.searchsorted(self._tq_t, t[-1] - _KEEP_S)
@@ -64,10 +87,12 @@ class Aligner:
 
     def flush(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Release every held angle reading (end of run)."""
+        self.released_extra = {}
         if not len(self._ang_t) or not len(self._tq_t):
             self._ang_t = self._ang_v = np.empty(0)
             return np.empty(0), np.empty(0), np.empty(0)
         t, a = self._ang_t, self._ang_v
         tq = np.interp(t, self._tq_t, self._tq_v)
+        self.released_extra = self._release_extra(len(t))
         self._ang_t = self._ang_v = np.empty(0)
         return t, tq, a

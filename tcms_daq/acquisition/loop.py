@@ -73,14 +73,18 @@ class _Channel:
         self.last_arrival_s = now_s
         self.last_value: float | None = None
 
-    def take(self) -> Batch:
+    def take(self) -> tuple[Batch, dict[str, np.ndarray]]:
+        """The pending readings as one batch, and the extra columns all of them carry."""
         with self.lock:
             parts, self.pending = self.pending, []
         if not parts:
-            return Batch.empty()
+            return Batch.empty(), {}
+        extras = [getattr(p, "extra", None) or {} for p in parts]
+        keys = set(extras[0]).intersection(*extras[1:])
+        extra = {k: np.concatenate([x[k] for x in extras]) for k in sorted(keys)}
         if len(parts) == 1:
-            return parts[0]
-        return Batch(np.concatenate([p.time_s for p in parts]), np.concatenate([p.value for p in parts]))
+            return parts[0], extra
+        return Batch(np.concatenate([p.time_s for p in parts]), np.concatenate([p.value for p in parts])), extra
 
 
 class AcquisitionLoop:
@@ -152,7 +156,7 @@ class AcquisitionLoop:
         self.step()
         t, tq, a = self._aligner.flush()
         if len(t):
-            self._publish(t, tq, a)
+            self._publish(t, tq, a, self._aligner.released_extra)
         self.running = False
 
     def close(self) -> None:
@@ -259,19 +263,20 @@ class AcquisitionLoop:
                 if now - self._last_status_poll >= self.status_period_s - 1e-12:
                     self._last_status_poll = now
                     self.poll_status()
-            ang = self._channels["angle"].take()
-            tq = self._channels["torque"].take()
-            t, torque, angle = self._aligner.push(ang.time_s, ang.value, tq.time_s, tq.value, now)
+            ang, extra = self._channels["angle"].take()
+            tq, _ = self._channels["torque"].take()
+            t, torque, angle = self._aligner.push(ang.time_s, ang.value, tq.time_s, tq.value, now, extra)
             if len(t):
-                self._publish(t, torque, angle)
+                self._publish(t, torque, angle, self._aligner.released_extra)
             if self.running:
                 self._check_stale(now)
         with self._tick:
             self._tick.notify_all()
 
-    def _publish(self, t: np.ndarray, torque: np.ndarray, raw_angle: np.ndarray) -> None:
+    def _publish(self, t: np.ndarray, torque: np.ndarray, raw_angle: np.ndarray,
+                 extra: dict[str, np.ndarray] | None = None) -> None:
         angle = np.asarray(self.bench.compensate(raw_angle, torque, t), dtype=float)
-        samples = Samples(t, torque, angle, {"encoder_arcsec": raw_angle})
+        samples = Samples(t, torque, angle, {**(extra or {}), "encoder_arcsec": raw_angle})
         self.fanout.publish_data(samples)
         self.samples_published += len(t)
         for trip in (check_torque_limit(t, torque, self.limits), check_angle_window(t, angle, self.limits),

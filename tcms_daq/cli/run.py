@@ -1,4 +1,10 @@
-"""``tcms run``: a stiffness test on the simulated bench (in-process), evaluated like ``tcms analyze``.
+"""``tcms run``: a stiffness test on any bench, evaluated like ``tcms analyze``.
+
+The test goes through the acquisition layer (``tcms_daq.acquisition``: bench composed from the config's
+instruments, acquisition loop, procedure state machine with interlocks). With the default config the bench is
+the in-process simulated bench (virtual drivers, simulated clock: runs faster than real time); with
+``--config config/bench-loopback.toml`` it talks ND 287, AED and CANopen to ``tcms sim serve`` in another
+process (``--speed`` must then match the simulator's speed).
 
 The bench, reducer and profile come from a bench config (default ``config/bench-sim.toml``); options override
 them. The evaluation is ``tcms_daq.analysis.evaluate`` on the evaluated loops (the conditioning loop is
@@ -23,7 +29,7 @@ from tcms_daq.config import (
     load_reducers_for,
 )
 from tcms_daq.errors import TcmsError
-from tcms_daq.procedure import Profile, build_profile, evaluated_samples, run_stiffness_test
+from tcms_daq.procedure import Profile, build_profile
 from tcms_daq.samples import Samples, write_csv
 
 CSV_COLUMNS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec", "applied_torque_nm", "true_angle_arcsec",
@@ -85,6 +91,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--dwell", type=float, default=None, metavar="S", help="stepped profile: dwell per step")
     p.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
                    help="write the evaluated samples as canonical CSV")
+    p.add_argument("--speed", type=_positive, default=None, metavar="X",
+                   help="real-protocol benches: the simulators' speed (tcms sim serve --speed; default 1); "
+                   "in-process bench: pace the simulated clock at X × real time (default: as fast as possible)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.set_defaults(func=run)
 
@@ -99,20 +108,68 @@ class SimulatedRun:
     seed: int
     record: Samples
     evaluated: Samples
-    truth: dict[str, Any]
+    truth: dict[str, Any] | None
 
 
 def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int | None = None,
-             progress=None) -> SimulatedRun:
-    """Run ``profile`` on a fresh simulated bench built from ``cfg`` for ``reducer``."""
-    from sim.bench import SimulatedBench  # sim depends on the core, not the other way round at import time
+             progress=None, speed: float | None = None) -> SimulatedRun:
+    """Run ``profile`` through the acquisition layer on the bench ``cfg`` composes (the in-process simulated
+    bench for virtual instruments, else the configured real-protocol instruments).
 
-    bench = SimulatedBench.from_config(cfg, reducer, seed=seed)
-    record = run_stiffness_test(bench, profile, progress=progress)
-    record.extra["encoder_arcsec"] = record.angle_arcsec.copy()
-    truth = bench.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
-    truth["physics"] = {k: v for k, v in bench.physics.to_dict().items() if k != "name"}
-    return SimulatedRun(cfg, reducer, profile, bench.seed, record, evaluated_samples(record), truth)
+    Raises TcmsError when the test does not complete (the message carries the state and the reason); the
+    samples recorded so far are on the exception as ``record``.
+    """
+    from functools import partial
+
+    from drivers.virtual import default_physics_factory
+    from tcms_daq.acquisition import ProfileRejected, TestRun, compose_bench
+
+    config_dir = Path(cfg.source_path).parent if cfg.source_path else None
+    factory = partial(default_physics_factory, reducer=reducer, seed=seed)
+    bench = compose_bench(cfg, config_dir=config_dir, speed=speed, physics_factory=factory)
+    in_process = bench.clock.stepped
+    if not in_process and seed is not None:
+        raise TcmsError("--seed applies to the in-process simulated bench only (the simulators' seed is their "
+                        "config's [sim] seed)")
+    subscribers = []
+    if progress is not None:
+        total_s = profile.duration_s()
+        first: list[float] = []
+
+        def on_message(msg) -> None:
+            if msg.kind == "data" and len(msg.samples):
+                first[:1] = first[:1] or [float(msg.samples.time_s[0])]
+                progress(min(float(msg.samples.time_s[-1]) - first[0], total_s), total_s)
+
+        subscribers.append(on_message)
+    try:
+        run = TestRun(bench, profile, reducer_torque_limit_nm=1.1 * reducer.rated_torque_nm,
+                      subscribers=subscribers, profile_info={"reducer": reducer.name})
+    except ProfileRejected as exc:
+        raise TcmsError(str(exc)) from None
+    rec = run.run()
+    record = rec.samples
+    if rec.state != "completed":
+        err = TcmsError(f"test {rec.state}: {rec.reason} ({len(record)} samples recorded)")
+        err.record = record  # type: ignore[attr-defined]
+        raise err
+    if in_process:
+        physics = bench.loader.bench.physics
+        truth = physics.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
+        truth["physics"] = {k: v for k, v in physics.physics.to_dict().items() if k != "name"}
+        used_seed = physics.seed
+    else:
+        # the simulators run the config's [sim] physics: its truth is known when the config has that table
+        truth = None
+        if "sim" in cfg.model_fields_set:
+            from sim.bench import SimulatedBench
+
+            reference = SimulatedBench.from_config(cfg, reducer)
+            truth = reference.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
+            truth["physics"] = {k: v for k, v in reference.physics.to_dict().items() if k != "name"}
+            truth["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
+        used_seed = cfg.sim.seed
+    return SimulatedRun(cfg, reducer, profile, used_seed, record, rec.evaluated_samples(), truth)
 
 
 def evaluate_run(result: SimulatedRun):
@@ -167,6 +224,14 @@ def _analyze_hint(path: Path, result: SimulatedRun) -> str:
     return cmd
 
 
+def _write_samples(path: Path, samples: Samples) -> None:
+    present = samples.columns()
+    try:
+        write_csv(path, samples, [c for c in CSV_COLUMNS if c in present])
+    except OSError as exc:
+        raise TcmsError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = load_bench_config(args.config)
     catalogue = load_reducers_for(cfg)
@@ -186,17 +251,20 @@ def run(args: argparse.Namespace) -> int:
             bar.refresh()
 
     try:
-        result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress)
+        result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress, speed=args.speed)
+    except TcmsError as exc:
+        kept = getattr(exc, "record", None)
+        if args.out is not None and kept is not None and len(kept):
+            _write_samples(args.out, kept)
+            raise TcmsError(f"{exc}; samples written to {args.out}") from None
+        raise
     finally:
         if bar is not None:
             bar.close()
     ev = evaluate_run(result)
 
     if args.out is not None:
-        try:
-            write_csv(args.out, result.evaluated, CSV_COLUMNS)
-        except OSError as exc:
-            raise TcmsError(f"{args.out}: cannot write ({exc.strerror or exc})") from None
+        _write_samples(args.out, result.evaluated)
 
     if args.json:
         out = {
@@ -216,13 +284,17 @@ def run(args: argparse.Namespace) -> int:
     from tcms_daq.analysis import format_evaluation
 
     p, t = result.profile, result.truth
-    print(f"simulated bench: {reducer.name}, {p.kind} profile ±{p.test_torque_nm:g} N·m at "
+    print(f"{result.config.bench.name}: {reducer.name}, {p.kind} profile ±{p.test_torque_nm:g} N·m at "
           f"{p.mean_rate_nm_per_s:.4g} N·m/s, {p.conditioning_loops} conditioning + {p.cycles} loops, "
           f"seed {result.seed}, {len(result.record)} samples ({p.duration_s():.1f} s simulated)")
     print(format_evaluation(ev))
     print()
-    print(f"simulated truth: rigidity {t['rigidity_nm_per_arcmin']:.2f} N·m/arcmin, lost motion "
-          f"{t['lost_motion_arcsec']:.2f}″, backlash {t['backlash_arcsec']:.2f}″")
+    if t is not None:
+        print(f"simulated truth: rigidity {t['rigidity_nm_per_arcmin']:.2f} N·m/arcmin, lost motion "
+              f"{t['lost_motion_arcsec']:.2f}″, backlash {t['backlash_arcsec']:.2f}″"
+          + ("" if t.get("k1_nm_per_rad") is None else
+             ", K1/K2/K3 " + "/".join(f"{t[k]:.4g}" for k in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad")
+                                      if t.get(k) is not None) + " N·m/rad"))
     if args.out is not None:
         print(f"wrote {len(result.evaluated)} samples to {args.out}; re-evaluate with: {_analyze_hint(args.out, result)}")
     return 0
