@@ -5,10 +5,12 @@
 ``apply`` is vectorised and runs in cache-sized chunks with preallocated buffers:
 
 * all terms that are linear (offset, scale, torsion) collapse into three numbers: θ_c = (1 − s)·θ − c_T·T − c0;
-* the remaining terms that depend on θ alone (eccentricity, periodic, …) are summed into one lookup table on a
-  grid of step h = tolerance / max|d term/dθ|, so the nearest grid value differs from the exact sum by at most
-  tolerance/2 (default tolerance 0.001″, far below the encoder's 0.7″ resolution). The table is built lazily
-  over the range the data visit and kept for later batches; ``exact=True`` evaluates every term directly.
+* when there are non-linear terms that depend on θ alone (eccentricity, periodic, …), they are summed with the
+  offset into one lookup table on a grid of step h = tolerance / max|d Σ/dθ|, so the
+  nearest grid value differs from the exact sum by at most tolerance/2 (default tolerance 0.001″, far below
+  the encoder's 0.7″ resolution). The table is built lazily over the range the data visit and kept for later
+  batches; data it cannot cover (non-finite, too wide a range) are evaluated directly; ``exact=True``
+  evaluates every term directly.
 * anything else (time-dependent terms, terms registered later) is evaluated directly on the whole batch.
 
 ``encoder_reading`` is the forward direction: what the encoder reads for a true angle, so that ``apply``
@@ -32,13 +34,15 @@ from tcms_daq.errors import ConfigError, DataFormatError
 
 CHUNK = 16384
 MAX_TABLE_POINTS = 1 << 22
+_ROUND_MAGIC = 6755399441055744.0  # 1.5·2^52
+_ROUND_MAGIC_BITS = int(np.float64(_ROUND_MAGIC).view(np.int64))
 DEFAULT_TOLERANCE_ARCSEC = 1e-3
 
 
 class _AngleTable:
-    """Sum of the angle-only terms (plus the constant offset) on the grid x_j = (i0 + j)·h."""
+    """offset + Σ angle-only terms on the grid x_j = (i0 + j)·h (small: it stays in cache)."""
 
-    __slots__ = ("h", "inv_h", "i0", "values", "lo", "hi")
+    __slots__ = ("h", "inv_h", "i0", "values", "size", "lo", "hi")
 
     def __init__(self, terms: Sequence[Term], offset: float, h: float, lo: float, hi: float):
         self.h = h
@@ -50,6 +54,7 @@ class _AngleTable:
         for term in terms:
             values += term.evaluate(x, 0.0, None)
         self.values = values
+        self.size = values.size
         self.lo = (self.i0 + 1) * h
         self.hi = (i1 - 1) * h
 
@@ -190,50 +195,66 @@ class Compensator:
         size = min(CHUNK, n) or 1
         buf = np.empty(size)
         ubuf = np.empty(size)
-        ibuf = np.empty(size, dtype=np.intp) if use_table else None
+        mul, sub, add, take = np.multiply, np.subtract, np.add, np.take  # hot loop: no attribute lookups
+        magic, magic_bits = _ROUND_MAGIC, _ROUND_MAGIC_BITS
         for s in range(0, n, CHUNK):
             e = min(n, s + CHUNK)
             th = theta_f[s:e]
             o = out_f[s:e]
             b = buf[: e - s]
             u = ubuf[: e - s]
-            table = self._table_covering(th) if use_table else None
-            if table is not None:  # u = tabulated angle-only terms + offset (read θ before writing o)
-                idx = ibuf[: e - s]
-                np.multiply(th, table.inv_h, out=u)
-                np.add(u, 0.5 - table.i0, out=u)
-                np.copyto(idx, u, casting="unsafe")
-                np.take(table.values, idx, out=u, mode="clip")
-            elif self._tabulable:
-                u.fill(c0)
+            table = self._table if use_table else None
+            if table is not None:
+                # round(θ/h) − i0 without a float→int conversion: adding 1.5·2^52 leaves the rounded integer
+                # in the low mantissa bits (valid for |θ/h − i0| < 2^51; the range check catches the rest)
+                idx = u.view(np.int64)
+                mul(th, table.inv_h, out=u)
+                add(u, magic - table.i0, out=u)
+                sub(idx, magic_bits, out=idx)
+                if idx.view(np.uint64).max() < table.size:  # negative, NaN and out-of-range fail here
+                    take(table.values, idx, out=b, mode="clip")  # range checked: clip skips the check
+                else:
+                    table = None
+            if table is None and not (use_table and self._lookup(th, u, b)):
+                b.fill(c0)
                 for term in self._tabulable:
-                    np.add(u, term.evaluate(th, 0.0, None), out=u)
-            np.multiply(th, one_minus_s, out=o)
-            if table is not None or self._tabulable:
-                np.subtract(o, u, out=o)
-            elif c0 != 0.0:
-                np.subtract(o, c0, out=o)
+                    add(b, term.evaluate(th, 0.0, None), out=b)
+            mul(th, one_minus_s, out=o)
+            sub(o, b, out=o)
             if c_t != 0.0:
-                np.multiply(torque_f[s:e], c_t, out=b)
-                np.subtract(o, b, out=o)
+                mul(torque_f[s:e], c_t, out=u)
+                sub(o, u, out=o)
         if direct_corr is not None:
             np.subtract(out_f, direct_corr, out=out_f)
         return out
 
     __call__ = apply
 
-    def _table_covering(self, th: np.ndarray) -> _AngleTable | None:
+    def _lookup(self, th: np.ndarray, u: np.ndarray, out: np.ndarray) -> bool:
+        """Slow path of a table miss: extend the table over ``th`` and look up; False if the chunk cannot be
+        tabulated (non-finite or too wide a range), then the caller evaluates the terms directly."""
+        table = self._extend_table(th)
+        if table is None:
+            return False
+        idx = u.view(np.int64)
+        np.multiply(th, table.inv_h, out=u)
+        np.add(u, _ROUND_MAGIC - table.i0, out=u)
+        np.subtract(idx, _ROUND_MAGIC_BITS, out=idx)
+        if idx.size and idx.view(np.uint64).max() >= table.size:
+            return False
+        np.take(table.values, idx, out=out, mode="clip")
+        return True
+
+    def _extend_table(self, th: np.ndarray) -> _AngleTable | None:
         lo = float(th.min())
         hi = float(th.max())
-        table = self._table
-        if table is not None and table.lo <= lo and hi <= table.hi:
-            return table
         if not (math.isfinite(lo) and math.isfinite(hi)):
             return None
+        table = self._table
         if table is not None:
             lo, hi = min(lo, table.lo), max(hi, table.hi)
         # grow geometrically so a sweep that widens its range rebuilds only a few times
-        margin = max(hi - lo, 256 * self._table_h)
+        margin = max(0.5 * (hi - lo), 256 * self._table_h)
         lo, hi = lo - margin, hi + margin
         if (hi - lo) / self._table_h > MAX_TABLE_POINTS:
             return None
