@@ -15,6 +15,7 @@ interpolation_error  A·sin(2π·θ_sim/P + ψ), P = signal period or ½  period
 periodic_error       the same at another period found by search     period_arcsec, amplitude_arcsec, phase_rad
 backlash             −(b/2)·d, d = +1 loading / −1 unloading        backlash_arcsec (> 0: a wider loop)
 torque_zero_offset   −T0·dθ_sim/dT (slope along the simulated trace)  offset_nm
+nonlinear_stiffness  c·T³ (odd in torque)                           coef_arcsec_per_nm3
 ==================== ============================================== =======================================
 
 A constant offset is always fitted and is not an effect. Linear effects give columns whose coefficients are
@@ -34,7 +35,7 @@ from tcms_daq.discrepancy.design import DesignData
 
 EFFECT_NAMES: tuple[str, ...] = (
     "time_skew", "thermal_drift", "bending_deformation", "torsion_offset", "scale_error",
-    "interpolation_error", "periodic_error", "backlash", "torque_zero_offset",
+    "interpolation_error", "periodic_error", "backlash", "torque_zero_offset", "nonlinear_stiffness",
 )
 
 MAX_SKEW_S = 0.25
@@ -82,6 +83,9 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("torque_zero_offset", ("offset_nm",), ("N·m",),
            "torque sensor zero offset: the angle shifted along the simulated curve by T0 (−T0·dθ/dT)", "even",
            False, False, None, False, "|T0| ≤ 5 % of the torque span"),
+    Effect("nonlinear_stiffness", ("coef_arcsec_per_nm3",), ("″/(N·m)³",),
+           "stiffness that changes with torque, odd in torque (c·T³)", "even", False, False, None, False,
+           "|c·T_max³| ≤ 20 % of the simulated angle span"),
 )}
 
 
@@ -174,6 +178,8 @@ def columns(name: str, data: DesignData, nl: float | None = None) -> np.ndarray:
         return (-0.5 * data.direction)[:, None]
     if name == "torque_zero_offset":
         return (-data.slope_arcsec_per_nm)[:, None]
+    if name == "nonlinear_stiffness":
+        return (data.torque_nm ** 3)[:, None]
     raise KeyError(name)
 
 
@@ -221,11 +227,24 @@ def plausibility(name: str, params: dict[str, float], data: DesignData) -> str |
             return "periodic amplitude above 10 ″ or 10 % of its period"
         if params["period_arcsec"] > span / 1.5:
             return "fewer than 1.5 periods inside the angle span"
+    if name == "nonlinear_stiffness" and abs(params["coef_arcsec_per_nm3"]) * tmax ** 3 > 0.2 * span:
+        return "cubic stiffness term larger than 20 % of the angle span"
     if name == "backlash" and abs(params["backlash_arcsec"]) > 120.0:
         return "backlash above 120 ″"
     if name == "torque_zero_offset" and abs(params["offset_nm"]) > 0.05 * tspan:
         return "torque offset above 5 % of the torque span"
     return None
+
+
+def angle_follows_torque(data: DesignData) -> bool:
+    """True when the design loads in one direction only: the angle is then a one-to-one function of the
+    torque, and any error periodic in the angle is also some smooth function of the torque."""
+    return bool(np.all(data.direction == data.direction[0]))
+
+
+# A free-period periodic error in a one-directional design: which catalogue effect stands for "some other
+# function of the torque" in the alias report.
+ONE_TO_ONE_ALIAS = "nonlinear_stiffness"
 
 
 def cat_fixed_gain(name: str) -> bool:
@@ -274,6 +293,11 @@ _SEPARATING: dict[frozenset[str], str] = {
     frozenset({"time_skew", "backlash"}):
         "repeat at a second loading rate (a skew grows with the rate, backlash does not) or check the channel "
         "timing with a hardware loopback",
+    frozenset({"periodic_error", "nonlinear_stiffness"}):
+        "load and unload (±T) and repeat with the encoder mounted at another angle (a coarse angle and half a "
+        "signal period) with the reference recorded simultaneously: an error periodic in the encoder angle "
+        "moves with the mounting angle, a torque-dependent difference (stiffness, seating, a separate "
+        "reference run) does not",
     frozenset({"torque_zero_offset", "backlash"}):
         "tare at zero torque before and after and load symmetrically through zero",
 }

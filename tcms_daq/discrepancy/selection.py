@@ -335,8 +335,10 @@ def select(cols: Columns, y: np.ndarray, rows: np.ndarray, candidates: list[str]
         win = scores[best]
         aliases: list[str] = []
         nl_prev = _prev_nl(path[-1], names)
+        if best == "periodic_error" and cat.angle_follows_torque(data):
+            aliases.append(cat.ONE_TO_ONE_ALIAS)  # any f(θ) is a g(T) here: the period is no evidence
         for c in order:
-            if c == best or c in excluded:
+            if c == best or c in excluded or c in aliases:
                 continue
             sc = scores[c]
             if sc.rms > path[-1].rms * (1.0 - MIN_GAIN):

@@ -1,0 +1,130 @@
+"""The discrepancy model file (TOML): the terms the workflow added to the simulated angle.
+
+Format ``tcms-discrepancy-model/1``::
+
+    format = "tcms-discrepancy-model/1"
+    signal_period_arcsec = 72.0
+    offset_arcsec = -0.41            # constant offset (always fitted, not an effect)
+
+    [[terms]]                        # in order of addition
+    name = "time_skew"               # a catalogue name (tcms_daq.discrepancy.catalogue)
+    aliased_with = []                # other catalogue effects that fit these data equally well
+    [terms.parameters]
+    skew_s = 0.0201
+
+The re-simulated angle is θ_sim + offset + Σ signature(term). The compensator's term registry
+(``tcms_daq.compensation.terms``) models encoder errors as functions of (θ, T, t) only; ``time_skew``,
+``backlash`` and ``torque_zero_offset`` need the trace (time shift, load direction, slope), so the
+discrepancy model has this file of its own. The same ``[[terms]]`` map one-to-one onto the simulated bench's
+``[sim.effects]`` table (:func:`sim_effects_table`).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+
+from tcms_daq.discrepancy import catalogue as cat
+from tcms_daq.discrepancy.design import build_design
+from tcms_daq.errors import DataFormatError
+from tcms_daq.samples import Samples
+
+FORMAT = "tcms-discrepancy-model/1"
+
+
+@dataclass
+class ModelTerm:
+    name: str
+    parameters: dict[str, float]
+    aliased_with: list[str] = field(default_factory=list)
+
+
+@dataclass
+class DiscrepancyModel:
+    offset_arcsec: float = 0.0
+    signal_period_arcsec: float = 72.0
+    terms: list[ModelTerm] = field(default_factory=list)
+
+    def to_toml(self) -> str:
+        doc = {
+            "format": FORMAT,
+            "signal_period_arcsec": float(self.signal_period_arcsec),
+            "offset_arcsec": float(self.offset_arcsec),
+            "terms": [{"name": t.name, "aliased_with": list(t.aliased_with),
+                       "parameters": {k: float(v) for k, v in t.parameters.items()}} for t in self.terms],
+        }
+        head = "# TCMS-DAQ discrepancy model: terms added to the simulated angle (arcsec), see docs/discrepancy.md\n"
+        return head + tomli_w.dumps(doc)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_toml(), encoding="utf-8")
+
+
+def model_from_result(result) -> DiscrepancyModel:
+    """The model of a :class:`~tcms_daq.discrepancy.workflow.DiscrepancyResult` (accepted terms incl. alias
+    representatives)."""
+    alias_of = {a.representative: [n for n in a.names if n != a.representative] for a in result.aliases
+                if a.in_model}
+    terms = [ModelTerm(name, dict(params), alias_of.get(name, [])) for name, params in result.model_terms]
+    return DiscrepancyModel(result.offset_arcsec, result.signal_period_arcsec, terms)
+
+
+def parse_model(text: str, source: str = "<model>") -> DiscrepancyModel:
+    """Parse a model file; raises DataFormatError with a one-line message."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise DataFormatError(f"{source}: not valid TOML ({exc})") from None
+    if doc.get("format") != FORMAT:
+        raise DataFormatError(f"{source}: format must be {FORMAT!r}")
+    terms = []
+    for i, t in enumerate(doc.get("terms", [])):
+        name = t.get("name")
+        if name not in cat.CATALOGUE:
+            raise DataFormatError(f"{source}: terms[{i}]: unknown effect {name!r}")
+        params = t.get("parameters", {})
+        missing = [p for p in cat.CATALOGUE[name].parameters if p not in params]
+        if missing:
+            raise DataFormatError(f"{source}: terms[{i}] ({name}): missing parameter {missing[0]!r}")
+        terms.append(ModelTerm(name, {k: float(v) for k, v in params.items()}, list(t.get("aliased_with", []))))
+    return DiscrepancyModel(float(doc.get("offset_arcsec", 0.0)), float(doc.get("signal_period_arcsec", 72.0)), terms)
+
+
+def load_model(path: str | Path) -> DiscrepancyModel:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read ({exc})") from None
+    return parse_model(text, str(path))
+
+
+def apply_model(model: DiscrepancyModel, simulated: Samples, *, has_time: bool = True) -> Samples:
+    """Re-simulate: the simulated angle with the model's offset and terms added (same rows and columns)."""
+    data = build_design(simulated, simulated, signal_period_arcsec=model.signal_period_arcsec, has_time=has_time)
+    angle = simulated.angle_arcsec + model.offset_arcsec
+    for term in model.terms:
+        angle = angle + cat.signature(term.name, data, term.parameters)
+    return Samples(simulated.time_s, simulated.torque_nm, angle, dict(simulated.extra))
+
+
+def sim_effects_table(model: DiscrepancyModel) -> dict[str, dict[str, float]]:
+    """The model's terms as a simulated-bench ``[sim.effects]`` table (``sim.effects`` reads it)."""
+    return {t.name: dict(t.parameters) for t in model.terms}
+
+
+def resimulated_samples(result, simulated: Samples, measured: Samples) -> Samples:
+    """The re-simulated run for CSV output: canonical columns plus the inputs and residuals before/after."""
+    extra = {k: v for k, v in simulated.extra.items() if k == "run_id"}
+    extra.update({
+        "simulated_arcsec": simulated.angle_arcsec,
+        "measured_arcsec": measured.angle_arcsec,
+        "residual_before_arcsec": result.residual_before_arcsec,
+        "residual_after_arcsec": result.residual_after_arcsec,
+        "load_direction": np.asarray(result.data.direction, dtype=float),
+    })
+    return Samples(simulated.time_s, simulated.torque_nm, result.resimulated_angle_arcsec, extra)
