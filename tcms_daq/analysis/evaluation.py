@@ -5,8 +5,9 @@ Pure functions on arrays. Sign convention: positive torque twists the output tow
 Per full loop (a B↑ and a B↓ branch):
 - backlash (loop width at zero torque) = |θ_B↓(0) − θ_B↑(0)|;
 - midline m(T) = [θ_B↑(T) + θ_B↓(T)]/2; lost motion = m(+p·T_rated) − m(−p·T_rated);
-- torsional rigidity per direction = secant ΔT/Δm over [lo, hi]·T_test on that side (the upper end is clipped
-  to TIP_MARGIN below the torque the loop actually reached, where the branches meet), averaged over both sides;
+- torsional rigidity per direction = secant ΔT/Δm over [lo, hi]·T_test on that side, averaged over both sides;
+  the upper end is at most the torque the loop actually reached (its turning point, where the branches meet
+  and the midline is the tip angle), so a loop that stops a little short of T_test is still evaluated;
 - optional Harmonic Drive K1/K2/K3: least-squares lines of the midline per region, per direction.
 Results are reported per loop, per direction and as mean ± std over the evaluated loops.
 """
@@ -28,7 +29,7 @@ from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
 MIN_SAMPLES = 20
-TIP_MARGIN = 0.0  # fraction below the reached turning-point torque where the rigidity interval may end
+CLIP_WARNING = 0.02  # warn when the rigidity interval had to end more than 2 % below what was asked
 SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken as a test at rated torque
 RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
 SCALE_PERCENTILE = 99.5
@@ -367,15 +368,14 @@ def _evaluate_loop(
     his: dict[int, float] = {}
     for name, sign in SIDES:
         reached = loop.reached_torque_nm(sign)
-        usable = (1.0 - TIP_MARGIN) * reached
-        if usable <= lo or usable <= lm_torque:
+        if reached <= lo or reached <= lm_torque:
             need = max(lo, lm_torque)
             raise EvaluationError(
                 f"torque never reaches the evaluation interval: loop {index} reaches {sign * reached:+.4g} Nm on "
                 f"the {name} side, the evaluation needs beyond {sign * need:+.4g} Nm"
             )
-        hi = min(hi_frac * test_torque_nm, usable)
-        if hi < hi_frac * test_torque_nm * (1.0 - 2.5 * TIP_MARGIN):
+        hi = min(hi_frac * test_torque_nm, reached)
+        if hi < hi_frac * test_torque_nm * (1.0 - CLIP_WARNING):
             warnings.append(
                 f"rigidity interval clipped on the {name} side: torque reached {reached:.4g} Nm, "
                 f"interval asks for {hi_frac * test_torque_nm:.4g} Nm"

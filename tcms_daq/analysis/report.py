@@ -80,4 +80,4 @@ def format_evaluation(ev: Evaluation) -> str:
     if ev.verdict is not None:
         lines += ["", f"verdict: {'PASS' if ev.verdict['passed'] else 'FAIL'}"]
     lines += [f"warning: {w}" for w in ev.warnings]
-    return "\n".join(lines)
+    return "\n".join(line.rstrip() for line in lines)

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from tcms_daq.analysis import evaluate, format_evaluation
+from tcms_daq.analysis import Limits, evaluate, format_evaluation
 from tcms_daq.errors import EvaluationError
 from tcms_daq.samples import read_csv
 
@@ -21,10 +21,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "and mean ± std over loops.",
     )
     p.add_argument("file", type=Path, metavar="FILE.csv", help="canonical sample CSV")
-    p.add_argument("--rated-torque", type=float, required=True, metavar="NM",
-                   help="rated torque of the reducer in N·m (sets the lost-motion torque level)")
-    p.add_argument("--lost-motion-pct", type=float, default=3.0, metavar="P",
-                   help="lost-motion torque level in %% of rated torque (default 3; Harmonic Drive 4, Yaskawa 5)")
+    p.add_argument("--rated-torque", type=float, default=None, metavar="NM",
+                   help="rated torque of the reducer in N·m (sets the lost-motion torque level); required "
+                   "unless --reducer is given")
+    p.add_argument("--reducer", default=None, metavar="NAME",
+                   help="catalogue reducer (e.g. RV-110E): rated torque, lost-motion level, Harmonic Drive "
+                   "breakpoints and pass/fail limits from the catalogue; explicit options override them")
+    p.add_argument("--catalogue", type=Path, default=None, metavar="FILE",
+                   help="reducer catalogue TOML (default: config/reducers.toml)")
+    p.add_argument("--lost-motion-pct", type=float, default=None, metavar="P",
+                   help="lost-motion torque level in %% of rated torque (default 3, or the catalogue's; "
+                   "Harmonic Drive 4, Yaskawa 5)")
     p.add_argument("--test-torque", type=float, default=None, metavar="NM",
                    help="test torque amplitude in N·m (default: the torque reached at the turning points, "
                    "taken as the rated torque when within 2 %%)")
@@ -48,22 +55,43 @@ def _interval(values: tuple[float, float]) -> tuple[float, float]:
     return lo, hi
 
 
-def run(args: argparse.Namespace) -> int:
-    samples = read_csv(args.file)
-    ev = evaluate(
-        samples.time_s,
-        samples.torque_nm,
-        samples.angle_arcsec,
-        rated_torque_nm=args.rated_torque,
+def _options(args: argparse.Namespace) -> dict:
+    """Evaluation keyword arguments: the catalogue entry (with --reducer), overridden by explicit options."""
+    options: dict = {"lost_motion_pct": 3.0}
+    if args.reducer is not None:
+        from tcms_daq.config import get_reducer, load_reducer_catalogue
+
+        spec = get_reducer(load_reducer_catalogue(args.catalogue), args.reducer, args.catalogue)
+        options.update(
+            rated_torque_nm=spec.rated_torque_nm,
+            lost_motion_pct=spec.lost_motion_pct,
+            hd_breakpoints_nm=spec.hd_breakpoints_nm,
+            limits=Limits(**spec.limits()),
+        )
+    elif args.rated_torque is None:
+        raise EvaluationError("give the rated torque (--rated-torque NM) or a catalogue reducer (--reducer NAME)")
+    if args.rated_torque is not None:
+        options["rated_torque_nm"] = args.rated_torque
+    if args.lost_motion_pct is not None:
+        options["lost_motion_pct"] = args.lost_motion_pct
+    if args.hd_breakpoints:
+        options["hd_breakpoints_nm"] = tuple(args.hd_breakpoints)
+    options.update(
         test_torque_nm=args.test_torque,
-        lost_motion_pct=args.lost_motion_pct,
         rigidity_interval=_interval(tuple(args.interval)),
-        hd_breakpoints_nm=tuple(args.hd_breakpoints) if args.hd_breakpoints else None,
         skip_loops=args.skip_loops,
     )
+    return options
+
+
+def run(args: argparse.Namespace) -> int:
+    options = _options(args)
+    samples = read_csv(args.file)
+    ev = evaluate(samples.time_s, samples.torque_nm, samples.angle_arcsec, **options)
     if args.json:
-        print(json.dumps({"file": str(args.file), **ev.to_dict()}, allow_nan=False))
+        print(json.dumps({"file": str(args.file), "reducer": args.reducer, **ev.to_dict()}, allow_nan=False))
     else:
-        print(f"{args.file}: {ev.n_samples} samples over {ev.duration_s:.1f} s")
+        reducer = f", reducer {args.reducer}" if args.reducer else ""
+        print(f"{args.file}: {ev.n_samples} samples over {ev.duration_s:.1f} s{reducer}")
         print(format_evaluation(ev))
     return 0

@@ -127,3 +127,26 @@ def test_bad_interval(capsys, csv_file):
     path, _ = csv_file
     code, _, err = analyze(capsys, path, "--rated-torque", 1078, "--interval", 0.9, 0.5)
     assert code == 2 and "--interval" in err
+
+
+def test_reducer_from_catalogue_sets_limits_and_level(capsys, csv_file):
+    path, _ = csv_file
+    code, out, _ = analyze(capsys, path, "--reducer", "RV-110E", "--json")
+    assert code == 0
+    d = json.loads(out)
+    assert d["reducer"] == "RV-110E" and d["rated_torque_nm"] == 1078.0
+    assert d["verdict"]["passed"] is True
+    assert "backlash_max_arcsec" in d["verdict"]["checks"]
+    # An explicit option overrides the catalogue.
+    code, out, _ = analyze(capsys, path, "--reducer", "RV-110E", "--lost-motion-pct", 5, "--json")
+    assert json.loads(out)["lost_motion_pct"] == 5.0
+
+
+def test_rated_torque_or_reducer_is_required(capsys, csv_file):
+    path, _ = csv_file
+    code = main(["analyze", str(path)])
+    _, err = capsys.readouterr()
+    assert code == 2 and "--rated-torque" in err and "--reducer" in err
+    code = main(["analyze", str(path), "--reducer", "RV-999"])
+    _, err = capsys.readouterr()
+    assert code == 2 and "unknown reducer 'RV-999'" in err
