@@ -6,7 +6,9 @@
   const $ = (id) => document.getElementById(id);
   const HEADER_SIZE = 32;
   const WINDOW_S = 10;          // visible history of the time traces (acquisition clock seconds)
-  const LOOP_MAX_POINTS = 3000; // hysteresis loop is decimated by stride doubling to stay below this
+  // The loop is decimated by stride doubling to stay below this: uPlot's own per-pixel decimation (above 4 points
+  // per pixel) assumes x increases monotonically, which a hysteresis loop (x = torque) does not.
+  const LOOP_MAX_POINTS = 1000;
 
   const state = {
     frames: 0, dropped: 0, lastSeq: 0, gaps: 0,
@@ -209,16 +211,6 @@
 
   function resetLoop() { state.loop = { x: [], y: [], stride: 1, counter: 0 }; state.dirty = true; }
 
-  function flatten(obj, prefix, rows) {
-    for (const [k, v] of Object.entries(obj || {})) {
-      const key = prefix ? prefix + "." + k : k;
-      if (v !== null && typeof v === "object" && !Array.isArray(v)) flatten(v, key, rows);
-      else if (Array.isArray(v)) {
-        if (v.length && v.every((x) => typeof x === "number")) rows.push([key, v.map(fmt).join(", ")]);
-      } else rows.push([key, v]);
-    }
-    return rows;
-  }
   function fmt(v) { return typeof v === "number" ? (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(4) : +v.toPrecision(6)) : String(v); }
   function verdictClass(v) {
     if (v === true || v === "pass" || v === "passed") return "pass";
@@ -226,20 +218,57 @@
     return "";
   }
 
+  // Results: the headline quantities (mean ± std over the evaluated loops) and the verdict checks; results of an
+  // unknown shape fall back to their top-level scalars.
+  const HEADLINE = [
+    ["rigidity_nm_per_arcmin", "rigidity / N·m/arcmin"],
+    ["lost_motion_arcsec", "lost motion / arcsec"],
+    ["backlash_arcsec", "backlash / arcsec"],
+    ["loading_rate_nm_per_s", "loading rate / N·m/s"],
+    ["test_torque_nm", "test torque / N·m"],
+    ["n_loops", "evaluated loops"],
+  ];
+
+  function resultRows(res) {
+    const rows = [];
+    const std = res.std || {};
+    for (const [key, label] of HEADLINE) {
+      if (typeof res[key] !== "number") continue;
+      const s = typeof std[key] === "number" ? " ± " + fmt(std[key]) : "";
+      rows.push([label, fmt(res[key]) + s, ""]);
+    }
+    for (const k of ["k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"]) {
+      if (typeof res[k] === "number") rows.push([k.slice(0, 2).toUpperCase() + " / N·m/rad", fmt(res[k]), ""]);
+    }
+    const verdict = res.verdict;
+    if (verdict && typeof verdict === "object") {
+      for (const [name, c] of Object.entries(verdict.checks || {})) {
+        rows.push([`${c.quantity} ${c.comparison} ${fmt(c.limit)}`, (c.passed ? "pass" : "FAIL") + " (" + fmt(c.value) + ")",
+          c.passed ? "pass" : "fail"]);
+      }
+      rows.push(["verdict", verdict.passed ? "pass" : "FAIL", verdict.passed ? "pass" : "fail"]);
+    }
+    if (!rows.length) {
+      for (const [k, v] of Object.entries(res)) {
+        if (v === null || typeof v === "object") continue;
+        rows.push([k, v === true ? "pass" : v === false ? "FAIL" : fmt(v), verdictClass(v)]);
+      }
+    }
+    return rows;
+  }
+
   async function showResults(id) {
     let run;
     try { run = await api("GET", "/api/tests/" + encodeURIComponent(id)); } catch (e) { return; }
     const body = $("results").tBodies[0];
     body.innerHTML = "";
-    const rows = run.results ? flatten(run.results, "", []) : [];
+    const rows = run.results ? resultRows(run.results) : [];
     if (!rows.length) {
       body.innerHTML = `<tr><td class="muted">${run.status}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
     }
-    for (const [k, v] of rows) {
+    for (const [label, value, cls] of rows) {
       const tr = document.createElement("tr");
-      const cls = verdictClass(v);
-      const shown = v === true ? "pass" : v === false ? "FAIL" : fmt(v);
-      tr.innerHTML = `<th>${escapeHtml(k)}</th><td class="${cls}">${escapeHtml(String(shown))}</td>`;
+      tr.innerHTML = `<th>${escapeHtml(label)}</th><td class="${cls}">${escapeHtml(String(value))}</td>`;
       body.appendChild(tr);
     }
     const link = $("report-link");
@@ -311,8 +340,10 @@
     if ($("f-operator").value.trim()) req.operator = $("f-operator").value.trim();
     try {
       const res = await api("POST", "/api/tests", req);
-      resetLoop();
-      setTestState(res.id, res.status === "queued" ? "queued" : res.status);
+      if (state.activeId !== res.id) {  // the event channel may already have reported this test
+        resetLoop();
+        setTestState(res.id, res.status);
+      }
       message("test " + res.id + " started");
     } catch (e) { message(e.message, true); }
   });

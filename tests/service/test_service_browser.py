@@ -1,0 +1,80 @@
+"""The dashboard in headless Chromium: start a test from the page and watch the hysteresis loop being drawn.
+
+Set TCMS_UPDATE_SCREENSHOT=1 to write the final view to docs/screenshot-dashboard.png.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from svc_helpers import TOKEN, serve
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+REPO = Path(__file__).resolve().parents[2]
+
+# Pixels of the loop's stroke colour (#157a2e) on the loop canvas: > 0 once uPlot has drawn the loop.
+COUNT_LOOP_PIXELS = """() => {
+  const canvas = document.querySelector('#plot-loop canvas');
+  const ctx = canvas.getContext('2d');
+  const d = ctx.getImageData(0, 0, canvas.width, canvas.height).data;
+  let n = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    if (d[i + 3] > 0 && d[i + 1] > 90 && d[i] < 90 && d[i + 2] < 110) n++;
+  }
+  return n;
+}"""
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium at /usr/bin/chromium"),
+]
+
+
+@pytest.mark.timeout(120)
+def test_dashboard_starts_a_test_and_draws_the_loop(settings_factory, sim_config, tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    settings = settings_factory(config_path=sim_config, sim_speed=8.0)
+    with serve(settings) as srv, sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1500, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(f"{srv.base}/?token={TOKEN}")
+            assert "token=" not in page.url  # taken out of the address bar, kept for the tab
+            page.wait_for_function("document.querySelector('#f-reducer').options.length > 0")
+            page.wait_for_function("window.tcms.state.frames > 5")  # idle bench is streaming
+            page.select_option("#f-reducer", "RV-110E")
+            page.fill("#f-torque", "400")
+            page.fill("#f-cycles", "1")
+            page.fill("#f-rate", "200")
+            page.fill("#f-serial", "SN-0042")
+            page.fill("#f-operator", "ci")
+            page.click("#start")
+            page.wait_for_function("document.querySelector('#test-state').textContent === 'running'", timeout=20_000)
+            page.wait_for_function("window.tcms.loopPoints() > 200", timeout=30_000)
+            drawn = page.evaluate(COUNT_LOOP_PIXELS)
+            assert drawn > 100, "the hysteresis loop canvas has no loop pixels"
+            page.wait_for_function(
+                "['completed','failed','aborted'].includes(document.querySelector('#test-state').textContent)",
+                timeout=60_000,
+            )
+            assert page.text_content("#test-state") == "completed"
+            page.wait_for_selector("#results td.pass, #results td.fail")
+            assert "rigidity / N·m/arcmin" in page.text_content("#results")
+            assert "verdict" in page.text_content("#results")
+            assert page.evaluate(COUNT_LOOP_PIXELS) > 100
+            assert page.evaluate("window.tcms.state.gaps") == 0
+            assert errors == []
+            shot = tmp_path / "dashboard.png"
+            page.screenshot(path=str(shot), full_page=True)
+            if os.environ.get("TCMS_UPDATE_SCREENSHOT") == "1":
+                shutil.copyfile(shot, REPO / "docs" / "screenshot-dashboard.png")
+        finally:
+            browser.close()
