@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -182,3 +183,28 @@ def test_two_sample_window_is_exact_linear_interpolation():
     np.testing.assert_allclose(got_down, np.interp(levels, torque, angle), atol=1e-9)
     outside = angle_at_torque(time, torque, angle, torque, +1, np.array([torque[0] - 1, torque[-1] + 1]), window=2)
     assert np.isnan(outside).all()
+
+
+def test_aborted_last_branch_is_not_a_loop(synth, loop_model):
+    """A test cut off at +600 Nm on the way up: the complete loops are evaluated, the partial one is not."""
+    model = loop_model()
+    rec = synth(model, loops=2, conditioning_loops=0)
+    # Loops end at −T; cut the record when the torque next rises through +600 Nm after the last full loop.
+    last_full = rec.time_s[0] + (1078.0 + 2 * 4 * 1078.0) / 100.0  # lead-in + two loops at 100 Nm/s
+    keep = rec.time_s <= last_full + (1078.0 + 600.0) / 100.0
+    cut = dataclasses.replace(rec, time_s=rec.time_s[keep], torque_nm=rec.torque_nm[keep],
+                              angle_arcsec=rec.angle_arcsec[keep], true_torque_nm=rec.true_torque_nm[keep])
+    assert cut.torque_nm[-1] == pytest.approx(600.0, abs=1.0)
+    ev = run(cut)
+    assert ev.n_loops == 2
+    assert ev.backlash_arcsec == pytest.approx(25.0, abs=0.05)
+
+
+def test_torque_zero_offset_only_shifts_the_levels(synth, loop_model):
+    """A 2 Nm sensor zero offset moves every level by 2 Nm; rigidity is unaffected, backlash barely."""
+    model = loop_model()
+    rec = synth(model)
+    ev = evaluate(rec.time_s, rec.torque_nm + 2.0, rec.angle_arcsec, rated_torque_nm=RATED)
+    assert ev.rigidity_nm_per_arcmin == pytest.approx(294.0, rel=2e-3)
+    assert ev.backlash_arcsec == pytest.approx(float(np.diff(model.angle_arcsec(-2.0, np.array([1, -1])))[0]),
+                                               abs=0.05)
