@@ -188,7 +188,7 @@ def test_two_sample_window_is_exact_linear_interpolation():
 def test_aborted_last_branch_is_not_a_loop(synth, loop_model):
     """A test cut off at +600 Nm on the way up: the complete loops are evaluated, the partial one is not."""
     model = loop_model()
-    rec = synth(model, loops=2, conditioning_loops=0)
+    rec = synth(model, loops=3, conditioning_loops=0)
     # Loops end at −T; cut the record when the torque next rises through +600 Nm after the last full loop.
     last_full = rec.time_s[0] + (1078.0 + 2 * 4 * 1078.0) / 100.0  # lead-in + two loops at 100 Nm/s
     keep = rec.time_s <= last_full + (1078.0 + 600.0) / 100.0
