@@ -1,0 +1,26 @@
+# TCMS-DAQ: one image for both compose services (the service `tcms serve` and the instrument simulators
+# `tcms sim serve`). Build: docker compose build
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    TCMS_DATA_DIR=/data \
+    TCMS_CONFIG_DIR=/app/config
+
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY tcms_daq ./tcms_daq
+COPY drivers ./drivers
+COPY sim ./sim
+COPY benchmarks ./benchmarks
+COPY config ./config
+RUN pip install --no-compile . \
+    && useradd --create-home --uid 1000 tcms \
+    && mkdir -p /data \
+    && chown tcms /data
+
+USER tcms
+VOLUME ["/data"]
+EXPOSE 8000
+CMD ["tcms", "serve", "--host", "0.0.0.0", "--port", "8000", "--data-dir", "/data"]
