@@ -33,6 +33,7 @@ CLIP_WARNING = 0.02  # warn when the rigidity interval had to end more than 2 % 
 SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken as a test at rated torque
 RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
 SCALE_PERCENTILE = 99.5
+MIN_SIGNAL_TO_NOISE = 20.0  # a torque excursion below 20 × the torque noise is not a test
 
 SIDES = (("positive", 1), ("negative", -1))
 
@@ -241,6 +242,10 @@ def evaluate(
         raise EvaluationError("torque is zero throughout the record: no hysteresis loop")
     torque_noise = white_noise_std(torque)
     angle_noise = white_noise_std(angle)
+    if scale < MIN_SIGNAL_TO_NOISE * torque_noise:
+        raise EvaluationError(
+            f"no hysteresis loop: torque stays within its noise (|T| ≤ {scale:.3g} Nm, noise {torque_noise:.3g} Nm)"
+        )
 
     # Pilot pass on the raw torque: the overall compliance sizes the fitting window.
     pilot_branches, _ = segment_loops(torque, scale)

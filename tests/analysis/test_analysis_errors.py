@@ -114,3 +114,11 @@ def test_decreasing_angle_is_reported(rv110e_record):
     with pytest.raises(EvaluationError) as e:
         run(rv110e_record.time_s, rv110e_record.torque_nm, -rv110e_record.angle_arcsec)
     assert "angle does not increase with torque" in one_line(e)
+
+
+def test_noise_only_record():
+    rng = np.random.default_rng(0)
+    t = np.arange(5000) * 0.002
+    with pytest.raises(EvaluationError) as e:
+        run(t, 0.5 * rng.standard_normal(t.size), 0.2 * rng.standard_normal(t.size))
+    assert "within its noise" in one_line(e)
