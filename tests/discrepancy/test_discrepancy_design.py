@@ -1,0 +1,97 @@
+"""Derived signals and input checks of the discrepancy workflow."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.effects import HiddenEffects, effects_from_table, effects_to_table, from_config
+from tcms_daq.discrepancy.catalogue import separating_experiment
+from tcms_daq.discrepancy.design import build_design, load_direction, loop_groups
+from tcms_daq.errors import ConfigError, DataFormatError
+from tcms_daq.samples import Samples
+
+
+def triangle(n_loops=4, n_per_half=200, amp=500.0, noise=2.0, seed=0):
+    up = np.linspace(-amp, amp, n_per_half, endpoint=False)
+    dn = np.linspace(amp, -amp, n_per_half, endpoint=False)
+    t = np.concatenate([np.concatenate((up, dn)) for _ in range(n_loops)])
+    return t + noise * np.random.default_rng(seed).standard_normal(len(t))
+
+
+def test_load_direction_ignores_noise_and_finds_reversals():
+    torque = triangle()
+    d = load_direction(torque)
+    assert set(np.unique(d)) == {-1, 1}
+    flips = np.count_nonzero(np.diff(d) != 0)
+    assert flips == 7  # 4 loops: up, down × 4 → 7 reversals
+    assert d[50] == 1 and d[250] == -1
+
+
+def test_loops_between_torque_minima():
+    torque = triangle(n_loops=5)
+    d = load_direction(torque)
+    groups = loop_groups(d, np.zeros(len(torque), dtype=int))
+    assert groups.max() + 1 == 5
+
+
+def _pair(n=400):
+    torque = triangle(n_loops=2, n_per_half=n // 4)
+    t = np.arange(len(torque)) * 0.01
+    return Samples(t, torque, 0.2 * torque), Samples(t, torque, 0.2 * torque)
+
+
+def test_misaligned_files_are_rejected_with_one_line():
+    m, s = _pair()
+    s2 = Samples(s.time_s, s.torque_nm + np.where(np.arange(len(s)) == 17, 5.0, 0.0), s.angle_arcsec)
+    with pytest.raises(DataFormatError, match="torque_nm differs at row 19"):
+        build_design(m, s2)
+    s3 = Samples(s.time_s + 0.5, s.torque_nm, s.angle_arcsec)
+    with pytest.raises(DataFormatError, match="time_s differs"):
+        build_design(m, s3)
+    with pytest.raises(DataFormatError, match="same rows"):
+        build_design(m, s.select(slice(0, 100)))
+
+
+def test_sim_effects_table_round_trip_and_errors():
+    table = {"time_skew": {"skew_s": 0.01}, "periodic_error": {"period_arcsec": 90.0, "amplitude_arcsec": 0.5,
+                                                               "phase_rad": 0.1}}
+    eff = effects_from_table(table)
+    assert sorted(eff.active) == ["periodic_error", "time_skew"]
+    assert effects_to_table(eff) == table
+    assert from_config({}) is None
+    assert from_config({"backlash": {"backlash_arcsec": 0.0}}) is None
+    with pytest.raises(ConfigError, match="unknown effect"):
+        effects_from_table({"wobble": {}})
+    with pytest.raises(ConfigError, match="unknown key"):
+        effects_from_table({"backlash": {"width": 1.0}})
+    with pytest.raises(ConfigError, match="torque lag"):
+        HiddenEffects(skew_s=-0.1)
+
+
+def test_sim_effects_batches_equal_one_piece():
+    """The hook is stateful: a run cut into batches gives the same signals as in one piece."""
+    table = {"time_skew": {"skew_s": 0.03}, "backlash": {"backlash_arcsec": 2.0},
+             "torque_zero_offset": {"offset_nm": 5.0}, "thermal_drift": {"rate_arcsec_per_s": 0.1}}
+    torque = triangle(noise=0.0)
+    t = np.arange(len(torque)) * 0.01
+    angle = 0.2 * torque + 3.0 * np.tanh(torque / 20.0)
+    cols = {"time_s": t, "applied_torque_nm": torque, "true_angle_arcsec": angle, "torque_signal_nm": torque,
+            "angle_signal_arcsec": angle}
+    whole = from_config(table)(cols)
+    hook = from_config(table)
+    parts = [hook({k: v[a:a + 137] for k, v in cols.items()}) for a in range(0, len(t), 137)]
+    for key in ("torque_signal_nm",):
+        assert np.allclose(np.concatenate([p[key] for p in parts]), whole[key])
+    # the slope of the zero-offset term is one-sided at batch edges: compare away from them
+    joined = np.concatenate([p["angle_signal_arcsec"] for p in parts])
+    inner = np.ones(len(t), dtype=bool)
+    inner[::137] = False
+    inner[136::137] = False
+    assert np.allclose(joined[inner], whole["angle_signal_arcsec"][inner], atol=1e-6)
+
+
+def test_separating_experiment_names_the_design_change():
+    text = separating_experiment(["torsion_offset", "scale_error"])
+    assert "lever arm" in text
+    assert "rate" in separating_experiment(["time_skew", "backlash"])
