@@ -94,6 +94,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=_positive, default=None, metavar="X",
                    help="real-protocol benches: the simulators' speed (tcms sim serve --speed; default 1); "
                    "in-process bench: pace the simulated clock at X × real time (default: as fast as possible)")
+    p.add_argument("--no-compensation", action="store_true",
+                   help="evaluate the raw encoder: skip the bench's compensator ([bench] compensation)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.set_defaults(func=run)
 
@@ -109,10 +111,11 @@ class SimulatedRun:
     record: Samples
     evaluated: Samples
     truth: dict[str, Any] | None
+    compensation: str = "identity"
 
 
 def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int | None = None,
-             progress=None, speed: float | None = None) -> SimulatedRun:
+             progress=None, speed: float | None = None, compensate: bool = True) -> SimulatedRun:
     """Run ``profile`` through the acquisition layer on the bench ``cfg`` composes (the in-process simulated
     bench for virtual instruments, else the configured real-protocol instruments).
 
@@ -123,10 +126,13 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
 
     from drivers.virtual import default_physics_factory
     from tcms_daq.acquisition import ProfileRejected, TestRun, compose_bench
+    from tcms_daq.acquisition.bench import identity_compensator
 
     config_dir = Path(cfg.source_path).parent if cfg.source_path else None
     factory = partial(default_physics_factory, reducer=reducer, seed=seed)
-    bench = compose_bench(cfg, config_dir=config_dir, speed=speed, physics_factory=factory)
+    bench = compose_bench(cfg, config_dir=config_dir, speed=speed, physics_factory=factory,
+                          compensator=None if compensate else identity_compensator)
+    compensation = bench.description.get("compensation", "identity") if compensate else "none (--no-compensation)"
     in_process = bench.clock.stepped
     if not in_process and seed is not None:
         raise TcmsError("--seed applies to the in-process simulated bench only (the simulators' seed is their "
@@ -169,7 +175,7 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
             truth["physics"] = {k: v for k, v in reference.physics.to_dict().items() if k != "name"}
             truth["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
         used_seed = cfg.sim.seed
-    return SimulatedRun(cfg, reducer, profile, used_seed, record, rec.evaluated_samples(), truth)
+    return SimulatedRun(cfg, reducer, profile, used_seed, record, rec.evaluated_samples(), truth, compensation)
 
 
 def evaluate_run(result: SimulatedRun):
@@ -251,7 +257,8 @@ def run(args: argparse.Namespace) -> int:
             bar.refresh()
 
     try:
-        result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress, speed=args.speed)
+        result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress, speed=args.speed,
+                          compensate=not args.no_compensation)
     except TcmsError as exc:
         kept = getattr(exc, "record", None)
         if args.out is not None and kept is not None and len(kept):
@@ -275,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
             "truth": result.truth,
             "sample_rate_hz": cfg.sim.sample_rate_hz,
             "n_samples_recorded": len(result.record),
+            "compensation": result.compensation,
         }
         if args.out is not None:
             out["out"] = str(args.out)
@@ -287,6 +295,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.config.bench.name}: {reducer.name}, {p.kind} profile ±{p.test_torque_nm:g} N·m at "
           f"{p.mean_rate_nm_per_s:.4g} N·m/s, {p.conditioning_loops} conditioning + {p.cycles} loops, "
           f"seed {result.seed}, {len(result.record)} samples ({p.duration_s():.1f} s simulated)")
+    print(f"compensation: {result.compensation}")
     print(format_evaluation(ev))
     print()
     if t is not None:
