@@ -96,12 +96,28 @@ class Drive402Model:
         physics.add_tick_hook(self._on_tick)
         physics.set_drive_enabled(False)
 
+    def power_cycle(self) -> None:
+        """Restart the drive: SWITCH ON DISABLED, no mode, zero target, errors cleared, torque off."""
+        with self.lock:
+            self.state = State.SWITCH_ON_DISABLED
+            self.controlword = 0
+            self.mode = 0
+            self.target_torque_permille = 0
+            self.error_code = 0
+            self.error_register = 0
+            self._apply()
+
     def detach(self) -> None:
         self.physics.remove_tick_hook(self._on_tick)
 
     def add_emcy_listener(self, listener: EmcyListener) -> None:
         with self.lock:
             self._emcy_listeners.append(listener)
+
+    def remove_emcy_listener(self, listener: EmcyListener) -> None:
+        with self.lock:
+            if listener in self._emcy_listeners:
+                self._emcy_listeners.remove(listener)
 
     # -- derived values --------------------------------------------------------------------------------
 

@@ -202,16 +202,25 @@ class InstrumentSimulators:
         return obj
 
     def restart(self, instrument: str) -> None:
-        """Stop and re-start one server on the same port (the instrument was power-cycled)."""
-        server = self.server(instrument)
-        self.loop.run(server.stop())
-        self.loop.run(server.start())
+        """Stop and re-start one server on the same port (the instrument was power-cycled).
+        ``canopen`` power-cycles the drive and its CAN node (the socketcand hub keeps running)."""
+        if instrument == "canopen":
+            self.canopen.restart()
+            return
+        self.stop_server(instrument)
+        self.start_server(instrument)
 
     def stop_server(self, instrument: str) -> None:
+        """Stop one server; for ``socketcand`` the drive's CAN node goes down with the hub it is attached to."""
+        if instrument in ("socketcand", "hub") and self.canopen is not None:
+            self.canopen.stop()
         self.loop.run(self.server(instrument).stop())
 
     def start_server(self, instrument: str) -> None:
         self.loop.run(self.server(instrument).start())
+        if instrument in ("socketcand", "hub") and self.canopen is not None:
+            self.drive.power_cycle()
+            self.canopen.start()
 
     def inject(self, instrument: str, fault: str | None) -> None:
         """Fault injection by name: nd287/aed: mute, garbage, partial, encoder_fault/sensor_fault;

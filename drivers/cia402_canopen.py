@@ -1,0 +1,530 @@
+"""CiA 402 servo loader over CANopen (canopen 2.4.1 on python-can 4.6.1): Loader.
+
+URL: ``socketcand://host:port/channel`` (a socketcand daemon, e.g. the simulator's loopback hub) or
+``virtual://channel`` (python-can's in-process virtual bus, tests). Other python-can interfaces:
+``<interface>://<channel>`` (e.g. ``pcan://PCAN_USBBUS1``, ``socketcan://can0``) with ``bitrate`` given.
+
+Sequence (CiA 301/402): wait for the drive's heartbeat → NMT pre-operational → SDO: check 0x1000 is a CiA 402
+device, read the rated torque 0x6076, set the producer heartbeat 0x1017 and the drive's heartbeat consumer
+0x1016 (it faults with 0x8130 when this master goes silent), upload the PDO mapping and check it (RPDO1 =
+controlword + target torque, TPDO1 = statusword + torque actual + position actual, TPDO2 = mode display +
+error code) → start this master's heartbeat → NMT operational. ``enable()`` writes 0x6072/0x6087/0x6060 = 4 by
+SDO, reads 0x6061 back and fails loudly if the mode did not take (canopen's BaseNode402.op_mode only logs),
+then walks 0x06 → 0x07 → 0x0F over RPDO1, confirming each state from TPDO1. EMCY frames are recorded; the
+drive's FAULT state raises DeviceFault with the EMCY / 0x603F code.
+
+Failures: SDO without answer → InstrumentTimeout; SDO abort → CommandRejected; TPDO of the wrong length →
+MalformedReply; no heartbeat for ``heartbeat_timeout_s`` (or a broken socketcand link) → a bounded reconnect,
+then Disconnected. A boot-up message (the drive restarted) makes the driver configure the drive again.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+import can
+import canopen
+from can.broadcastmanager import ThreadBasedCyclicSendTask
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from drivers.base import (
+    Clock,
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    InstrumentTimeout,
+    LoaderStatus,
+    MalformedReply,
+)
+from drivers.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_ENABLE_OPERATION,
+    CW_FAULT_RESET,
+    CW_SHUTDOWN,
+    CW_SWITCH_ON,
+    MODE_PROFILE_TORQUE,
+    STATE_PATTERN,
+    TorqueScaling,
+    is_fault,
+    state_from_statusword,
+    to_int16,
+)
+from drivers.registry import register
+from tcms_daq.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+class _QuietStreamSplits(logging.Filter):
+    """python-can's socketcand client warns whenever a TCP read ends inside a frame text; that is normal
+    stream behaviour (it waits for the rest), not a fault worth a warning on every run."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "incomplete message" not in record.getMessage()
+
+
+logging.getLogger("can.interfaces.socketcand.socketcand").addFilter(_QuietStreamSplits())
+
+DEFAULT_EDS = Path(__file__).resolve().parent / "drive402.eds"
+DEVICE_TYPE_402 = 0x0192  # low word of 0x1000
+TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
+TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
+RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
+
+
+def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
+    """python-can bus options for a loader URL (see module doc)."""
+    parsed = urlparse(url)
+    if parsed.scheme == "socketcand":
+        channel = parsed.path.strip("/")
+        if not (parsed.hostname and parsed.port and channel):
+            raise ConfigError(f"CAN URL {url!r}: expected socketcand://host:port/channel")
+        return {"interface": "socketcand", "host": parsed.hostname, "port": parsed.port, "channel": channel}
+    if parsed.scheme == "virtual":
+        channel = (parsed.netloc + parsed.path).strip("/")
+        if not channel:
+            raise ConfigError(f"CAN URL {url!r}: expected virtual://channel")
+        return {"interface": "virtual", "channel": channel}
+    if parsed.scheme in ("udp_multicast",):
+        raise ConfigError(f"CAN URL {url!r}: udp_multicast leaves the loopback; use socketcand or virtual")
+    if parsed.scheme and (parsed.netloc or parsed.path):
+        options: dict[str, Any] = {"interface": parsed.scheme, "channel": (parsed.netloc + parsed.path).strip("/")}
+        if bitrate:
+            options["bitrate"] = bitrate
+        return options
+    raise ConfigError(f"CAN URL {url!r}: expected socketcand://host:port/channel or virtual://channel")
+
+
+@register("cia402-canopen")
+class CiA402Canopen:
+    """Loader: a CiA 402 drive in profile torque mode over CANopen (SDO configuration, PDO process data)."""
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        name: str = "CiA 402 drive (CANopen)",
+        node_id: int = 1,
+        master_node_id: int = 0x7F,
+        eds: str | Path | None = None,
+        bitrate: int | None = None,
+        max_torque_nm: float | None = None,
+        torque_slope_nm_per_s: float = 200.0,
+        sdo_timeout_s: float = 1.0,
+        heartbeat_ms: int = 100,
+        heartbeat_timeout_s: float | None = None,
+        master_heartbeat_ms: int = 100,
+        drive_consumer_timeout_ms: int = 500,
+        state_timeout_s: float = 2.0,
+        connect_timeout_s: float = 2.0,
+        reconnect_attempts: int = 2,
+        clock: Clock = time.monotonic,
+    ):
+        if not 1 <= node_id <= 127 or not 1 <= master_node_id <= 127 or node_id == master_node_id:
+            raise ValueError(f"{name}: node ids must be 1…127 and differ (drive {node_id}, master {master_node_id})")
+        if not (torque_slope_nm_per_s > 0):
+            raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
+        self.name = name
+        self.url = url
+        self.bus_options = parse_can_url(url, bitrate)
+        self.node_id = node_id
+        self.master_node_id = master_node_id
+        self.eds = str(eds or DEFAULT_EDS)
+        self.max_torque_nm = max_torque_nm
+        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
+        self.sdo_timeout_s = float(sdo_timeout_s)
+        self.heartbeat_ms = int(heartbeat_ms)
+        self.heartbeat_timeout_s = float(heartbeat_timeout_s or max(3.5 * heartbeat_ms / 1000.0, 0.2))
+        self.master_heartbeat_ms = int(master_heartbeat_ms)
+        self.drive_consumer_timeout_ms = int(drive_consumer_timeout_ms)
+        self.state_timeout_s = float(state_timeout_s)
+        self.connect_timeout_s = float(connect_timeout_s)
+        self.reconnect_attempts = int(reconnect_attempts)
+        self.clock = clock
+
+        self.network: canopen.Network | None = None
+        self.node: canopen.RemoteNode | None = None
+        self.scaling: TorqueScaling | None = None
+        self._master_heartbeat = None
+        self._cond = threading.Condition()
+        self._tpdo1: tuple[int, int, int, float] | None = None  # statusword, torque ‰, position, time
+        self._tpdo2: tuple[int, int] | None = None  # mode display, error code
+        self._malformed: str | None = None
+        self._last_heartbeat: float | None = None
+        self._booted = False
+        self._controlword = CW_DISABLE_VOLTAGE
+        self._target_permille = 0
+        self._slope_permille: int | None = None
+        self.last_emcy: tuple[int, int] | None = None  # (code, register)
+        self.reconnects = 0
+        self._wanted = False  # connect() was called and close() was not: reconnect on a lost link
+
+    # -- link management -------------------------------------------------------------------------------
+
+    @property
+    def rated_torque_nm(self) -> float:
+        return self._scaling().rated_torque_nm
+
+    def connect(self) -> None:
+        self._open()
+        try:
+            self._setup()
+        except BaseException:
+            self._teardown()
+            raise
+        self._wanted = True
+
+    def close(self) -> None:
+        self._wanted = False
+        self._teardown()
+
+    def _open(self) -> None:
+        options = dict(self.bus_options)
+        if options["interface"] == "socketcand":
+            # python-can retries a refused connection for 10 s in a busy loop: probe first, fail fast
+            try:
+                socket.create_connection((options["host"], options["port"]), timeout=self.connect_timeout_s).close()
+            except OSError as exc:
+                raise Disconnected(self.name, f"socketcand at {options['host']}:{options['port']}: {exc}") from None
+            options.setdefault("tcp_tune", True)
+        network = canopen.Network()
+        network.NOTIFIER_CYCLE = 0.1  # receive-thread poll period: bounds how long close() waits for it
+        try:
+            network.connect(**options)
+        except (can.CanError, OSError, TimeoutError, ValueError) as exc:
+            raise Disconnected(self.name, f"cannot open CAN bus {self.url}: {exc}") from None
+        node = canopen.RemoteNode(self.node_id, self.eds)
+        node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s  # canopen's 0.3 s default is flaky on a loaded CI
+        node.sdo.MAX_RETRIES = 1
+        network.add_node(node)
+        node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        node.emcy.add_callback(self._on_emcy)
+        self.network, self.node = network, node
+
+    def _teardown(self) -> None:
+        task, self._master_heartbeat = self._master_heartbeat, None
+        if task is not None:
+            try:
+                task.stop()
+            except Exception:  # noqa: BLE001
+                pass
+        network, self.network, self.node = self.network, None, None
+        if network is not None:
+            try:
+                network.disconnect()
+            except Exception as exc:  # noqa: BLE001 - the bus may already be gone
+                log.debug("%s: disconnect: %s", self.name, exc)
+        with self._cond:
+            self._tpdo1 = self._tpdo2 = None
+            self._last_heartbeat = None
+
+    def _setup(self) -> None:
+        node = self.node
+        assert node is not None
+        if not self._wait_heartbeat(self.connect_timeout_s):
+            raise Disconnected(self.name, f"no heartbeat from node {self.node_id} within {self.connect_timeout_s:g} s")
+        self._booted = False
+        self._send_nmt(lambda: setattr(node.nmt, "state", "PRE-OPERATIONAL"))
+        device_type = self._sdo_read(0x1000)
+        if device_type & 0xFFFF != DEVICE_TYPE_402:
+            raise ConfigError(f"{self.name}: node {self.node_id} device type 0x{device_type:08X} is not CiA 402")
+        self.scaling = TorqueScaling(self.name, self._sdo_read(0x6076) / 1000.0, self.max_torque_nm)
+        self._sdo_write(0x1017, self.heartbeat_ms)
+        if self.drive_consumer_timeout_ms > 0:
+            self._sdo_write(0x1016, (self.master_node_id << 16) | self.drive_consumer_timeout_ms, subindex=1)
+        self._read_pdo_mapping()
+        self._target_permille = 0
+        self._slope_permille = None
+        if self.master_heartbeat_ms > 0:
+            message = can.Message(arbitration_id=0x700 + self.master_node_id, data=[0x05], is_extended_id=False)
+            # on_error -> False: a broken link stops the producer quietly; the heartbeat check reports it
+            self._master_heartbeat = ThreadBasedCyclicSendTask(
+                self.network.bus, self.network.send_lock, message, self.master_heartbeat_ms / 1000.0,
+                on_error=lambda exc: False,
+            )
+        with self._cond:
+            self._tpdo1 = self._tpdo2 = None  # only values sent after this (re)start count
+            self._malformed = None
+        self._send_nmt(lambda: setattr(node.nmt, "state", "OPERATIONAL"))
+        if self._wait_tpdo(lambda sw: True, self.connect_timeout_s) is None:
+            raise InstrumentTimeout(self.name, "no TPDO1 from the drive after NMT start")
+
+    def _read_pdo_mapping(self) -> None:
+        node = self.node
+        try:
+            node.tpdo.read()
+            node.rpdo.read()
+        except SdoCommunicationError as exc:
+            raise InstrumentTimeout(self.name, f"PDO configuration upload: {exc}") from None
+        except SdoAbortedError as exc:
+            raise CommandRejected(self.name, f"PDO configuration upload aborted: {exc}") from None
+
+        def layout(pdo_map) -> list[tuple[int, int]]:
+            return [(var.index, var.length) for var in pdo_map.map]
+
+        for label, pdo_map, expected in (("TPDO1", node.tpdo[1], TPDO1_MAP), ("TPDO2", node.tpdo[2], TPDO2_MAP),
+                                         ("RPDO1", node.rpdo[1], RPDO1_MAP)):
+            if layout(pdo_map) != expected:
+                raise ConfigError(f"{self.name}: {label} maps {layout(pdo_map)}, expected {expected}")
+        node.tpdo[1].add_callback(self._on_tpdo1)
+        node.tpdo[2].add_callback(self._on_tpdo2)
+
+    def _ensure_link(self) -> None:
+        """Re-open the link (bounded) if the heartbeat is gone; re-configure a drive that booted again."""
+        if not self._wanted:
+            raise Disconnected(self.name, "not connected; call connect() first")
+        alive = self.network is not None and self._heartbeat_alive()
+        if alive and not self._booted:
+            return
+        reason = "drive restarted (boot-up)" if alive else f"heartbeat lost (none for {self.heartbeat_timeout_s:g} s)"
+        last: Exception | None = None
+        for _attempt in range(max(1, self.reconnect_attempts)):
+            try:
+                if not alive:
+                    self._teardown()
+                    self._open()
+                self._setup()
+                self.reconnects += 1
+                return
+            except (Disconnected, InstrumentTimeout) as exc:
+                last = exc
+                alive = False
+        self._teardown()
+        raise Disconnected(self.name, f"{reason}; {self.reconnect_attempts} reconnect attempts failed: {last}")
+
+    # -- callbacks (python-can notifier thread) --------------------------------------------------------
+
+    def _on_heartbeat(self, state: int) -> None:
+        with self._cond:
+            self._last_heartbeat = time.monotonic()
+            if state == 0:
+                self._booted = True  # boot-up: the drive lost its configuration
+            self._cond.notify_all()
+
+    def _on_emcy(self, error) -> None:
+        with self._cond:
+            self.last_emcy = (error.code, error.register)
+            self._cond.notify_all()
+
+    def _on_tpdo1(self, pdo_map) -> None:
+        data = pdo_map.data
+        with self._cond:
+            if len(data) != 8:
+                self._malformed = f"TPDO1 of {len(data)} bytes, expected 8: {bytes(data).hex(' ')}"
+            else:
+                self._tpdo1 = (pdo_map[0x6041].raw, pdo_map[0x6077].raw, pdo_map[0x6064].raw, time.monotonic())
+            self._cond.notify_all()
+
+    def _on_tpdo2(self, pdo_map) -> None:
+        data = pdo_map.data
+        with self._cond:
+            if len(data) != 3:
+                self._malformed = f"TPDO2 of {len(data)} bytes, expected 3: {bytes(data).hex(' ')}"
+            else:
+                self._tpdo2 = (pdo_map[0x6061].raw, pdo_map[0x603F].raw)
+
+    # -- primitives --------------------------------------------------------------------------------------
+
+    def _heartbeat_alive(self) -> bool:
+        with self._cond:
+            last = self._last_heartbeat
+        return last is not None and time.monotonic() - last <= self.heartbeat_timeout_s
+
+    def _wait_heartbeat(self, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                if self._last_heartbeat is not None and time.monotonic() - self._last_heartbeat <= self.heartbeat_timeout_s:
+                    return True
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(left)
+
+    def _wait_tpdo(self, predicate, timeout_s: float, after: float | None = None):
+        """The first TPDO1 (newer than ``after``) whose statusword satisfies ``predicate``, or None."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                if self._malformed:
+                    text, self._malformed = self._malformed, None
+                    raise MalformedReply(self.name, text)
+                tpdo = self._tpdo1
+                if tpdo is not None and (after is None or tpdo[3] > after) and predicate(tpdo[0]):
+                    return tpdo
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(min(left, 0.05))
+
+    def _send_nmt(self, action) -> None:
+        try:
+            action()
+        except (can.CanError, OSError) as exc:
+            raise Disconnected(self.name, f"NMT: {exc}") from None
+
+    def _sdo_read(self, index: int, subindex: int | None = None) -> int:
+        node = self.node
+        try:
+            var = node.sdo[index] if subindex is None else node.sdo[index][subindex]
+            return var.raw
+        except SdoCommunicationError as exc:
+            raise InstrumentTimeout(self.name, f"SDO read 0x{index:04X}: {exc}") from None
+        except SdoAbortedError as exc:
+            raise CommandRejected(self.name, f"SDO read 0x{index:04X} aborted: {exc}") from None
+        except (can.CanError, OSError) as exc:
+            raise Disconnected(self.name, f"SDO read 0x{index:04X}: {exc}") from None
+
+    def _sdo_write(self, index: int, value: int, subindex: int | None = None) -> None:
+        node = self.node
+        try:
+            var = node.sdo[index] if subindex is None else node.sdo[index][subindex]
+            var.raw = value
+        except SdoCommunicationError as exc:
+            raise InstrumentTimeout(self.name, f"SDO write 0x{index:04X} = {value}: {exc}") from None
+        except SdoAbortedError as exc:
+            raise CommandRejected(self.name, f"SDO write 0x{index:04X} = {value} aborted: {exc}") from None
+        except (can.CanError, OSError) as exc:
+            raise Disconnected(self.name, f"SDO write 0x{index:04X}: {exc}") from None
+
+    def _send_rpdo(self, controlword: int, target_permille: int) -> float:
+        rpdo = self.node.rpdo[1]
+        rpdo[0x6040].raw = controlword
+        rpdo[0x6071].raw = target_permille
+        sent_at = time.monotonic()
+        try:
+            rpdo.transmit()
+        except (can.CanError, OSError) as exc:
+            raise Disconnected(self.name, f"RPDO1: {exc}") from None
+        self._controlword, self._target_permille = controlword, target_permille
+        return sent_at
+
+    def _raise_if_fault(self, statusword: int, doing: str) -> None:
+        if is_fault(statusword):
+            code = self._error_code()
+            raise DeviceFault(self.name, f"{doing}: drive in FAULT, error code 0x{code:04X}", code=code)
+
+    def _error_code(self) -> int:
+        with self._cond:
+            tpdo2, emcy = self._tpdo2, self.last_emcy
+        if tpdo2 is not None and tpdo2[1]:
+            return tpdo2[1]
+        return emcy[0] if emcy else 0
+
+    def _command(self, controlword: int, target_state: str, *, stop_on_fault: bool = True) -> None:
+        mask, value = STATE_PATTERN[target_state]
+        sent_at = self._send_rpdo(controlword, self._target_permille)
+        tpdo = self._wait_tpdo(lambda sw: sw & mask == value or (stop_on_fault and is_fault(sw)),
+                               self.state_timeout_s, after=sent_at)
+        if tpdo is None:
+            sw = self._tpdo1[0] if self._tpdo1 else 0
+            raise InstrumentTimeout(self.name, f"drive did not reach {target_state} within {self.state_timeout_s:g} s "
+                                    f"(statusword 0x{sw:04X}: {state_from_statusword(sw)})")
+        self._raise_if_fault(tpdo[0], f"waiting for {target_state}")
+
+    def _latest_statusword(self) -> int:
+        tpdo = self._wait_tpdo(lambda sw: True, self.state_timeout_s)
+        if tpdo is None:
+            raise InstrumentTimeout(self.name, "no TPDO1 from the drive")
+        if time.monotonic() - tpdo[3] > self.heartbeat_timeout_s:
+            raise InstrumentTimeout(self.name, f"TPDO1 stale for {time.monotonic() - tpdo[3]:.2f} s")
+        return tpdo[0]
+
+    def _scaling(self) -> TorqueScaling:
+        if self.scaling is None:
+            raise Disconnected(self.name, "not connected; call connect() first")
+        return self.scaling
+
+    # -- Loader ------------------------------------------------------------------------------------------
+
+    def enable(self) -> None:
+        self._ensure_link()
+        scaling = self._scaling()
+        sw = self._latest_statusword()
+        self._raise_if_fault(sw, "enable")
+        self._target_permille = 0
+        if self.max_torque_nm is not None:
+            self._sdo_write(0x6072, min(0xFFFF, scaling.permille(scaling.max_torque_nm)))
+        self._set_slope(scaling.slope_permille_per_s(self.default_slope_nm_per_s))
+        self._sdo_write(0x6060, MODE_PROFILE_TORQUE)
+        shown = to_int16(self._sdo_read(0x6061))
+        if shown != MODE_PROFILE_TORQUE:
+            raise CommandRejected(self.name, f"drive shows mode {shown} (0x6061), not profile torque (4)")
+        state = state_from_statusword(sw)
+        if state == "OPERATION ENABLED":
+            self._send_rpdo(CW_ENABLE_OPERATION, 0)
+            return
+        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
+            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
+        if state != "SWITCHED ON":
+            self._command(CW_SWITCH_ON, "SWITCHED ON")
+        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+
+    def _set_slope(self, slope_permille: int) -> None:
+        if slope_permille != self._slope_permille:
+            self._sdo_write(0x6087, slope_permille)
+            self._slope_permille = slope_permille
+
+    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        scaling = self._scaling()
+        permille = scaling.target_permille(target_nm)
+        slope = scaling.slope_permille_per_s(self.default_slope_nm_per_s if slope_nm_per_s is None else slope_nm_per_s)
+        self._ensure_link()
+        self._set_slope(slope)
+        self._send_rpdo(self._controlword, permille)
+
+    def disable(self) -> None:
+        """Target 0 (ramped), wait (bounded) for the torque to come down, then disable voltage."""
+        scaling = self._scaling()
+        self._send_rpdo(self._controlword, 0)
+        tpdo = self._tpdo1
+        if tpdo is not None and state_from_statusword(tpdo[0]) == "OPERATION ENABLED":
+            slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
+            wait_s = min(10.0, abs(scaling.newton_metres(tpdo[1])) / max(slope_nm_per_s, 1e-9) + 0.5)
+            self._wait_tpdo_torque_below(5, wait_s)
+        self._send_rpdo(CW_DISABLE_VOLTAGE, 0)
+
+    def _wait_tpdo_torque_below(self, permille: int, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while time.monotonic() < deadline:
+                if self._tpdo1 is not None and abs(self._tpdo1[1]) <= permille:
+                    return
+                self._cond.wait(0.05)
+
+    def status(self) -> LoaderStatus:
+        self._ensure_link()
+        scaling = self._scaling()
+        time_s = self.clock()
+        self._latest_statusword()
+        with self._cond:
+            sw, torque, position, _ = self._tpdo1
+        fault = is_fault(sw)
+        return LoaderStatus(
+            state=state_from_statusword(sw),
+            torque_actual_nm=scaling.newton_metres(torque),
+            fault=fault,
+            error_code=self._error_code() if fault else 0,
+            position_counts=position,
+            time_s=time_s,
+        )
+
+    def fault_reset(self) -> None:
+        self._ensure_link()
+        self._send_rpdo(CW_DISABLE_VOLTAGE, 0)  # bit 7 low first, so the next RPDO is a rising edge
+        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED", stop_on_fault=False)
+        with self._cond:
+            self.last_emcy = None
+
+    def __enter__(self) -> CiA402Canopen:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

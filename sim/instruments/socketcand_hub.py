@@ -1,0 +1,129 @@
+"""A loopback socketcand server (raw mode) that relays CAN frames between its TCP clients.
+
+python-can's ``socketcand`` interface connects to it like to a real socketcand daemon, so CANopen works across
+processes without kernel vcan or multicast (protocols.md §4.2). Protocol (socketcand raw mode):
+
+    hub → client  ``< hi >``                 on connect
+    client → hub  ``< open can0 >``          hub → ``< ok >``   (any channel name; clients on the same
+    client → hub  ``< rawmode >``            hub → ``< ok >``    channel see each other's frames)
+    client → hub  ``< send 181 4 37 6 c8 0 >``   (id hex, dlc, data bytes in hex)
+    hub → others  ``< frame 181 1700000000.123456 3706C800 >``  (id, time stamp, contiguous hex data)
+
+A frame is relayed to every other client of the channel, never echoed to its sender (like a CAN controller
+without self-reception). Malformed commands get ``< error … >``-free silence: they are counted and dropped.
+Fault injection: ``mute`` (drop all frames), ``stop()`` (every client loses its connection).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import re
+import socket
+import time
+
+SEND_RE = re.compile(r"^< send ([0-9A-Fa-f]{1,8}) ([0-9A-Fa-f])((?: [0-9A-Fa-f]{1,2})*) *>$")
+FAULTS = ("mute",)
+
+
+class _Client:
+    def __init__(self, writer: asyncio.StreamWriter):
+        self.writer = writer
+        self.channel: str | None = None
+        self.raw = False
+
+
+class SocketcandHub:
+    name = "socketcand hub"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0):
+        self.host = host
+        self.port = port
+        self.fault: str | None = None
+        self.frames_relayed = 0
+        self.malformed = 0
+        self._server: asyncio.base_events.Server | None = None
+        self._clients: set[_Client] = set()
+
+    def inject(self, fault: str | None) -> None:
+        if fault is not None and fault not in FAULTS:
+            raise ValueError(f"{self.name}: unknown fault {fault!r} (known: {', '.join(FAULTS)})")
+        self.fault = fault
+
+    async def start(self) -> int:
+        if self._server is None:
+            self._server = await asyncio.start_server(self._handle, self.host, self.port)
+            self.port = self._server.sockets[0].getsockname()[1]
+        return self.port
+
+    async def stop(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            server.close()
+        for client in list(self._clients):
+            client.writer.close()
+        self._clients.clear()
+        if server is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(server.wait_closed(), 1.0)
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        client = _Client(writer)
+        self._clients.add(client)
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            writer.write(b"< hi >")
+            await writer.drain()
+            buffer = ""
+            while True:
+                data = await reader.read(4096)
+                if not data:
+                    return
+                buffer += data.decode("ascii", errors="replace")
+                while ">" in buffer:
+                    end = buffer.index(">") + 1
+                    start = buffer.find("<")
+                    message, buffer = buffer[start:end] if 0 <= start < end else "", buffer[end:]
+                    await self._command(client, message.strip())
+                if len(buffer) > 1000:
+                    buffer = ""
+                    self.malformed += 1
+        except (ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            self._clients.discard(client)
+            writer.close()
+
+    async def _command(self, client: _Client, message: str) -> None:
+        if message.startswith("< open ") and message.endswith(" >"):
+            client.channel = message[7:-2].strip()
+            client.writer.write(b"< ok >")
+        elif message == "< rawmode >" and client.channel is not None:
+            client.raw = True
+            client.writer.write(b"< ok >")
+        elif message.startswith("< send ") and client.raw:
+            self._relay(client, message)
+        else:
+            self.malformed += 1
+
+    def _relay(self, sender: _Client, message: str) -> None:
+        match = SEND_RE.match(message)
+        if match is None:
+            self.malformed += 1
+            return
+        can_id, dlc, data_text = match.group(1), int(match.group(2), 16), match.group(3).split()
+        if len(data_text) != dlc or dlc > 8:
+            self.malformed += 1
+            return
+        if self.fault == "mute":
+            return
+        ident = can_id.upper().zfill(3 if len(can_id) <= 3 else 8)
+        data = "".join(f"{int(b, 16):02X}" for b in data_text)
+        frame = f"< frame {ident} {time.time():.6f} {data} >".encode("ascii")
+        for client in list(self._clients):
+            if client is not sender and client.raw and client.channel == sender.channel:
+                client.writer.write(frame)
+        self.frames_relayed += 1

@@ -1,0 +1,202 @@
+"""CiA 402 loader over CANopen: exact CAN frames, exchanges with the simulated drive (virtual bus and the
+loopback socketcand hub), timeout, malformed PDO, reconnect after a drive restart, EMCY fault, heartbeat loss."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import can
+import pytest
+
+from drivers.base import (
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    InstrumentTimeout,
+    Loader,
+    MalformedReply,
+)
+from drivers.cia402_canopen import CiA402Canopen, parse_can_url
+from tcms_daq.errors import ConfigError
+
+FAST = dict(sdo_timeout_s=0.3, connect_timeout_s=0.6, heartbeat_ms=50, master_heartbeat_ms=50,
+            drive_consumer_timeout_ms=300, torque_slope_nm_per_s=20000.0, state_timeout_s=1.0)
+
+
+@pytest.fixture
+def can_sims(make_sims):
+    sims = make_sims(instruments=("canopen",), heartbeat_ms=50)
+    sims.physics.start(speed=1.0)
+    return sims
+
+
+def _driver(sims, **kw):
+    return CiA402Canopen(f"virtual://{sims.options.can_channel}", **{**FAST, **kw})
+
+
+def _wait_for(predicate, timeout_s=2.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_url_parsing():
+    assert parse_can_url("socketcand://127.0.0.1:29536/can0") == {
+        "interface": "socketcand", "host": "127.0.0.1", "port": 29536, "channel": "can0"}
+    assert parse_can_url("virtual://bench-7") == {"interface": "virtual", "channel": "bench-7"}
+    with pytest.raises(ConfigError, match="multicast"):
+        parse_can_url("udp_multicast://x")
+    with pytest.raises(ConfigError):
+        parse_can_url("socketcand://127.0.0.1/can0")
+
+
+def test_frames_on_the_bus(can_sims):
+    """The exact CAN frames of the enable sequence: NMT start, SDO 0x6060 = 4, RPDO1 0x0F + 0 ‰."""
+    spy = can.Bus(interface="virtual", channel=can_sims.options.can_channel)
+    try:
+        with _driver(can_sims) as drive:
+            drive.enable()
+            drive.set_torque(100.0)  # 100 N·m of 2000 N·m rated = 50 ‰
+        frames = []
+        while len(frames) < 5000 and (msg := spy.recv(0)) is not None:  # what was queued meanwhile
+            frames.append((msg.arbitration_id, bytes(msg.data)))
+    finally:
+        spy.shutdown()
+    assert (0x000, bytes([0x01, 0x01])) in frames  # NMT start node 1
+    assert (0x601, bytes.fromhex("2F 60 60 00 04 00 00 00")) in frames  # SDO expedited 1 byte: 0x6060 = 4
+    assert (0x581, bytes.fromhex("60 60 60 00 00 00 00 00")) in frames  # download confirmed
+    rpdos = [data for cob, data in frames if cob == 0x201]
+    assert rpdos[:3] == [bytes.fromhex("06 00 00 00"), bytes.fromhex("07 00 00 00"), bytes.fromhex("0F 00 00 00")]
+    assert rpdos[-1] == bytes.fromhex("0F 00 32 00")  # controlword 0x000F, target 50 ‰ (little endian)
+    assert any(cob == 0x181 and data[:2] == bytes.fromhex("37 06") for cob, data in frames)  # SW 0x0637
+    assert any(cob == 0x77F and data == b"\x05" for cob, data in frames)  # this master's heartbeat
+
+
+def test_normal_exchange_torque_follows(can_sims):
+    with _driver(can_sims) as drive:
+        assert isinstance(drive, Loader)
+        assert drive.rated_torque_nm == pytest.approx(2000.0)
+        drive.enable()
+        assert drive.status().state == "OPERATION ENABLED"
+        drive.set_torque(400.0)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        assert drive.status().position_counts > 0
+        drive.disable()
+        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+
+
+def test_commands_validated(can_sims):
+    with _driver(can_sims, max_torque_nm=300.0) as drive:
+        drive.enable()
+        assert can_sims.drive.max_torque_permille == 150
+        with pytest.raises(CommandRejected, match="limit"):
+            drive.set_torque(300.5)
+        with pytest.raises(CommandRejected):
+            drive.set_torque(float("nan"))
+        assert can_sims.drive.target_torque_permille == 0
+
+
+def test_timeout_when_muted(can_sims):
+    with _driver(can_sims, heartbeat_timeout_s=2.0) as drive:
+        can_sims.inject("canopen", "mute")
+        with pytest.raises(InstrumentTimeout, match="CANopen.*SDO"):
+            drive.enable()
+        can_sims.inject("canopen", None)
+        drive.enable()
+
+
+def test_malformed_pdo(can_sims):
+    with _driver(can_sims) as drive:
+        can_sims.inject("canopen", "garbage")
+        with pytest.raises(MalformedReply, match="TPDO1 of 3 bytes"):
+            for _ in range(20):
+                drive.status()
+                time.sleep(0.01)
+        can_sims.inject("canopen", None)
+        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+
+
+def test_reconnect_after_drive_restart(can_sims):
+    with _driver(can_sims) as drive:
+        drive.enable()
+        can_sims.restart("canopen")  # drive power-cycled: boot-up, back in SWITCH ON DISABLED, PRE-OP
+        time.sleep(0.1)
+        assert drive.status().state == "SWITCH ON DISABLED"  # reconfigured and started again
+        assert drive.reconnects == 1
+        drive.enable()
+        assert drive.status().state == "OPERATION ENABLED"
+
+
+def test_emcy_fault_and_reset(can_sims):
+    with _driver(can_sims) as drive:
+        drive.enable()
+        drive.set_torque(200.0)
+        can_sims.inject("drive", 0x2310)
+        assert _wait_for(lambda: drive.status().fault)
+        status = drive.status()
+        assert status.state == "FAULT" and status.error_code == 0x2310
+        assert drive.last_emcy == (0x2310, 0x03)
+        with pytest.raises(DeviceFault, match="0x2310"):
+            drive.enable()
+        drive.fault_reset()
+        assert drive.status().state == "SWITCH ON DISABLED"
+        drive.enable()
+        assert drive.status().state == "OPERATION ENABLED"
+
+
+def test_heartbeat_loss_is_disconnected(can_sims):
+    with _driver(can_sims, reconnect_attempts=1) as drive:
+        drive.enable()
+        can_sims.inject("canopen", "heartbeat_loss")
+        time.sleep(0.25)
+        with pytest.raises(Disconnected, match="heartbeat lost"):
+            drive.status()
+        can_sims.inject("canopen", None)
+        # the master went quiet while reconnecting: the drive's heartbeat consumer faulted it (0x8130)
+        assert _wait_for(lambda: drive.status().fault)
+        assert drive.status().error_code == 0x8130
+
+
+def test_across_processes_socketcand_hub(make_sims):
+    """The drive behind the loopback socketcand hub (the path `tcms sim serve` offers other processes)."""
+    sims = make_sims(instruments=("canopen",), can_interface="socketcand", heartbeat_ms=50)
+    sims.physics.start(speed=1.0)
+    url = f"socketcand://127.0.0.1:{sims.ports['socketcand']}/{sims.options.can_channel}"
+    with CiA402Canopen(url, **FAST) as drive:
+        drive.enable()
+        drive.set_torque(-300.0)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm + 300.0) <= 2.0)
+        sims.stop_server("socketcand")  # the link breaks
+        with pytest.raises(Disconnected):
+            time.sleep(0.3)
+            drive.status()
+        sims.start_server("socketcand")
+        assert _wait_for(lambda: _status_or_none(drive) is not None, 3.0)
+
+
+def _status_or_none(drive):
+    try:
+        return drive.status()
+    except (Disconnected, InstrumentTimeout):
+        return None
+
+
+def test_hub_speaks_socketcand_raw_mode(make_sims):
+    sims = make_sims(instruments=("canopen",), can_interface="socketcand", heartbeat_ms=50)
+    with socket.create_connection(("127.0.0.1", sims.ports["socketcand"]), timeout=2) as sock:
+        assert sock.recv(64) == b"< hi >"
+        sock.sendall(f"< open {sims.options.can_channel} >".encode())
+        assert sock.recv(64) == b"< ok >"
+        sock.sendall(b"< rawmode >")
+        assert sock.recv(64) == b"< ok >"
+        buffer = b""
+        deadline = time.monotonic() + 2.0
+        while b"< frame 701 " not in buffer and time.monotonic() < deadline:
+            buffer += sock.recv(256)
+        assert b"< frame 701 " in buffer  # the drive's heartbeat, relayed as a socketcand frame
+        line = buffer[buffer.index(b"< frame 701 "):]
+        assert line.split(b">")[0].split()[-1] == b"7F"  # pre-operational
