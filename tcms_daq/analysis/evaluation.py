@@ -282,13 +282,17 @@ def evaluate(
     test_torque_nm = float(test_torque_nm)
     lm_torque = lost_motion_pct / 100.0 * rated_torque_nm
 
-    loop_results = [
-        _evaluate_loop(
-            k, k >= skip_loops, loop, t, torque, angle, torque_smooth, window, max_span_nm,
-            test_torque_nm, lm_torque, lo_frac, hi_frac, hd_breakpoints_nm, warnings,
-        )
-        for k, loop in enumerate(loops)
-    ]
+    loop_results: list[LoopResult] = []
+    for k, loop in enumerate(loops):
+        try:
+            loop_results.append(_evaluate_loop(
+                k, k >= skip_loops, loop, t, torque, angle, torque_smooth, window, max_span_nm,
+                test_torque_nm, lm_torque, lo_frac, hi_frac, hd_breakpoints_nm, warnings,
+            ))
+        except EvaluationError as exc:
+            if k >= skip_loops:
+                raise
+            warnings.append(f"skipped loop {k} not reported: {exc}")
     used = [r for r in loop_results if r.evaluated]
 
     def mean(values):

@@ -10,6 +10,7 @@ import pytest
 
 from tcms_daq.analysis import Limits, evaluate, format_evaluation
 from tcms_daq.analysis.interpolation import angle_at_torque
+from tcms_daq.errors import EvaluationError
 
 RATED = 1078.0
 
@@ -208,3 +209,30 @@ def test_torque_zero_offset_only_shifts_the_levels(synth, loop_model):
     assert ev.rigidity_nm_per_arcmin == pytest.approx(294.0, rel=2e-3)
     assert ev.backlash_arcsec == pytest.approx(float(np.diff(model.angle_arcsec(-2.0, np.array([1, -1])))[0]),
                                                abs=0.05)
+
+
+def test_a_smaller_run_in_loop_is_not_a_full_loop(synth, loop_model):
+    """A ±400 Nm run-in loop before the ±1078 Nm test is not mistaken for a loop of the test."""
+    model = loop_model()
+    small = synth(loop_model(test_torque_nm=400.0), loops=1, conditioning_loops=0)
+    big = synth(model, loops=2, conditioning_loops=0)
+    time_s = np.concatenate((small.time_s, big.time_s + small.time_s[-1] + 0.01 - big.time_s[0]))
+    torque = np.concatenate((small.torque_nm, big.torque_nm))
+    angle = np.concatenate((small.angle_arcsec, big.angle_arcsec))
+    # The small loop's turning points are below 90 % of the typical one: not full, so not a loop at all.
+    ev = evaluate(time_s, torque, angle, rated_torque_nm=RATED)
+    assert ev.n_loops == 2
+    assert ev.backlash_arcsec == pytest.approx(25.0, abs=0.05)
+
+
+def test_a_skipped_loop_that_cannot_be_evaluated_is_only_a_warning(synth, loop_model):
+    rec = synth(loop_model(), loops=2, conditioning_loops=1)
+    end_of_conditioning = rec.time_s[0] + (1078.0 + 4 * 1078.0) / 100.0
+    angle = rec.angle_arcsec.copy()
+    angle[rec.time_s < end_of_conditioning - 1.0] = 0.0  # encoder not yet reading during the run-in loop
+    ev = evaluate(rec.time_s, rec.torque_nm, angle, rated_torque_nm=RATED, skip_loops=1)
+    assert ev.n_loops == 2 and [lp.index for lp in ev.loops] == [1, 2]
+    assert any("skipped loop 0 not reported" in w for w in ev.warnings)
+    assert ev.rigidity_nm_per_arcmin == pytest.approx(294.0, rel=1e-3)
+    with pytest.raises(EvaluationError, match="angle does not increase"):
+        evaluate(rec.time_s, rec.torque_nm, angle, rated_torque_nm=RATED)
