@@ -55,6 +55,19 @@ class Runner(Protocol):
 
     def status(self) -> dict[str, Any]: ...
 
+    def _monotonic_at_clock_zero(self) -> float | None:
+        """``time.monotonic()`` (system-wide on Linux) at which the sample clock read 0, so a client can turn
+        sample time stamps into its own monotonic time: ``t_mono = this + time_s / speed``. Real instruments
+        stamp with ``time.monotonic`` itself (0); a paced simulated clock has a fixed offset; None when unpaced."""
+        clock = self.bench.clock
+        if not getattr(clock, "stepped", False):
+            return 0.0
+        real_start, sim_start = getattr(clock, "_real_start", None), getattr(clock, "_sim_start", None)
+        speed = getattr(clock, "speed", float("inf"))
+        if real_start is None or sim_start is None or not np.isfinite(speed):
+            return None
+        return float(real_start - sim_start / speed)
+
     def config_snapshot(self) -> dict[str, Any]: ...
 
     def compensator_toml(self) -> str: ...
@@ -200,6 +213,7 @@ class BenchRunner:
             "max_torque_nm": self.bench.max_torque_nm,
             "clock": "simulated" if getattr(self.bench.clock, "stepped", False) else "monotonic",
             "sim_speed": self.sim_speed if getattr(self.bench.clock, "stepped", False) else None,
+            "monotonic_at_clock_zero_s": self._monotonic_at_clock_zero(),
             "connected": bool(self.bench.connected),
             "compensation": self.bench.description.get("compensation"),
             "instruments": instruments,
@@ -208,6 +222,19 @@ class BenchRunner:
             "reducers": [{"name": r.name, "kind": r.kind, "rated_torque_nm": r.rated_torque_nm}
                          for r in self.reducers.values()],
         }
+
+    def _monotonic_at_clock_zero(self) -> float | None:
+        """``time.monotonic()`` (system-wide on Linux) at which the sample clock read 0, so a client can turn
+        sample time stamps into its own monotonic time: ``t_mono = this + time_s / speed``. Real instruments
+        stamp with ``time.monotonic`` itself (0); a paced simulated clock has a fixed offset; None when unpaced."""
+        clock = self.bench.clock
+        if not getattr(clock, "stepped", False):
+            return 0.0
+        real_start, sim_start = getattr(clock, "_real_start", None), getattr(clock, "_sim_start", None)
+        speed = getattr(clock, "speed", float("inf"))
+        if real_start is None or sim_start is None or not np.isfinite(speed):
+            return None
+        return float(real_start - sim_start / speed)
 
     def config_snapshot(self) -> dict[str, Any]:
         dump = getattr(self.config, "model_dump", None)
