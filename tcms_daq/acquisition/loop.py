@@ -72,6 +72,8 @@ class _Channel:
         self.readings = 0
         self.last_arrival_s = now_s
         self.last_value: float | None = None
+        self.last_error: str | None = None
+        self.busy_since: float | None = None  # clock time the pending request started
 
     def take(self) -> tuple[Batch, dict[str, np.ndarray]]:
         """The pending readings as one batch, and the extra columns all of them carry."""
@@ -184,6 +186,7 @@ class AcquisitionLoop:
         ch = self._channels[kind]
         try:
             with self._io_locks[kind]:
+                ch.busy_since = self.clock.now()
                 batch = self._source(kind).read()
         except InstrumentError as exc:
             self._on_error(ch, exc)
@@ -191,6 +194,8 @@ class AcquisitionLoop:
         except Exception as exc:  # a driver bug is a lost instrument, not a crash of the loop
             self._on_error(ch, Disconnected(ch.name, f"{type(exc).__name__}: {exc}"))
             return 0
+        finally:
+            ch.busy_since = None
         ch.errors_in_row = 0
         if len(batch):
             with ch.lock:
@@ -203,6 +208,7 @@ class AcquisitionLoop:
     def _on_error(self, ch: _Channel, exc: Exception) -> None:
         ch.errors_in_row += 1
         ch.errors_total += 1
+        ch.last_error = str(exc)
         now = self.clock.now()
         if isinstance(exc, DeviceFault):
             interlock = "drive_fault" if ch.kind == "loader" else "device_fault"
@@ -226,6 +232,7 @@ class AcquisitionLoop:
 
     def poll_status(self) -> LoaderStatus | None:
         ch = self._channels["loader"]
+        ch.busy_since = self.clock.now()  # waiting for the lock counts: the loader is busy with a command
         try:
             with self.loader_lock:
                 status = self.bench.loader.status()
@@ -235,6 +242,8 @@ class AcquisitionLoop:
         except Exception as exc:
             self._on_error(ch, Disconnected(ch.name, f"{type(exc).__name__}: {exc}"))
             return None
+        finally:
+            ch.busy_since = None
         ch.errors_in_row = 0
         ch.readings += 1
         ch.last_arrival_s = self.clock.now()
@@ -286,18 +295,50 @@ class AcquisitionLoop:
                 break
 
     def _check_stale(self, now: float) -> None:
+        """Watchdog: a channel without a new reading for ``stale_timeout_s`` trips. On real time the limit is
+        at least 0.5 s of real time (a faster-than-real-time simulator must not trip on scheduling jitter).
+        A channel whose recent reads failed is reported as lost, with its last error."""
         timeout = self.limits.stale_timeout_s
         if timeout is None:
             return
+        if not self.clock.stepped:
+            timeout = max(timeout, 0.5 * getattr(self.clock, "speed", 1.0))
         for ch in self._channels.values():
             age = now - ch.last_arrival_s
+            busy = ch.busy_since
             if age > timeout:
-                self.raise_trip(Trip("stale_data", f"stale data: no {ch.kind} reading from {ch.name} for "
-                                                   f"{age:.2f} s (limit {timeout:g} s)", now))
+                if busy is not None:
+                    self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s, "
+                                                            f"request to {ch.name} pending for {now - busy:.2f} s "
+                                                            f"(watchdog timeout {timeout:g} s)", now))
+                elif ch.errors_in_row and ch.last_error:
+                    self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s "
+                                                            f"({ch.last_error})", now))
+                else:
+                    self.raise_trip(Trip("stale_data", f"stale data: no {ch.kind} reading from {ch.name} for "
+                                                       f"{age:.2f} s (limit {timeout:g} s)", now))
                 return
+
+    def _root_cause(self, trip: Trip) -> Trip:
+        """A torque/angle excursion is often the consequence of a drive fault (its fault reaction takes the
+        torque off at once): ask the drive, and report its fault first when it has one."""
+        if trip.interlock not in ("torque_rate", "torque_limit", "angle_window"):
+            return trip
+        try:
+            with self.loader_lock:
+                status = self.bench.loader.status()
+        except Exception:
+            return trip
+        fault = check_loader_status(status)
+        if fault is None:
+            return trip
+        return Trip(fault.interlock, f"{fault.reason}; {trip.reason}", trip.time_s)
 
     def raise_trip(self, trip: Trip) -> None:
         """Record the first trip (later ones are ignored) and publish it as an event."""
+        if self.trip is not None:
+            return
+        trip = self._root_cause(trip)
         if self.trip is not None:
             return
         self.trip = trip
@@ -347,6 +388,15 @@ class AcquisitionLoop:
             return fn(*args)
 
     def loader_command(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """Call a loader method under the loader lock (the status poller uses the same driver)."""
+        """Call a loader method under the loader lock (the status poller uses the same driver); its failures
+        count for the lost-instrument interlock like failed status polls, and are re-raised."""
+        ch = self._channels["loader"]
         with self.loader_lock:
-            return fn(*args)
+            ch.busy_since = self.clock.now()
+            try:
+                return fn(*args)
+            except InstrumentError as exc:
+                self._on_error(ch, exc)
+                raise
+            finally:
+                ch.busy_since = None

@@ -3,6 +3,8 @@ benches built on it, and a short GB-style profile."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -96,3 +98,55 @@ def profile():
 @pytest.fixture
 def make_profile():
     return gb_profile
+
+
+LOOPBACK_MODBUS = Path(__file__).resolve().parents[2] / "config" / "bench-loopback-modbus.toml"
+
+
+class ProtocolBench:
+    """The loopback bench's instruments as protocol simulators in this process (ND 287, AED, Modbus drive) on
+    one SimulatedBench ticking at real time × speed, and the bench config pointing at their ephemeral ports."""
+
+    def __init__(self, speed: float, comm_timeout_s: float = 0.0):
+        from sim.bench import SimulatedBench
+        from sim.instruments.physics import SharedPhysics
+        from sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+        from tcms_daq.config import load_bench_config
+
+        self.speed = speed
+        self.config = load_bench_config(LOOPBACK_MODBUS)
+        self.physics = SharedPhysics(SimulatedBench.from_config(self.config))
+        opts = SimulatorOptions(ports={"nd287": 0, "aed": 0, "modbus": 0}, instruments=("nd287", "aed", "modbus"),
+                                modbus_comm_timeout_s=comm_timeout_s)
+        self.sims = InstrumentSimulators(self.physics, opts)
+        self.ports = self.sims.start()
+        self.physics.start(speed)
+
+    def bench_config(self) -> dict:
+        cfg = self.config.model_dump()
+        inst = cfg["instruments"]
+        inst["angle"]["url"] = f"socket://127.0.0.1:{self.ports['nd287']}"
+        inst["torque"]["url"] = f"socket://127.0.0.1:{self.ports['aed']}"
+        inst["loader"]["url"] = f"tcp://127.0.0.1:{self.ports['modbus']}"
+        return cfg
+
+    def compose(self):
+        return compose_bench(self.bench_config(), config_dir=LOOPBACK_MODBUS.parent, speed=self.speed)
+
+    def stop(self) -> None:
+        self.physics.stop()
+        self.sims.stop()
+
+
+@pytest.fixture
+def protocol_bench():
+    made = []
+
+    def make(speed: float = 4.0, comm_timeout_s: float = 0.0) -> ProtocolBench:
+        pb = ProtocolBench(speed, comm_timeout_s)
+        made.append(pb)
+        return pb
+
+    yield make
+    for pb in made:
+        pb.stop()
