@@ -8,7 +8,8 @@ Per full loop (a B↑ and a B↓ branch):
 - torsional rigidity per direction = secant ΔT/Δm over [lo, hi]·T_test on that side, averaged over both sides;
   the upper end is at most the torque the loop actually reached (its turning point, where the branches meet
   and the midline is the tip angle), so a loop that stops a little short of T_test is still evaluated;
-- optional Harmonic Drive K1/K2/K3: least-squares lines of the midline per region, per direction.
+- optional Harmonic Drive K1/K2/K3: least-squares lines of the midline per region, per direction;
+- loop energy ∮T dθ (J per cycle): the loop width integrated over the torque range of both branches.
 Results are reported per loop, per direction and as mean ± std over the evaluated loops.
 """
 
@@ -26,7 +27,7 @@ from tcms_daq.analysis.interpolation import MAX_SPAN_FRACTION, angle_at_torque, 
 from tcms_daq.analysis.noise import white_noise_std
 from tcms_daq.analysis.segmentation import Branch, Loop, segment_loops
 from tcms_daq.errors import DataFormatError, EvaluationError
-from tcms_daq.units import ARCSEC_PER_ARCMIN
+from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
 
 MIN_SAMPLES = 20
 CLIP_WARNING = 0.02  # warn when the rigidity interval had to end more than 2 % below what was asked
@@ -34,6 +35,8 @@ SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken
 RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
 SCALE_PERCENTILE = 99.5
 MIN_SIGNAL_TO_NOISE = 20.0  # a torque excursion below 20 × the torque noise is not a test
+
+ENERGY_GRID_POINTS = 201  # torque levels for the loop-area integral
 
 SIDES = (("positive", 1), ("negative", -1))
 
@@ -96,6 +99,7 @@ class LoopResult:
     backlash_arcsec: float
     lost_motion_arcsec: float
     loading_rate_nm_per_s: float
+    loop_energy_j: float  # ∮T dθ: energy dissipated per cycle (area enclosed by the loop)
     per_direction: dict[str, DirectionResult]
     k1_nm_per_rad: float | None = None
     k2_nm_per_rad: float | None = None
@@ -109,6 +113,7 @@ class Evaluation:
     rigidity_nm_per_arcmin: float
     lost_motion_arcsec: float
     backlash_arcsec: float
+    loop_energy_j: float  # area enclosed by the loop (∮T dθ), J per cycle
     std: dict[str, float | None]  # std over evaluated loops (None with a single loop)
     per_direction: dict[str, DirectionResult]
     loops: list[LoopResult]
@@ -193,6 +198,10 @@ def _check_parameters(rated_torque_nm, test_torque_nm, lost_motion_pct, rigidity
         )
     if skip_loops < 0:
         raise EvaluationError(f"skip_loops must be >= 0, got {skip_loops}")
+
+
+def _trapezoid(y: np.ndarray, x: np.ndarray) -> float:
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
 
 
 def _smooth(x: np.ndarray, window: int) -> np.ndarray:
@@ -318,7 +327,7 @@ def evaluate(
             k2_nm_per_rad=mean([d.k2_nm_per_rad for d in ds]),
             k3_nm_per_rad=mean([d.k3_nm_per_rad for d in ds]),
         )
-    quantities = ("rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec")
+    quantities = ("rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec", "loop_energy_j")
     means = {q: mean([getattr(r, q) for r in used]) for q in quantities}
     stds: dict[str, float | None] = {q: std([getattr(r, q) for r in used]) for q in quantities}
     for name, _ in SIDES:
@@ -334,6 +343,7 @@ def evaluate(
         rigidity_nm_per_arcmin=means["rigidity_nm_per_arcmin"],
         lost_motion_arcsec=means["lost_motion_arcsec"],
         backlash_arcsec=means["backlash_arcsec"],
+        loop_energy_j=means["loop_energy_j"],
         std=stds,
         per_direction=per_direction,
         loops=loop_results,
@@ -401,6 +411,10 @@ def _evaluate_loop(
                     grid = sign * harmonic.region_grid(region)
                     hd_slices[(sign, r)] = slice(len(levels), len(levels) + grid.size)
                     levels.extend(grid.tolist())
+    # Loop area: the loop width integrated over the torque range both branches cover.
+    energy_grid = np.linspace(-loop.reached_torque_nm(-1), loop.reached_torque_nm(1), ENERGY_GRID_POINTS)
+    energy_slice = slice(len(levels), len(levels) + energy_grid.size)
+    levels.extend(energy_grid.tolist())
     levels_arr = np.asarray(levels)
 
     def branch_angles(branch: Branch) -> np.ndarray:
@@ -452,6 +466,7 @@ def _evaluate_loop(
         end_time_s=float(t[loop.second.stop]),
         rigidity_nm_per_arcmin=both("rigidity_nm_per_arcmin"),
         backlash_arcsec=float(abs(down[0] - up[0])),
+        loop_energy_j=_trapezoid(down[energy_slice] - up[energy_slice], energy_grid) / ARCSEC_PER_RAD,
         lost_motion_arcsec=float(m_lm_pos - m_lm_neg),
         loading_rate_nm_per_s=float(np.nanmean(rates)) if not all(map(math.isnan, rates)) else float("nan"),
         per_direction=per_direction,

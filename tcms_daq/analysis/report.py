@@ -59,6 +59,9 @@ def format_evaluation(ev: Evaluation) -> str:
             + (f"  {limit:<12}{result}" if checks else "")
         )
     lines.append(
+        f"{'loop energy [J/cycle]':<34}{_num(ev.loop_energy_j, 4):>10}{_num(ev.std.get('loop_energy_j'), 4):>10}"
+    )
+    lines.append(
         f"{'torsion at interval end [arcsec]':<34}{'':>10}{'':>10}"
         f"{_num(pos.torsion_angle_arcsec):>10}{_num(neg.torsion_angle_arcsec):>10}"
     )

@@ -11,6 +11,7 @@ import pytest
 from tcms_daq.analysis import Limits, evaluate, format_evaluation
 from tcms_daq.analysis.interpolation import angle_at_torque
 from tcms_daq.errors import EvaluationError
+from tcms_daq.units import ARCSEC_PER_RAD
 
 RATED = 1078.0
 
@@ -34,6 +35,8 @@ def test_noiseless_rv110e_recovers_truth(synth, loop_model):
     assert ev.lost_motion_torque_nm == pytest.approx(0.03 * RATED)
     assert ev.loading_rate_nm_per_s == pytest.approx(100.0, rel=1e-3)
     assert ev.fit_window_samples == 2  # noiseless data: exact interpolation
+    # Loop area: ∫ B·(1 − (T/A)²) dT over ±A = B·4A/3 (arcsec·N·m) → J.
+    assert ev.loop_energy_j == pytest.approx(25.0 * 4.0 * RATED / 3.0 / ARCSEC_PER_RAD, rel=1e-3)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
@@ -46,6 +49,7 @@ def test_noisy_rv110e_within_tolerance(synth, loop_model, seed):
     assert ev.n_loops == 3 and ev.skipped_loops == 1
     assert [lp.evaluated for lp in ev.loops] == [False, True, True, True]
     assert ev.std["rigidity_nm_per_arcmin"] is not None and ev.std["rigidity_nm_per_arcmin"] < 1.0
+    assert ev.loop_energy_j == pytest.approx(25.0 * 4.0 * RATED / 3.0 / ARCSEC_PER_RAD, rel=0.01)
     assert ev.noise["torque_nm"] == pytest.approx(0.5, rel=0.1)
     assert ev.noise["angle_arcsec"] == pytest.approx(0.2, rel=0.1)
 
