@@ -1,0 +1,187 @@
+"""``tcms sim serve``: the simulated instruments of one bench as a standalone process.
+
+ND 287 (TCP, default port 4001), AED (4002), the CiA 402 drive over Modbus TCP (5020) and over CANopen behind a
+loopback socketcand hub (29536, channel ``can0``, node id 1) — all on one shared physics (``sim.bench``, the
+same bench the in-process run uses, from ``--config``) advanced in real time × ``--speed``. Everything binds
+127.0.0.1 unless ``--host`` says otherwise; a port of 0 picks a free one. After start-up one JSON line on
+stdout names the ports and the driver URLs; the process runs until SIGINT/SIGTERM (or ``--duration``).
+
+Optional ``[simulators]`` table in the bench config (keys of ``sim.instruments.serve.SimulatorOptions``, e.g.
+``rated_torque_nm``, ``aed_nominal_torque_nm``, ``nd287_decimals``, ``[simulators.ports]``); options given on
+the command line win. ``--control-port`` opens a loopback control channel for fault injection from tests: one
+JSON object per line, ``{"cmd": "inject", "instrument": "nd287", "fault": "encoder_fault"}`` (instruments:
+nd287, aed, modbus, socketcand, canopen, drive — a drive fault is an EMCY code such as 8976 = 0x2310),
+``{"cmd": "restart", "instrument": "aed"}``, ``{"cmd": "status"}``; each answered by one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import threading
+from typing import Any
+
+from tcms_daq.errors import ConfigError, TcmsError
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    sim = subparsers.add_parser("sim", help="simulated instruments speaking the real protocols")
+    sim_sub = sim.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
+    serve = sim_sub.add_parser(
+        "serve",
+        help="run the ND 287, AED, Modbus and CANopen (socketcand) simulators on one shared physics",
+        description=__doc__.split("\n\n")[1],
+    )
+    serve.add_argument("--config", help="bench config (default config/bench-sim.toml)")
+    serve.add_argument("--host", default=None, help="address to bind (default 127.0.0.1)")
+    serve.add_argument("--speed", type=float, default=1.0, help="simulated seconds per real second (default 1)")
+    serve.add_argument("--nd287-port", type=int, help="ND 287 TCP port (default 4001; 0 = any free port)")
+    serve.add_argument("--aed-port", type=int, help="AED TCP port (default 4002)")
+    serve.add_argument("--modbus-port", type=int, help="Modbus TCP port of the drive (default 5020)")
+    serve.add_argument("--modbus-rtu-port", type=int,
+                       help="also serve Modbus RTU framing over TCP on this port (socket:// URL for the driver)")
+    serve.add_argument("--socketcand-port", type=int, help="socketcand hub port (default 29536)")
+    serve.add_argument("--can-channel", help="CAN channel name on the hub (default can0)")
+    serve.add_argument("--node-id", type=int, help="CANopen node id of the drive (default 1)")
+    serve.add_argument("--control-port", type=int,
+                       help="loopback control channel for fault injection (0 = any free port; default off)")
+    serve.add_argument("--duration", type=float, help="exit after this many (real) seconds")
+    serve.set_defaults(func=_serve)
+    sim.set_defaults(func=lambda args: (sim.print_help(), 2)[1])
+
+
+def _options(args: argparse.Namespace, cfg: Any):
+    from sim.instruments.serve import SimulatorOptions
+
+    table = dict((getattr(cfg, "model_extra", None) or {}).get("simulators", {}) or {})
+    ports = dict(table.pop("ports", {}) or {})
+    for key, value in (("nd287", args.nd287_port), ("aed", args.aed_port), ("modbus", args.modbus_port),
+                       ("socketcand", args.socketcand_port), ("modbus_rtu", args.modbus_rtu_port)):
+        if value is not None:
+            if not 0 <= value <= 65535:
+                raise ConfigError(f"--{key.replace('_', '-')}-port must be 0…65535, got {value}")
+            ports[key] = value
+    instruments = list(table.pop("instruments", ("nd287", "aed", "modbus", "canopen")))
+    if args.modbus_rtu_port is not None and "modbus_rtu" not in instruments:
+        instruments.append("modbus_rtu")
+    overrides = {"host": args.host, "can_channel": args.can_channel, "node_id": args.node_id}
+    try:
+        return SimulatorOptions.from_mapping({**table, "ports": ports, "instruments": instruments}, **overrides)
+    except ValueError as exc:
+        raise ConfigError(f"[simulators]: {exc}") from None
+
+
+def _physics(cfg: Any):
+    from drivers.virtual import default_physics_factory
+
+    return default_physics_factory(cfg)
+
+
+def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
+    host = opts.host
+    urls = {}
+    if "nd287" in ports:
+        urls["angle"] = f"socket://{host}:{ports['nd287']}"
+    if "aed" in ports:
+        urls["torque"] = f"socket://{host}:{ports['aed']}"
+    if "modbus" in ports:
+        urls["loader_modbus"] = f"tcp://{host}:{ports['modbus']}"
+    if "modbus_rtu" in ports:
+        urls["loader_modbus_rtu"] = f"socket://{host}:{ports['modbus_rtu']}"
+    if "socketcand" in ports:
+        urls["loader_canopen"] = f"socketcand://{host}:{ports['socketcand']}/{opts.can_channel}"
+    return urls
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from sim.instruments.physics import SharedPhysics
+    from sim.instruments.serve import InstrumentSimulators
+    from tcms_daq.config import load_bench_config
+
+    if not args.speed > 0:
+        raise ConfigError(f"--speed must be > 0, got {args.speed}")
+    cfg = load_bench_config(args.config)
+    opts = _options(args, cfg)
+    physics = SharedPhysics(_physics(cfg))
+    sims = InstrumentSimulators(physics, opts)
+    stop = threading.Event()
+    try:
+        try:
+            ports = sims.start()
+        except OSError as exc:
+            raise TcmsError(f"cannot start the simulators on {opts.host}: {exc}") from None
+        physics.start(speed=args.speed)
+        if args.control_port is not None:
+            control = ControlServer(sims, host=opts.host, port=args.control_port)
+            ports["control"] = sims.loop.run(control.start())
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+        print(json.dumps({
+            "host": opts.host, "ports": ports, "can_channel": opts.can_channel, "node_id": opts.node_id,
+            "speed": args.speed, "urls": _urls(opts, ports),
+        }), flush=True)
+        stop.wait(args.duration)
+    finally:
+        physics.stop()
+        sims.stop()
+    return 0
+
+
+class ControlServer:
+    """Line-based JSON control channel (fault injection, restarts, status) on the simulators' event loop."""
+
+    def __init__(self, sims, host: str = "127.0.0.1", port: int = 0):
+        self.sims = sims
+        self.host = host
+        self.port = port
+        self._server = None
+
+    async def start(self) -> int:
+        self._server = await asyncio.start_server(self._handle, self.host, self.port)
+        self.port = self._server.sockets[0].getsockname()[1]
+        return self.port
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while line := await reader.readline():
+                try:
+                    reply = await asyncio.to_thread(self.execute, json.loads(line))
+                except Exception as exc:  # noqa: BLE001 - every failure is answered, the channel stays up
+                    reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+                writer.write((json.dumps(reply) + "\n").encode())
+                await writer.drain()
+        except ConnectionError:
+            pass
+        finally:
+            writer.close()
+
+    def execute(self, request: dict[str, Any]) -> dict[str, Any]:
+        cmd = request.get("cmd")
+        sims = self.sims
+        if cmd == "inject":
+            sims.inject(request["instrument"], request.get("fault"))
+            return {"ok": True}
+        if cmd == "restart":
+            sims.restart(request["instrument"])  # runs in a worker thread; server restarts hop onto the loop
+            return {"ok": True}
+        if cmd == "status":
+            latest = sims.physics.latest()
+            drive = sims.drive
+            return {
+                "ok": True,
+                "time_s": latest.time_s,
+                "torque_nm": latest.torque_nm,
+                "angle_arcsec": latest.angle_arcsec,
+                "applied_torque_nm": latest.applied_torque_nm,
+                "drive": None if drive is None else {
+                    "state": drive.state.label, "statusword": drive.statusword(), "error_code": drive.error_code,
+                },
+            }
+        raise ValueError(f"unknown command {cmd!r} (inject, restart, status)")

@@ -1,0 +1,130 @@
+"""`tcms sim serve` as a separate process: an independent client that knows only the protocols (raw sockets,
+plain pymodbus), and our drivers across the process boundary (ND 287, AED, CANopen via the socketcand hub,
+Modbus TCP), with fault injection over the control channel."""
+
+from __future__ import annotations
+
+import json
+import select
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from drivers.aed import AED
+from drivers.base import DeviceFault
+from drivers.cia402_canopen import CiA402Canopen
+from drivers.cia402_modbus import CiA402Modbus
+from drivers.nd287 import ND287
+
+
+@pytest.fixture(scope="module")
+def served():
+    cmd = [sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--nd287-port", "0", "--aed-port", "0",
+           "--modbus-port", "0", "--socketcand-port", "0", "--control-port", "0", "--speed", "1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+        if not ready:
+            raise RuntimeError("tcms sim serve did not report its ports within 30 s")
+        line = proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"tcms sim serve exited: {proc.stderr.read()}")
+        info = json.loads(line)
+        yield info
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def _control(info, **request):
+    with socket.create_connection(("127.0.0.1", info["ports"]["control"]), timeout=5) as sock:
+        sock.sendall((json.dumps(request) + "\n").encode())
+        reply = sock.makefile().readline()
+    return json.loads(reply)
+
+
+def _recv_until(sock: socket.socket, terminator: bytes, limit: int = 64) -> bytes:
+    data = b""
+    while not data.endswith(terminator) and len(data) < limit:
+        chunk = sock.recv(limit - len(data))
+        if not chunk:
+            break
+        data += chunk
+    return data
+
+
+def test_independent_client(served):
+    ports = served["ports"]
+    # ND 287: STX -> one 17-byte frame
+    with socket.create_connection(("127.0.0.1", ports["nd287"]), timeout=2) as sock:
+        sock.sendall(b"\x02")
+        frame = _recv_until(sock, b"\r\n")
+    assert len(frame) == 17 and frame[0:1] in b"+-" and frame[12:13] == b"G" and frame.endswith(b"\r\n")
+    float(frame[1:11].decode().strip())
+    # AED: ';' clears, MSV? -> +ddddddd CR LF
+    with socket.create_connection(("127.0.0.1", ports["aed"]), timeout=2) as sock:
+        sock.sendall(b";MSV?;")
+        reply = _recv_until(sock, b"\r\n")
+    assert len(reply) == 10 and reply[0:1] in b"+-" and reply[1:8].isdigit()
+    # Modbus TCP with plain pymodbus: enable, profile torque, command and follow
+    client = ModbusTcpClient("127.0.0.1", port=ports["modbus"], timeout=2)
+    assert client.connect()
+    try:
+        for cw in (0x06, 0x07, 0x0F):
+            assert not client.write_register(0x3100, cw, device_id=1).isError()
+        statusword = client.read_holding_registers(0x3200, count=1, device_id=1).registers[0]
+        assert statusword & 0x6F == 0x27
+        assert not client.write_register(0x3500, 4, device_id=1).isError()
+        assert client.read_holding_registers(0x3600, count=1, device_id=1).registers[0] == 4
+        rated = client.read_holding_registers(0x3C06, count=2, device_id=1).registers
+        rated_mnm = rated[0] | rated[1] << 16  # low word first
+        assert rated_mnm == 2_000_000
+        assert not client.write_register(0x3C00, 100, device_id=1).isError()  # 100 ‰ = 200 N·m
+        deadline = time.monotonic() + 5.0
+        actual = 0
+        while time.monotonic() < deadline:
+            actual = client.read_holding_registers(0x3C02, count=1, device_id=1).registers[0]
+            if abs(actual - 100) <= 2:
+                break
+            time.sleep(0.02)
+        assert abs(actual - 100) <= 2
+        # ... and the shared physics: the AED now reads about 200 N·m
+        with socket.create_connection(("127.0.0.1", ports["aed"]), timeout=2) as sock:
+            sock.sendall(b";MSV?;")
+            value = int(_recv_until(sock, b"\r\n")[:8])
+        assert value / 1e6 * 2000.0 == pytest.approx(200.0, abs=5.0)
+        client.write_register(0x3C00, 0, device_id=1)
+        client.write_register(0x3100, 0x00, device_id=1)
+    finally:
+        client.close()
+
+
+def test_drivers_across_processes(served):
+    urls = served["urls"]
+    with ND287(urls["angle"], timeout_s=1.0) as nd, AED(urls["torque"], timeout_s=1.0) as aed, \
+            CiA402Canopen(urls["loader_canopen"], torque_slope_nm_per_s=5000.0) as drive:
+        drive.enable()
+        aed.tare()
+        drive.set_torque(500.0)
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and abs(drive.status().torque_actual_nm - 500.0) > 4.0:
+            time.sleep(0.02)
+        assert drive.status().torque_actual_nm == pytest.approx(500.0, abs=4.0)
+        assert aed.read().value[0] == pytest.approx(500.0, abs=10.0)
+        assert nd.read().value[0] > 10.0  # the reducer twists towards positive angle
+        assert _control(served, cmd="inject", instrument="nd287", fault="encoder_fault") == {"ok": True}
+        with pytest.raises(DeviceFault):
+            nd.read()
+        _control(served, cmd="inject", instrument="nd287", fault=None)
+        drive.disable()
+    with CiA402Modbus(urls["loader_modbus"]) as loader:
+        assert loader.status().state == "SWITCH ON DISABLED"
+        assert _control(served, cmd="status")["drive"]["state"] == "SWITCH ON DISABLED"
