@@ -150,3 +150,13 @@ def test_rated_torque_or_reducer_is_required(capsys, csv_file):
     code = main(["analyze", str(path), "--reducer", "RV-999"])
     _, err = capsys.readouterr()
     assert code == 2 and "unknown reducer 'RV-999'" in err
+
+
+def test_non_finite_value(capsys, tmp_path, csv_file):
+    path, _ = csv_file
+    lines = path.read_text().splitlines()
+    fields = lines[30].split(",")
+    fields[2] = "nan"
+    lines[30] = ",".join(fields)
+    assert_one_line_error(capsys, write_text(tmp_path, "\n".join(lines) + "\n"),
+                          "non-finite value", "angle_arcsec", "line 31")
