@@ -159,7 +159,7 @@ class InstrumentSimulators:
                 self.ports["socketcand"] = self.loop.run(self.hub.start())
                 bus_options = {
                     "interface": "socketcand", "channel": opts.can_channel,
-                    "host": opts.host, "port": self.ports["socketcand"],
+                    "host": opts.host, "port": self.ports["socketcand"], "tcp_tune": True,  # TCP_NODELAY
                 }
             elif opts.can_interface == "virtual":
                 bus_options = {"interface": "virtual", "channel": opts.can_channel}
