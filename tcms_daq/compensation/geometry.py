@@ -154,6 +154,12 @@ class GeometricModel:
         return 1.0 - self.k
 
     @property
+    def tilt_direction(self) -> np.ndarray | None:
+        """ê = (û_y, û_z)/sin φ in the measurement plane (None for φ = 0)."""
+        sin_phi = math.sqrt(max(0.0, 1.0 - self.axis_unit[0] ** 2))
+        return None if sin_phi < _SIN_PHI_ZERO else self.axis_unit[1:3] / sin_phi
+
+    @property
     def eccentricity_abs_mm(self) -> float:
         return float(np.hypot(*self.eccentricity_mm))
 
@@ -169,6 +175,9 @@ class GeometricModel:
             "scale_coefficient": self.scale_coefficient,
             "delta_l_mm": self.delta_l_mm,
             "torsion_arcsec_per_nm": self.torsion_arcsec_per_nm,
+            "axis_unit": [float(v) for v in self.axis_unit],
+            "axis_origin_mm": [float(v) for v in self.origin_mm],
+            "tilt_direction": None if self.tilt_direction is None else [float(v) for v in self.tilt_direction],
             "r1_prime_mm": self.r1_prime_mm,
             "s_p_mm": self.s_p_mm,
             "eccentricity_mm": [float(v) for v in self.eccentricity_mm],

@@ -53,6 +53,10 @@ def test_consistent_scale_and_axial_shift_from_cli(model_json):
     # 32·ΔL/(G π d⁴) with G = 79.3 GPa, d = 58 mm: 2.3412e-3 ″/(N·m·mm) × 1.687 mm = 0.00395 ″/N·m
     assert model_json["torsion_arcsec_per_nm"] == pytest.approx(0.0039499, rel=1e-3)
     assert model_json["sigma"] == 1
+    # equal Δβ = Δγ on every joint (Table 1) tilt the axis along (1, −1)/√2 in the measurement plane
+    np.testing.assert_allclose(model_json["tilt_direction"], [2**-0.5, -(2**-0.5)], atol=1e-9)
+    assert model_json["measurement_plane_x_mm"] == -10.0
+    assert model_json["s_p_mm"] == pytest.approx(37.904, abs=1e-3)
 
 
 def test_assembly_errors_per_joint(model_json):
