@@ -115,7 +115,7 @@ class Compensator:
         geometry's eccentricity_phase_rad, the inspection values do not give it)."""
         g = model.geometry
         terms: list[Term] = [Scale(coefficient=model.scale_coefficient), Torsion(arcsec_per_nm=model.torsion_arcsec_per_nm)]
-        if eccentricity and model.notes and model.eccentricity_abs_mm > 0:
+        if eccentricity and model.untilted and model.eccentricity_abs_mm > 0:
             terms.append(
                 Eccentricity(
                     eccentricity_mm=model.eccentricity_abs_mm,

@@ -154,6 +154,11 @@ class GeometricModel:
         return 1.0 - self.k
 
     @property
+    def untilted(self) -> bool:
+        """φ = 0 (to rounding): k = 1 and the eccentricity error of Eq. 2 applies."""
+        return self.tilt_direction is None
+
+    @property
     def tilt_direction(self) -> np.ndarray | None:
         """ê = (û_y, û_z)/sin φ in the measurement plane (None for φ = 0)."""
         sin_phi = math.sqrt(max(0.0, 1.0 - self.axis_unit[0] ** 2))

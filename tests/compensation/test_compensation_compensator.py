@@ -192,3 +192,26 @@ def test_drift_needs_time():
     np.testing.assert_allclose(comp.apply(np.zeros(2), 0.0, np.array([0.0, 2.0])), [0.0, -1.0])
     with pytest.raises(ConfigError, match="time_s"):
         comp.apply(np.zeros(2), 0.0)
+
+
+def test_untilted_geometry_gives_the_eq2_eccentricity_term(paper_geometry_path):
+    # φ = 0 (only a diameter error of the output shaft): k = 1, no torsion shift, Eq. 2 eccentricity instead
+    from dataclasses import replace
+
+    from tcms_daq.compensation.geometry import PartErrors, load_geometry
+
+    parts = [PartErrors() for _ in range(6)]
+    parts[3] = PartErrors(dd_mm=0.02)
+    geom = replace(load_geometry(paper_geometry_path), parts=tuple(parts), eccentricity_phase_rad=0.5)
+    comp = Compensator.from_geometry(geom)
+    ecc = [t for t in comp.terms if isinstance(t, Eccentricity)]
+    assert len(ecc) == 1
+    assert ecc[0].eccentricity_mm == pytest.approx(0.02 * 2**0.5)
+    assert ecc[0].radius_mm == 30.0 and ecc[0].phase_rad == 0.5
+    scale = [t for t in comp.terms if isinstance(t, Scale)][0]
+    assert scale.coefficient == 0.0
+
+
+def test_empty_batch():
+    out = full_compensator().apply(np.empty(0), np.empty(0))
+    assert out.shape == (0,)
