@@ -2,8 +2,12 @@
 
 The ramp generator moves the torque demand from its present value towards the target at the commanded slope
 (a step when the slope is None). The torque loop follows the demand with a first-order lag τ; the lag is
-discretised exactly for a demand that is linear between samples (first-order hold), run with
-``scipy.signal.lfilter`` over a whole batch with its state carried to the next one.
+discretised exactly for a demand that is linear between samples (first-order hold):
+
+    y[n] = a·y[n−1] + c·u[n] + (1 − a − c)·u[n−1],   a = e^{−dt/τ},   c = 1 − (τ/dt)·(1 − a)
+
+evaluated over a whole batch in closed form (numpy, no per-sample loop; scipy.signal.lfilter would do the same
+but costs a second of import time), with its state carried to the next batch.
 """
 
 from __future__ import annotations
@@ -11,7 +15,24 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.signal import lfilter
+
+# Samples per closed-form chunk are limited so that e^{n·dt/τ} stays finite.
+_MAX_DECAY = 500.0
+
+
+def first_order_response(v: np.ndarray, a: float, y_prev: float, decay_per_sample: float) -> np.ndarray:
+    """y[n] = a·y[n−1] + v[n] from y[−1] = y_prev, with a = e^{−decay_per_sample} (vectorised in chunks)."""
+    out = np.empty(v.size)
+    if a == 0.0:
+        out[:] = v
+        return out
+    chunk = max(1, int(_MAX_DECAY / decay_per_sample))
+    for start in range(0, v.size, chunk):
+        seg = v[start : start + chunk]
+        e = np.exp(decay_per_sample * np.arange(seg.size))  # a^{−i}
+        out[start : start + seg.size] = (a * y_prev + np.cumsum(seg * e)) / e
+        y_prev = float(out[start + seg.size - 1])
+    return out
 
 
 class TorqueDrive:
@@ -30,12 +51,12 @@ class TorqueDrive:
         self._ramp_from_nm = 0.0
         dt = 1.0 / sample_rate_hz
         if time_constant_s == 0.0:
-            self._b, self._a = np.array([1.0, 0.0]), np.array([1.0, 0.0])
+            self._decay, self._a, self._c = math.inf, 0.0, 1.0
         else:
-            a = math.exp(-dt / time_constant_s)
-            c = 1.0 + (time_constant_s / dt) * math.expm1(-dt / time_constant_s)  # 1 − (τ/dt)(1 − a)
-            self._b, self._a = np.array([c, 1.0 - a - c]), np.array([1.0, -a])
-        self._zi = np.zeros(1)
+            self._decay = dt / time_constant_s
+            self._a = math.exp(-self._decay)
+            self._c = 1.0 + math.expm1(-self._decay) / self._decay  # 1 − (τ/dt)(1 − a)
+        self._demand_prev = 0.0
         self.applied_nm = 0.0
 
     def demand_at(self, time_s) -> np.ndarray:
@@ -79,6 +100,9 @@ class TorqueDrive:
         demand = self.demand_at(time_s)
         if demand.size == 0:
             return demand, demand.copy()
-        applied, self._zi = lfilter(self._b, self._a, demand, zi=self._zi)
+        previous = np.concatenate(([self._demand_prev], demand[:-1]))
+        v = self._c * demand + (1.0 - self._a - self._c) * previous
+        applied = first_order_response(v, self._a, self.applied_nm, self._decay)
+        self._demand_prev = float(demand[-1])
         self.applied_nm = float(applied[-1])
         return demand, applied

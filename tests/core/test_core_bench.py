@@ -171,3 +171,17 @@ def test_effects_table_is_built_by_sim_effects(write, bench_text):
     with pytest.raises(ConfigError) as exc:
         SimulatedBench(load_bench_config(path))
     assert str(path) in str(exc.value) and "warp_drive" in str(exc.value)
+
+
+def test_first_order_response_matches_the_recurrence_over_many_chunks():
+    from sim.drive import first_order_response
+
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=3000)
+    decay = 0.7  # chunks of 714 samples
+    a = math.exp(-decay)
+    expected, y = np.empty_like(v), 2.0
+    for i, x in enumerate(v):
+        y = a * y + x
+        expected[i] = y
+    np.testing.assert_allclose(first_order_response(v, a, 2.0, decay), expected, rtol=1e-10, atol=1e-10)
