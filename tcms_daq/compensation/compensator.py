@@ -6,7 +6,7 @@
 
 * all terms that are linear (offset, scale, torsion) collapse into three numbers: θ_c = (1 − s)·θ − c_T·T − c0;
 * when there are non-linear terms that depend on θ alone (eccentricity, periodic, …), they are summed with the
-  offset into one lookup table on a grid of step h = tolerance / max|d Σ/dθ|, so the
+  offset into one lookup table on a grid of step h ≤ tolerance / max|d Σ/dθ| (a power of two), so the
   nearest grid value differs from the exact sum by at most tolerance/2 (default tolerance 0.001″, far below
   the encoder's 0.7″ resolution). The table is built lazily over the range the data visit and kept for later
   batches; data it cannot cover (non-finite, too wide a range) are evaluated directly; ``exact=True``
@@ -34,20 +34,24 @@ from tcms_daq.errors import ConfigError, DataFormatError
 
 CHUNK = 16384
 MAX_TABLE_POINTS = 1 << 22
-_ROUND_MAGIC = 6755399441055744.0  # 1.5·2^52
-_ROUND_MAGIC_BITS = int(np.float64(_ROUND_MAGIC).view(np.int64))
 DEFAULT_TOLERANCE_ARCSEC = 1e-3
 
 
 class _AngleTable:
-    """offset + Σ angle-only terms on the grid x_j = (i0 + j)·h (small: it stays in cache)."""
+    """offset + Σ angle-only terms on the grid x_j = (i0 + j)·h (small: it stays in cache).
 
-    __slots__ = ("h", "inv_h", "i0", "values", "size", "lo", "hi")
+    h is a power of two, so the index of the nearest grid point needs no multiplication: θ + K with
+    K = 1.5·2^52·h lands in a binade whose spacing is exactly h, so the result is K + round(θ/h)·h and its bit
+    pattern minus that of K is round(θ/h) (for |θ| < K/2; anything else lands far outside the table).
+    """
+
+    __slots__ = ("h", "add_const", "bits_offset", "i0", "values", "size", "lo", "hi")
 
     def __init__(self, terms: Sequence[Term], offset: float, h: float, lo: float, hi: float):
         self.h = h
-        self.inv_h = 1.0 / h
         self.i0 = math.floor(lo / h) - 2
+        self.add_const = 1.5 * 2.0**52 * h
+        self.bits_offset = int(np.float64(self.add_const).view(np.int64)) + self.i0
         i1 = math.ceil(hi / h) + 2
         x = (self.i0 + np.arange(i1 - self.i0 + 1, dtype=float)) * h
         values = np.full_like(x, offset)
@@ -99,7 +103,8 @@ class Compensator:
         self._tabulable = tuple(tabulable)
         self._direct = tuple(direct)
         slope = sum(t.max_slope() for t in tabulable)
-        self._table_h = min(self.tolerance_arcsec / slope, 1.0) if slope > 0 else 1.0
+        step = min(self.tolerance_arcsec / slope, 1.0) if slope > 0 else 1.0
+        self._table_h = 2.0 ** math.floor(math.log2(step)) if step > 0 else 1.0
         self._table: _AngleTable | None = None
 
     # ---- construction ----
@@ -196,7 +201,6 @@ class Compensator:
         buf = np.empty(size)
         ubuf = np.empty(size)
         mul, sub, add, take = np.multiply, np.subtract, np.add, np.take  # hot loop: no attribute lookups
-        magic, magic_bits = _ROUND_MAGIC, _ROUND_MAGIC_BITS
         for s in range(0, n, CHUNK):
             e = min(n, s + CHUNK)
             th = theta_f[s:e]
@@ -205,12 +209,10 @@ class Compensator:
             u = ubuf[: e - s]
             table = self._table if use_table else None
             if table is not None:
-                # round(θ/h) − i0 without a float→int conversion: adding 1.5·2^52 leaves the rounded integer
-                # in the low mantissa bits (valid for |θ/h − i0| < 2^51; the range check catches the rest)
+                # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one integer subtract
                 idx = u.view(np.int64)
-                mul(th, table.inv_h, out=u)
-                add(u, magic - table.i0, out=u)
-                sub(idx, magic_bits, out=idx)
+                add(th, table.add_const, out=u)
+                sub(idx, table.bits_offset, out=idx)
                 if idx.view(np.uint64).max() < table.size:  # negative, NaN and out-of-range fail here
                     take(table.values, idx, out=b, mode="clip")  # range checked: clip skips the check
                 else:
@@ -237,9 +239,8 @@ class Compensator:
         if table is None:
             return False
         idx = u.view(np.int64)
-        np.multiply(th, table.inv_h, out=u)
-        np.add(u, _ROUND_MAGIC - table.i0, out=u)
-        np.subtract(idx, _ROUND_MAGIC_BITS, out=idx)
+        np.add(th, table.add_const, out=u)
+        np.subtract(idx, table.bits_offset, out=idx)
         if idx.size and idx.view(np.uint64).max() >= table.size:
             return False
         np.take(table.values, idx, out=out, mode="clip")
