@@ -181,7 +181,6 @@ async def _measure(hostport: str, duration_s: float, mono0: float) -> dict:
     lost = sum(h["gaps"] for h in healthy + shared) + sum(log.dropped for log in logs)
     rate_1 = float(np.mean([h["rate"] for h in healthy]))
     rate_2_min = float(min(s["rate"] for s in shared))
-    others = [cl for cl in live["clients"] if cl["dropped"] > 0]
     return {
         "t1": t1, "t2": t2,
         "frames_lost_by_healthy_clients": lost,
@@ -190,7 +189,9 @@ async def _measure(hostport: str, duration_s: float, mono0: float) -> dict:
         "p99_latency_ms": float(np.percentile(latency, 99) * 1e3),
         "max_latency_ms": float(latency.max() * 1e3),
         "min_healthy_rate_with_stalled_client_ratio": rate_2_min / rate_1,
-        "stalled_client_dropped_frames": int(sum(cl["dropped"] for cl in others)),
+        # the healthy clients dropped nothing (counted above), so the hub's total is the stalled client's,
+        # including what it lost before it was evicted
+        "stalled_client_dropped_frames": int(live["dropped_total"]) - sum(log.dropped for log in logs),
         "stalled_client_evicted": int(live["evicted_total"]),
         "samples_per_client_per_s": float(np.mean([log.samples for log in logs]) / (t3 - t1 + 1.0)),
     }

@@ -53,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from tcms_daq.service.app import ServiceSettings, create_app
+    from tcms_daq.service.runner import BenchRunner
 
     if not (args.sim_speed > 0 and math.isfinite(args.sim_speed)):
         raise ConfigError(f"--sim-speed must be a positive number, got {args.sim_speed}")
@@ -62,7 +63,9 @@ def run(args: argparse.Namespace) -> int:
     settings = ServiceSettings(
         data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(args.config)
     )
-    app = create_app(settings)
+    # Compose the bench before the server starts, so a bad config is a one-line error, not a startup traceback.
+    runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed)
+    app = create_app(settings, runner=runner)
 
     sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

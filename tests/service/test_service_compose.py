@@ -75,6 +75,12 @@ def test_compose_bench_points_at_the_sim_service_on_published_ports():
     assert (REPO / "config" / cfg.bench.compensation).is_file()
 
 
+def test_sim_command_is_a_tcms_command():
+    cmd = _compose()["services"]["sim"]["command"]
+    args = build_parser().parse_args(cmd[1:])
+    assert args.command == "sim"
+
+
 def test_dockerfile_installs_the_package_and_runs_the_service():
     text = (REPO / "Dockerfile").read_text(encoding="utf-8")
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")]

@@ -1,0 +1,85 @@
+"""The docker-compose topology without Docker: ``tcms sim serve`` (the instrument simulators speaking ND 287,
+AED and CANopen/socketcand) and ``tcms serve`` as two processes on loopback, with config/bench-compose.toml's
+instruments pointed at the simulator process instead of the host ``sim``."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import httpx
+import pytest
+import tomli_w
+from svc_helpers import TOKEN, wait_for
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+
+
+@pytest.mark.timeout(180)
+def test_service_and_simulators_as_two_processes(tmp_path):
+    compose_cfg = REPO / "config" / "bench-compose.toml"
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", str(compose_cfg),
+         "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )
+    service = None
+    try:
+        line = sim.stdout.readline()
+        assert line, f"tcms sim serve did not start: {sim.stderr.read()}"
+        urls = json.loads(line)["urls"]
+        data = tomllib.loads(compose_cfg.read_text(encoding="utf-8"))
+        data["instruments"]["angle"]["url"] = urls["angle"]
+        data["instruments"]["torque"]["url"] = urls["torque"]
+        data["instruments"]["loader"]["url"] = urls["loader_canopen"]
+        for key in ("reducers", "compensation"):
+            data["bench"][key] = str(REPO / "config" / data["bench"][key])
+        cfg = tmp_path / "bench-loopback-compose.toml"
+        cfg.write_text(tomli_w.dumps(data), encoding="utf-8")
+
+        env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
+        service = subprocess.Popen(
+            [sys.executable, "-m", "tcms_daq.cli", "serve", "--config", str(cfg), "--port", "0",
+             "--data-dir", str(tmp_path / "data")],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO,
+        )
+        first = service.stdout.readline()
+        assert "service on http://" in first, first + service.stdout.read()
+        base = "http://" + first.split("http://", 1)[1].split("/", 1)[0]
+        c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
+        wait_for(lambda: c.get("/api/health").status_code == 200, timeout_s=30)
+        bench = c.get("/api/bench").json()
+        assert bench["clock"] == "monotonic"
+        assert bench["instruments"]["angle"]["driver"] == "nd287"
+        assert bench["instruments"]["loader"]["driver"] == "cia402-canopen"
+
+        r = c.post("/api/tests", json={"reducer": "RV-110E", "max_torque_nm": 300, "cycles": 1,
+                                       "profile": "continuous", "rate_nm_per_s": 600})
+        assert r.status_code == 202, r.text
+        run_id = r.json()["id"]
+        t0 = time.monotonic()
+        run = wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"]
+                       in ("completed", "failed", "aborted") and t, timeout_s=90)
+        assert run["status"] == "completed", run["error"]
+        assert 200 < run["results"]["rigidity_nm_per_arcmin"] < 400
+        assert run["sample_count"] > 100 and time.monotonic() - t0 < 90
+    finally:
+        if service is not None:
+            _stop(service)
+        _stop(sim)
