@@ -394,6 +394,8 @@ class CiA402Canopen:
             raise Disconnected(self.name, f"SDO write 0x{index:04X}: {exc}") from None
 
     def _send_rpdo(self, controlword: int, target_permille: int) -> float:
+        if self.node is None:
+            raise Disconnected(self.name, "no link to the drive (reconnect failed or not connected)")
         rpdo = self.node.rpdo[1]
         rpdo[0x6040].raw = controlword
         rpdo[0x6071].raw = target_permille
@@ -480,8 +482,13 @@ class CiA402Canopen:
         self._send_rpdo(self._controlword, permille)
 
     def disable(self) -> None:
-        """Target 0 (ramped), wait (bounded) for the torque to come down, then disable voltage."""
+        """Target 0 (ramped), wait (bounded) for the torque to come down, then disable voltage.
+
+        Best effort on a degraded link: with the heartbeat gone but the bus still open the commands are sent
+        anyway (the drive may still hear them); only without any bus is one reconnect tried first."""
         scaling = self._scaling()
+        if self.node is None:
+            self._ensure_link()
         self._send_rpdo(self._controlword, 0)
         tpdo = self._tpdo1
         if tpdo is not None and state_from_statusword(tpdo[0]) == "OPERATION ENABLED":
