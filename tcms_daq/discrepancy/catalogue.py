@@ -93,16 +93,40 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
 # Signals and columns
 
 
-def skew_shift(data: DesignData, skew_s: float) -> np.ndarray:
-    """θ_sim(t + τ) − θ_sim(t), interpolating the simulated angle in time within each continuous segment."""
-    out = np.zeros(len(data))
-    for seg in np.unique(data.segments):
-        idx = np.flatnonzero(data.segments == seg)
+def _segment_index(data: DesignData) -> list[np.ndarray]:
+    cached = getattr(data, "_segment_index", None)
+    if cached is None:
+        order = np.argsort(data.segments, kind="stable")
+        bounds = np.flatnonzero(np.diff(data.segments[order])) + 1
+        cached = np.split(order, bounds)
+        object.__setattr__(data, "_segment_index", cached)
+    return cached
+
+
+def skew_shift(data: DesignData, skew_s: float, rows: np.ndarray | None = None) -> np.ndarray:
+    """θ_sim(t + τ) − θ_sim(t), interpolating the simulated angle in time within each continuous segment
+    (at ``rows`` only, if given)."""
+    if rows is None:
+        out = np.zeros(len(data))
+        for idx in _segment_index(data):
+            if len(idx) < 2:
+                continue
+            t = data.time_s[idx]
+            th = data.sim_angle_arcsec[idx]
+            out[idx] = np.interp(t + skew_s, t, th) - th
+        return out
+    out = np.zeros(len(rows))
+    seg = data.segments[rows]
+    for idx in _segment_index(data):
         if len(idx) < 2:
+            continue
+        mine = np.flatnonzero(seg == data.segments[idx[0]])
+        if len(mine) == 0:
             continue
         t = data.time_s[idx]
         th = data.sim_angle_arcsec[idx]
-        out[idx] = np.interp(t + skew_s, t, th) - th
+        r = rows[mine]
+        out[mine] = np.interp(data.time_s[r] + skew_s, t, th) - data.sim_angle_arcsec[r]
     return out
 
 
@@ -181,6 +205,15 @@ def columns(name: str, data: DesignData, nl: float | None = None) -> np.ndarray:
     if name == "nonlinear_stiffness":
         return (data.torque_nm ** 3)[:, None]
     raise KeyError(name)
+
+
+def columns_at(name: str, data: DesignData, nl: float | None, rows: np.ndarray) -> np.ndarray:
+    """``columns(name, data, nl)[rows]`` without evaluating the other rows (for nonlinear values)."""
+    if name == "time_skew":
+        return skew_shift(data, float(nl), rows)[:, None]
+    if name in ("interpolation_error", "periodic_error"):
+        return sincos(data.sim_angle_arcsec[rows], float(nl))
+    return columns(name, data, nl)[rows]
 
 
 def parameters(name: str, coef: np.ndarray, nl: float | None) -> dict[str, float]:

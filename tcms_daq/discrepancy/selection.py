@@ -5,7 +5,9 @@ columns; ``time_skew`` and ``torque_zero_offset`` enter with gain 1 (their re-ev
 subtracted from the target).
 Nonlinear parameters (period, skew) are chosen inside every training fold: a grid search of the fold's
 residual (on at most ``SCAN_ROWS`` evenly strided training rows) refined by parabolic interpolation, then all
-linear coefficients are refitted jointly on every training row.
+linear coefficients are refitted jointly on every training row. The selection itself runs on at most
+``SELECT_ROWS`` evenly strided rows (densely sampled runs carry far more rows than the choice needs); the
+final fit and the outer folds of the nested CV use every row.
 
 Selection: greedy forward steps; a step's score is the leave-one-group-out CV RMS; the path is cut by the
 1-SE rule and by a minimum practical gain. Candidates that score within one (paired) standard error of the
@@ -23,7 +25,8 @@ import numpy as np
 from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import DesignData, block_groups
 
-SCAN_ROWS = 12000
+SCAN_ROWS = 3000
+SELECT_ROWS = 12000  # the selection runs on at most this many evenly strided rows
 MAX_TERMS = 4
 MIN_STEP_GAIN = 0.01  # continue the path while a step cuts the CV RMS by ≥ 1 %
 MIN_GAIN = 0.03  # an accepted term must cut the CV RMS by ≥ 3 %
@@ -37,12 +40,20 @@ class Columns:
     def __init__(self, data: DesignData):
         self.data = data
         n = len(data)
-        stride = max(1, math.ceil(n / SCAN_ROWS))
-        self.in_scan = np.zeros(n, dtype=bool)
-        self.in_scan[::stride] = True
+        self.select_stride = max(1, math.ceil(n / SELECT_ROWS))
+        scan_stride = self.select_stride * max(1, math.ceil(n / self.select_stride / SCAN_ROWS))
+        idx = np.arange(n)
+        self.in_select = idx % self.select_stride == 0
+        self.in_scan = idx % scan_stride == 0  # a subset of the selection rows
         self.scan_pos = np.cumsum(self.in_scan) - 1
         self._cols: dict[tuple[str, float | None], np.ndarray] = {}
-        self._grids: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._grids: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = {}
+
+    def rows_of(self, name: str, nl: float | None, rows: np.ndarray) -> np.ndarray:
+        """Columns of ``name`` at ``rows``; linear ones are cached on the full trace."""
+        if nl is not None and cat.CATALOGUE[name].nonlinear:
+            return cat.columns_at(name, self.data, nl, rows)
+        return self.get(name, nl)[rows]
 
     def get(self, name: str, nl: float | None = None) -> np.ndarray:
         key = (name, None if nl is None else float(nl))
@@ -54,21 +65,41 @@ class Columns:
             self._cols[key] = col
         return col
 
-    def grid(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """(grid values, columns on the scan rows with shape (m, n_scan, q))."""
+    def grid(self, name: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """(grid values, products on the scan rows): for a sinusoid S, C, SS, SC, CC; for a fixed-gain
+        term D and DD; each of shape (m, n_scan), so a fold's sums are matrix–vector products."""
         g = self._grids.get(name)
         if g is None:
             values = cat.grid(name, self.data)
             scan = np.flatnonzero(self.in_scan)
             if cat.CATALOGUE[name].fixed_gain:
-                arr = np.stack([cat.columns(name, self.data, float(v))[scan, 0] for v in values])[:, :, None]
+                d = np.stack([cat.columns_at(name, self.data, float(v), scan)[:, 0] for v in values])
+                prods = _stacked({"D": d, "DD": d * d})
             else:
                 theta = self.data.sim_angle_arcsec[scan]
                 x = (2.0 * math.pi / values)[:, None] * theta[None, :]
-                arr = np.stack((np.sin(x), np.cos(x)), axis=-1).astype(np.float32)
-            g = (values, arr)
+                sn, cs = np.sin(x), np.cos(x)
+                prods = _stacked({"S": sn, "C": cs, "SS": sn * sn, "SC": sn * cs, "CC": cs * cs})
+            g = (values, prods)
             self._grids[name] = g
         return g
+
+
+def _stacked(parts: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The product matrices stacked into one float32 block (one pass over memory per scan); ``_names`` and
+    ``_m`` let :func:`_sums` split the result."""
+    block = np.concatenate(list(parts.values()), axis=0).astype(np.float32)
+    return {"_block": block, "_names": np.array(list(parts)), "_m": np.array(len(next(iter(parts.values()))))}
+
+
+def _sums(prods: dict[str, np.ndarray], w: np.ndarray, wr: np.ndarray) -> dict[str, np.ndarray]:
+    """For every product P: (P @ w, P @ wr) as float64, from one matrix product."""
+    if "_block" not in prods:
+        return {k: (v @ w, v @ wr) for k, v in prods.items()}
+    out = prods["_block"] @ np.column_stack((w, wr)).astype(np.float32)
+    m = int(prods["_m"])
+    return {str(k): (out[i * m:(i + 1) * m, 0].astype(float), out[i * m:(i + 1) * m, 1].astype(float))
+            for i, k in enumerate(prods["_names"])}
 
 
 def _design(cols: Columns, names: list[str], nl: dict[str, float], rows: np.ndarray
@@ -78,7 +109,7 @@ def _design(cols: Columns, names: list[str], nl: dict[str, float], rows: np.ndar
     where: list[tuple[str, int, int]] = []
     k = 1
     for name in names:
-        c = cols.get(name, nl.get(name))[rows]
+        c = cols.rows_of(name, nl.get(name), rows)
         if cat.CATALOGUE[name].fixed_gain:
             fixed += c[:, 0]
             where.append((name, k, k))
@@ -116,33 +147,52 @@ def _parabolic(x: np.ndarray, s: np.ndarray, i: int) -> float:
 
 
 def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.ndarray) -> float:
-    """Best nonlinear value of ``name`` for the training rows' residual (grid + parabolic refinement)."""
-    values, arr = cols.grid(name)
-    sel = train[cols.in_scan[train]]
-    if len(sel) < 8:
-        sel = train
-        scan_cols = np.stack([cat.columns(name, cols.data, float(v))[sel] for v in values])
+    """Best nonlinear value of ``name`` for the training rows' residual (grid + parabolic refinement).
+
+    Each grid value is scored by the residual sum of squares after fitting it (with an offset) to the
+    residual of the model without it, on the strided scan rows that are training rows.
+    """
+    values, prods = cols.grid(name)
+    w = np.zeros(int(cols.in_scan.sum()))
+    in_train = train[cols.in_scan[train]]
+    if len(in_train) < 8:
+        in_train = train
+        w = None
+    if w is None:  # tiny data: evaluate the grid on the training rows directly
+        r = residual[in_train]
+        stack = np.stack([cat.columns_at(name, cols.data, float(v), in_train) for v in values])
+        if cat.CATALOGUE[name].fixed_gain:
+            d = stack[:, :, 0]
+            prods = {"D": d, "DD": d * d}
+        else:
+            sn, cs = stack[:, :, 0], stack[:, :, 1]
+            prods = {"S": sn, "C": cs, "SS": sn * sn, "SC": sn * cs, "CC": cs * cs}
+        w = np.ones(len(in_train))
     else:
-        scan_cols = arr[:, cols.scan_pos[sel], :]
-    r = residual[sel]
-    n = len(sel)
+        pos = cols.scan_pos[in_train]
+        w[pos] = 1.0
+        r = np.zeros(len(w))
+        r[pos] = residual[in_train]
+    n = float(w.sum())
+    wr = w * r
+    r1, r2 = wr.sum(), float(wr @ r)
+    sums = _sums(prods, w, wr)
     if cat.CATALOGUE[name].fixed_gain:
-        e = r[None, :] - scan_cols[:, :, 0]
-        sse = (e * e).sum(axis=1) - e.sum(axis=1) ** 2 / n
+        (d_w, d_r), (dd_w, _) = sums["D"], sums["DD"]
+        sse = r2 - 2.0 * d_r + dd_w - (r1 - d_w) ** 2 / n
     else:
-        sc = scan_cols.astype(float)
-        s, c = sc[:, :, 0], sc[:, :, 1]
-        a = np.empty((len(values), 3, 3))
+        m = len(values)
+        a = np.empty((m, 3, 3))
         a[:, 0, 0] = n
-        a[:, 0, 1] = a[:, 1, 0] = s.sum(1)
-        a[:, 0, 2] = a[:, 2, 0] = c.sum(1)
-        a[:, 1, 1] = (s * s).sum(1)
-        a[:, 1, 2] = a[:, 2, 1] = (s * c).sum(1)
-        a[:, 2, 2] = (c * c).sum(1)
-        b = np.stack((np.full(len(values), r.sum()), s @ r, c @ r), axis=1)
+        a[:, 0, 1] = a[:, 1, 0] = sums["S"][0]
+        a[:, 0, 2] = a[:, 2, 0] = sums["C"][0]
+        a[:, 1, 1] = sums["SS"][0]
+        a[:, 1, 2] = a[:, 2, 1] = sums["SC"][0]
+        a[:, 2, 2] = sums["CC"][0]
+        b = np.stack((np.full(m, r1), sums["S"][1], sums["C"][1]), axis=1)
         a[:, [0, 1, 2], [0, 1, 2]] += 1e-9 * (1.0 + a[:, [0, 1, 2], [0, 1, 2]])
         beta = np.linalg.solve(a, b[:, :, None])[:, :, 0]
-        sse = float(r @ r) - (b * beta).sum(axis=1)
+        sse = r2 - (b * beta).sum(axis=1)
     i = int(np.argmin(sse))
     if name == "interpolation_error":
         return float(values[i])
@@ -275,7 +325,7 @@ def alias_correlation(cols: Columns, rows: np.ndarray, names: list[str], nl: dic
     base, fixed, _ = _design(cols, names, nl, sub)
     if np.any(fixed):
         base = np.column_stack((base, fixed))
-    return _canonical_corr(cols.get(a[0], a[1])[sub], cols.get(b[0], b[1])[sub], base)
+    return _canonical_corr(cols.rows_of(a[0], a[1], sub), cols.rows_of(b[0], b[1], sub), base)
 
 
 def _median_nl(score: CVScore, name: str) -> float | None:
@@ -308,6 +358,8 @@ class Selection:
 def select(cols: Columns, y: np.ndarray, rows: np.ndarray, candidates: list[str]) -> Selection:
     """Forward selection with the 1-SE rule over leave-one-group-out folds of ``rows``."""
     data = cols.data
+    if cols.select_stride > 1:  # long, densely sampled runs: the choice of terms needs far fewer rows
+        rows = rows[cols.in_select[rows]]
     folds = make_folds(rows, data.groups)
     base = cv_score(cols, y, folds, [])
     path = [base]
