@@ -115,9 +115,9 @@ class Compensator:
 
     @classmethod
     def from_model(cls, model: GeometricModel, *, eccentricity: bool = True) -> Compensator:
-        """Scale (1 − k) and torsion (32 ΔL/(G π d⁴)) from the consistent geometric model; for φ = 0 the
-        Eq. 2 eccentricity term instead of the scale (direction of the eccentricity at reading 0 = the
-        geometry's eccentricity_phase_rad, the inspection values do not give it)."""
+        """Scale (1 − k) and torsion (32 ΔL/(G π d⁴)) from the consistent geometric model; for φ = 0 (k = 1)
+        also the Eq. 2 eccentricity term (its direction at reading 0 is the geometry's eccentricity_phase_rad:
+        the inspection values do not give it)."""
         g = model.geometry
         terms: list[Term] = [Scale(coefficient=model.scale_coefficient), Torsion(arcsec_per_nm=model.torsion_arcsec_per_nm)]
         if eccentricity and model.untilted and model.eccentricity_abs_mm > 0:
