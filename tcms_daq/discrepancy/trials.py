@@ -155,10 +155,17 @@ class TrialOutcome:
                 "floor_ok": self.floor_ok, "passed": self.passed, "seconds": self.seconds}
 
 
-def run_case(case: str, seed: int, design: TrialDesign = TrialDesign()) -> TrialOutcome:
+def scaled(table: dict, factor: float) -> dict:
+    """The case's effects with every amplitude-like parameter times ``factor`` (periods and phases kept)."""
+    keep = {"period_arcsec", "phase_rad"}
+    return {name: {k: (v if k in keep else v * factor) for k, v in params.items()} for name, params in table.items()}
+
+
+def run_case(case: str, seed: int, design: TrialDesign = TrialDesign(), amplitude_scale: float = 1.0
+             ) -> TrialOutcome:
     from tcms_daq.discrepancy.workflow import run_discrepancy
 
-    table = CASES[case]
+    table = scaled(CASES[case], amplitude_scale)
     measured, simulated, floor = make_pair(table, seed, design)
     t0 = time.perf_counter()
     result = run_discrepancy(measured, simulated)
@@ -201,13 +208,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument("--first-seed", type=int, default=100)
     parser.add_argument("--case", action="append", choices=sorted(CASES), help="only these cases")
+    parser.add_argument("--amplitude-scale", type=float, default=1.0,
+                        help="multiply every hidden amplitude (skew, rate, coefficient, amplitude) by this")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     cases = args.case or list(CASES)
     outcomes = []
     for case in cases:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            o = run_case(case, seed)
+            o = run_case(case, seed, amplitude_scale=args.amplitude_scale)
             outcomes.append(o)
             if not args.json:
                 flag = "ok  " if o.passed else "FAIL"
@@ -217,6 +226,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"{o.cv_rms_after_arcsec:.3f}″ vs floor {o.noise_floor_arcsec:.3f}″ ({o.seconds:.1f} s)",
                       flush=True)
     summary = summarise(outcomes)
+    summary["amplitude_scale"] = args.amplitude_scale
     if args.json:
         print(json.dumps({"summary": summary, "runs": [o.to_dict() for o in outcomes]}, indent=1))
     else:

@@ -103,3 +103,26 @@ def test_table4_raw_encoder_supports_the_scale_term():
     assert result.names == ["scale_error"]
     assert -0.029 < result.effects[0].parameters["ratio"] < -0.027
     assert result.cv_rms_after_arcsec < 0.25 * result.cv_rms_before_arcsec
+
+
+def test_cli_stored_run(tmp_path, capsys, pair_cache):
+    """`tcms discrepancy --run ID`: a stored run against the bench model re-simulated on its torque trace."""
+    from tcms_daq.service.app import STORE_FILENAME
+    from tcms_daq.store import RunStore
+
+    measured, _, _ = pair_cache("backlash", 11)
+    store = RunStore(tmp_path / STORE_FILENAME)
+    store.create_run("run-1", {"reducer": "RV-110E"}, ["time_s", "torque_nm", "angle_arcsec"])
+    store.append_samples("run-1", [{"time_s": measured.time_s, "torque_nm": measured.torque_nm,
+                                    "angle_arcsec": measured.angle_arcsec}])
+    store.create_run("run-2", {}, ["time_s", "torque_nm", "angle_arcsec"])
+    store.append_samples("run-2", [{"time_s": measured.time_s, "torque_nm": measured.torque_nm,
+                                    "angle_arcsec": measured.angle_arcsec}])
+    store.close()
+    assert main(["discrepancy", "--run", "run-1", "--data-dir", str(tmp_path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [e["name"] for e in doc["effects"]] == ["backlash"]
+    assert main(["discrepancy", "--run", "nope", "--data-dir", str(tmp_path)]) == 2
+    assert "unknown run" in capsys.readouterr().err
+    assert main(["discrepancy", "--run", "run-2", "--data-dir", str(tmp_path)]) == 2
+    assert "reducer" in capsys.readouterr().err
