@@ -207,8 +207,10 @@ class CiA402Modbus:
         self.reconnect_delay_s = float(reconnect_delay_s)
         self.state_timeout_s = float(state_timeout_s)
         self.clock = clock
+        self._user_trace = trace_packet
+        self._rx_seen = b""  # reply bytes seen during the current call (tells "garbage" from "silence")
         self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
-                                  trace_packet=trace_packet)
+                                  trace_packet=self._trace)
         self.scaling: TorqueScaling | None = None
         self._slope_permille: int | None = None
         self.reconnects = 0
@@ -221,8 +223,14 @@ class CiA402Modbus:
 
     # -- Modbus access with error mapping --------------------------------------------------------------
 
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        if not sending and len(data) > len(self._rx_seen):
+            self._rx_seen = bytes(data[:256])
+        return self._user_trace(sending, data) if self._user_trace is not None else data
+
     def _call(self, what: str, func, *args, **kwargs):
         for attempt in range(2):
+            self._rx_seen = b""
             try:
                 if not self.client.connected and not self.client.connect():
                     raise ConnectionException(f"cannot connect to {self.url}")
@@ -234,6 +242,10 @@ class CiA402Modbus:
                 raise Disconnected(self.name, f"{what}: {exc}") from exc
             except ModbusIOException as exc:
                 text = str(exc)
+                if "No response" in text and self._rx_seen:
+                    raise MalformedReply(
+                        self.name, f"{what}: reply bytes {self._rx_seen[:32].hex(' ')} do not form a valid frame"
+                    ) from exc
                 if "No response" in text:
                     raise InstrumentTimeout(self.name, f"{what}: no response within {self.timeout_s:g} s") from exc
                 raise MalformedReply(self.name, f"{what}: {text}") from exc

@@ -142,17 +142,23 @@ def test_timeout_when_muted(drive_sims):
         assert drive.status().state == "SWITCH ON DISABLED"
 
 
-def test_malformed_and_partial_replies(drive_sims):
-    proxy = FaultProxy("127.0.0.1", drive_sims.ports["modbus"])
+@pytest.mark.parametrize("framing", ["tcp", "rtu"])
+def test_malformed_and_partial_replies(drive_sims, framing):
+    upstream = drive_sims.ports["modbus" if framing == "tcp" else "modbus_rtu"]
+    proxy = FaultProxy("127.0.0.1", upstream)
     port = drive_sims.loop.run(proxy.start())
+    url = f"tcp://127.0.0.1:{port}" if framing == "tcp" else f"socket://127.0.0.1:{port}"
     try:
-        with _tcp(drive_sims, port=port) as drive:
+        with CiA402Modbus(url, timeout_s=0.3) as drive:
             proxy.inject("garbage")
-            with pytest.raises((MalformedReply, InstrumentTimeout)):
+            with pytest.raises(MalformedReply, match="do not form a valid frame"):
                 drive.status()
             proxy.inject("partial")
-            with pytest.raises((MalformedReply, InstrumentTimeout)):
+            with pytest.raises(MalformedReply, match="do not form a valid frame"):
                 drive.status()
+            proxy.inject(None)
+            time.sleep(0.05)
+            assert drive.status().state == "SWITCH ON DISABLED"  # the stream resynchronises
     finally:
         drive_sims.loop.run(proxy.stop())
 
