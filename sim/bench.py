@@ -65,6 +65,7 @@ class SimulatedBench:
 
         Keyword arguments left at None come from the config ([sim] and [bench] max_torque_nm); with a
         ReducerPhysics and no config they come from the SimConfig defaults (config/bench-sim.toml has the same).
+        Without an explicit ``measuring_chain`` the config's ``[sim] geometry`` file (if any) gives it.
         The reducer is ``reducer``, else ``sim.reducer`` looked up in ``catalogue`` (default: the config's catalogue).
         """
         cfg = _as_bench_config(None if isinstance(physics, ReducerPhysics) else physics)
@@ -97,6 +98,8 @@ class SimulatedBench:
             pick(encoder_resolution_arcsec, sim.encoder_resolution_arcsec),
             pick(encoder_signal_period_arcsec, sim.encoder_signal_period_arcsec),
             pick(encoder_interpolation_error_arcsec, sim.encoder_interpolation_error_arcsec))
+        if measuring_chain is None and sim.geometry:
+            measuring_chain = _measuring_chain_from_geometry(cfg.resolve(sim.geometry))
         self.measuring_chain = measuring_chain
         if effects is None and sim.effects:
             effects = _effects_from_config(sim.effects, seed=self.seed, source=cfg.source_path)
@@ -258,6 +261,14 @@ def _as_bench_config(cfg: SimConfig | BenchConfig | Mapping[str, Any] | None) ->
             return validate(BenchConfig, dict(cfg), "<bench config>")
         return BenchConfig(sim=validate(SimConfig, dict(cfg), "<sim config>", prefix="sim"))
     raise TypeError(f"SimulatedBench: cannot build from {type(cfg).__name__}")
+
+
+def _measuring_chain_from_geometry(path: str) -> MeasuringChain:
+    """The encoder reading through the measuring chain of a geometry file (the compensation module's forward
+    model): what ``[sim] geometry`` names."""
+    from tcms_daq.compensation import Compensator
+
+    return Compensator.from_geometry(path).encoder_reading
 
 
 def _effects_from_config(table: dict[str, Any], *, seed: int, source: str | None) -> Effects | None:

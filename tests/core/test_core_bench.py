@@ -185,3 +185,16 @@ def test_first_order_response_matches_the_recurrence_over_many_chunks():
         y = a * y + x
         expected[i] = y
     np.testing.assert_allclose(first_order_response(v, a, 2.0, decay), expected, rtol=1e-10, atol=1e-10)
+
+
+def test_sim_geometry_gives_the_measuring_chain(bench_config):
+    """[sim] geometry: the encoder reads through the chain's errors (the compensator's forward model)."""
+    assert bench_config.sim.geometry
+    bench = SimulatedBench(bench_config)
+    identity = SimulatedBench(bench_config, measuring_chain=lambda angle, torque, time_s: angle)
+    for b in (bench, identity):
+        b.set_drive_enabled(True)
+        b.set_torque_target(1000.0, None)
+    s, s0 = bench.advance(1.0), identity.advance(1.0)
+    np.testing.assert_allclose(s.extra["true_angle_arcsec"], s0.extra["true_angle_arcsec"])
+    assert abs(np.mean(s.angle_arcsec - s0.angle_arcsec)) > 1.0  # the chain's error at 1000 N·m
