@@ -26,22 +26,8 @@ def settings_factory(tmp_path: Path) -> Callable[..., ServiceSettings]:
 
 
 @pytest.fixture
-def sim_config(tmp_path: Path) -> Path:
-    """The default simulated bench config; while its compensation file is not in the repo yet, a copy of it
-    with the identity compensator (so the service tests do not depend on that file's arrival)."""
-    import tomllib
-
-    import tomli_w
-
+def sim_config() -> Path:
+    """The default simulated bench (config/bench-sim.toml)."""
     from tcms_daq.config.loader import default_bench_config_path
 
-    path = default_bench_config_path()
-    data = tomllib.loads(path.read_text(encoding="utf-8"))
-    comp = data.get("bench", {}).get("compensation")
-    if comp is None or (path.parent / comp).is_file():
-        return path
-    data["bench"].pop("compensation")
-    data["bench"]["reducers"] = str(path.parent / data["bench"].get("reducers", "reducers.toml"))
-    copy = tmp_path / "bench-sim-identity.toml"
-    copy.write_text(tomli_w.dumps(data), encoding="utf-8")
-    return copy
+    return default_bench_config_path()

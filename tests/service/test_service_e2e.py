@@ -84,6 +84,17 @@ def test_http_and_websocket_end_to_end(settings_factory, sim_config, tmp_path):
         report = c.get(f"/api/tests/{run_id}/report").text
         assert "<svg" in report and "rigidity_nm_per_arcmin" in report
 
+        # abort a running test: the procedure ramps down, the run ends 'aborted' with its samples
+        slow = c.post("/api/tests", json={**REQUEST, "rate_nm_per_s": 20}).json()["id"]
+        wait_for(lambda: c.get(f"/api/tests/{slow}").json()["sample_count"] > 200, timeout_s=30)
+        assert c.post(f"/api/tests/{slow}/abort").status_code == 202
+        aborted = wait_for(lambda: (t := c.get(f"/api/tests/{slow}").json())["status"] != "running"
+                           and t["status"] != "queued" and t, timeout_s=30)
+        assert aborted["status"] == "aborted" and aborted["error"] == "aborted by the operator"
+        assert aborted["sample_count"] > 200
+        loader = c.get("/api/bench").json()["instruments"]["loader"]["status"]
+        assert loader["state"] != "OPERATION ENABLED" and abs(loader["torque_actual_nm"]) < 25
+
         comp = c.get("/api/compensation")
         assert comp.status_code == 200 and "[compensator]" in comp.text
         assert c.put("/api/compensation", content="[compensator\n").status_code == 422

@@ -141,3 +141,27 @@ async def test_event_hub_numbers_replays_and_delivers_in_order():
     assert got[0]["type"] == "hello" and got[0]["seq"] == 2
     seqs = [m["seq"] for m in got[1:]]
     assert seqs == list(range(2, 53))  # replay of 2, then 3..52 live, no gap, no duplicate
+
+
+async def test_event_client_that_falls_behind_is_disconnected_not_silently_skipped():
+    hub = EventHub(history=10, max_backlog=5)
+    hub.bind_loop(asyncio.get_running_loop())
+    blocked = asyncio.Event()
+    got: list[dict] = []
+
+    async def send(msg: dict) -> None:
+        got.append(msg)
+        if msg["type"] != "hello":
+            await blocked.wait()  # this client stops consuming after the first event
+
+    serving = asyncio.ensure_future(hub.serve(send, asyncio.Event().wait()))
+    await asyncio.sleep(0.01)
+    for i in range(20):
+        hub.publish("test_phase", phase=f"p{i}")
+    await asyncio.sleep(0.05)
+    blocked.set()
+    client = await asyncio.wait_for(serving, 1)
+    assert client.overflowed  # the endpoint closes with 1013; the client resyncs with ?since=
+    seqs = [m["seq"] for m in got[1:]]
+    assert seqs == list(range(1, len(seqs) + 1)) and len(seqs) < 20  # an in-order prefix, never a gap
+    assert [e["seq"] for e in hub.replay_after(12)] == list(range(13, 21))
