@@ -163,6 +163,8 @@ def test_truth_and_snapshot(catalogue):
 def test_effects_table_is_built_by_sim_effects(write, bench_text):
     from tcms_daq.config import load_bench_config
 
+    bench_text = "\n".join(ln for ln in bench_text.splitlines() if not ln.startswith("geometry ="))
+
     on = bench_text.replace("[sim.effects]", "[sim.effects.time_skew]\nskew_s = 0.004\n", 1)
     bench = SimulatedBench(load_bench_config(write("on.toml", on)))
     assert bench.effects is not None
@@ -198,3 +200,11 @@ def test_sim_geometry_gives_the_measuring_chain(bench_config):
     s, s0 = bench.advance(1.0), identity.advance(1.0)
     np.testing.assert_allclose(s.extra["true_angle_arcsec"], s0.extra["true_angle_arcsec"])
     assert abs(np.mean(s.angle_arcsec - s0.angle_arcsec)) > 1.0  # the chain's error at 1000 N·m
+
+
+def test_missing_geometry_file_is_a_config_error(write, bench_text):
+    from tcms_daq.config import load_bench_config
+
+    path = write("bench.toml", bench_text)  # names geometry-sim.toml, which is not next to this copy
+    with pytest.raises(ConfigError, match="geometry-sim.toml"):
+        SimulatedBench(load_bench_config(path))
