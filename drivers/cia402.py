@@ -14,7 +14,7 @@ MODE_PROFILE_TORQUE = 4
 
 # controlword commands (bits 7,3,2,1,0)
 CW_DISABLE_VOLTAGE = 0x0000
-CW_QUICK_STOP = 0x0002
+CW_QUICK_STOP = 0x000B  # quick stop with the enable bits kept (0x0002 works too)
 CW_SHUTDOWN = 0x0006
 CW_SWITCH_ON = 0x0007
 CW_ENABLE_OPERATION = 0x000F

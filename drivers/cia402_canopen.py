@@ -46,6 +46,7 @@ from drivers.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_FAULT_RESET,
+    CW_QUICK_STOP,
     CW_SHUTDOWN,
     CW_SWITCH_ON,
     MODE_PROFILE_TORQUE,
@@ -521,6 +522,13 @@ class CiA402Canopen:
             position_counts=position,
             time_s=time_s,
         )
+
+    def quick_stop(self) -> None:
+        """Quick stop (controlword 0x000B over RPDO1, target 0): the drive ramps the torque to zero with its
+        quick-stop ramp and, with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
+        if self.node is None:
+            self._ensure_link()
+        self._send_rpdo(CW_QUICK_STOP, 0)
 
     def fault_reset(self) -> None:
         self._ensure_link()

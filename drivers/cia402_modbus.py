@@ -39,6 +39,7 @@ from drivers.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_FAULT_RESET,
+    CW_QUICK_STOP,
     CW_SHUTDOWN,
     CW_SWITCH_ON,
     MODE_PROFILE_TORQUE,
@@ -400,6 +401,11 @@ class CiA402Modbus:
             position_counts=position,
             time_s=time_s,
         )
+
+    def quick_stop(self) -> None:
+        """Quick stop (controlword 0x000B): the drive ramps the torque to zero with its quick-stop ramp and,
+        with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
+        self.write_register("controlword", CW_QUICK_STOP)
 
     def fault_reset(self) -> None:
         self.write_register("controlword", CW_DISABLE_VOLTAGE)  # bit 7 low, so the next write is a rising edge

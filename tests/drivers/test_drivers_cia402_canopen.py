@@ -202,3 +202,12 @@ def test_hub_speaks_socketcand_raw_mode(make_sims):
         assert b"< frame 701 " in buffer  # the drive's heartbeat, relayed as a socketcand frame
         line = buffer[buffer.index(b"< frame 701 "):]
         assert line.split(b">")[0].split()[-1] == b"7F"  # pre-operational
+
+
+def test_quick_stop(can_sims):
+    with _driver(can_sims) as drive:
+        drive.enable()
+        drive.set_torque(400.0)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        drive.quick_stop()
+        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")

@@ -197,3 +197,13 @@ def test_comm_watchdog_faults_the_drive(make_sims):
         time.sleep(0.4)  # the master goes quiet
         status = drive.status()
         assert status.fault and status.error_code == 0x8130
+
+
+def test_quick_stop_ramps_down_and_disables(drive_sims):
+    with _tcp(drive_sims, torque_slope_nm_per_s=20000.0) as drive:
+        drive.enable()
+        drive.set_torque(400.0)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        drive.quick_stop()
+        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+        assert abs(drive.status().torque_actual_nm) <= 12.0
