@@ -239,6 +239,8 @@ def _write_samples(path: Path, samples: Samples) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out is not None and not args.out.parent.is_dir():  # fail before the test, not after it
+        raise TcmsError(f"{args.out}: cannot write (no directory {args.out.parent})")
     cfg = load_bench_config(args.config)
     catalogue = load_reducers_for(cfg)
     reducer = get_reducer(catalogue, args.reducer or cfg.sim.reducer, cfg.resolve(cfg.bench.reducers))
