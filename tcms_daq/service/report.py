@@ -92,21 +92,15 @@ def render_report(record: RunRecord, columns: Mapping[str, np.ndarray]) -> str:
     if record.error:
         meta_rows.append(("error", record.error))
     meta = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in meta_rows)
-    if record.results:
-        result_rows = "\n".join(
-            f'<tr class="{_row_class(k, v)}"><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>'
-            for k, v in flatten_results(record.results)
-        )
-        results = f"<table class='results'>{result_rows}</table>"
-    else:
-        results = "<p>No results (the run did not complete an evaluation).</p>"
+    results = _results_html(record.results) if record.results else (
+        "<p>No results (the run did not complete an evaluation).</p>")
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>TCMS report {html.escape(record.id)}</title>
 <style>
 body {{ font-family: system-ui, sans-serif; margin: 2em; color: #222; }}
 table {{ border-collapse: collapse; margin-bottom: 1.5em; }}
 th, td {{ text-align: left; padding: 2px 12px 2px 0; border-bottom: 1px solid #eee; font-weight: normal; }}
-th {{ color: #555; }}
+th {{ color: #555; }} .loops th, .loops td {{ padding-right: 18px; }}
 tr.pass td {{ color: #157a2e; font-weight: bold; }} tr.fail td {{ color: #b3261e; font-weight: bold; }}
 </style></head><body>
 <h1>Torsional characteristic test {html.escape(record.id)}</h1>
@@ -119,7 +113,62 @@ tr.pass td {{ color: #157a2e; font-weight: bold; }} tr.fail td {{ color: #b3261e
 """
 
 
-def _row_class(key: str, value: Any) -> str:
-    if isinstance(value, bool):
-        return "pass" if value else "fail"
-    return ""
+HEADLINE: tuple[tuple[str, str], ...] = (
+    ("rigidity_nm_per_arcmin", "torsional rigidity / N·m/arcmin"),
+    ("lost_motion_arcsec", "lost motion / arcsec"),
+    ("backlash_arcsec", "backlash / arcsec"),
+    ("loading_rate_nm_per_s", "loading rate / N·m/s"),
+    ("test_torque_nm", "test torque / N·m"),
+    ("n_loops", "evaluated loops"),
+    ("k1_nm_per_rad", "K1 / N·m/rad"),
+    ("k2_nm_per_rad", "K2 / N·m/rad"),
+    ("k3_nm_per_rad", "K3 / N·m/rad"),
+)
+
+
+def _results_html(results: Mapping[str, Any]) -> str:
+    """Headline values (mean ± std over loops), the verdict checks, the per-loop table, then every value."""
+    parts = []
+    std = results.get("std") or {}
+    rows = []
+    for key, label in HEADLINE:
+        value = results.get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            spread = std.get(key) if isinstance(std, Mapping) else None
+            shown = _fmt(float(value)) + (f" ± {_fmt(float(spread))}" if isinstance(spread, int | float) else "")
+            rows.append(f"<tr><th>{html.escape(label)}</th><td>{shown}</td></tr>")
+    if rows:
+        parts.append("<table class='results'>" + "".join(rows) + "</table>")
+    verdict = results.get("verdict")
+    if isinstance(verdict, Mapping):
+        rows = []
+        for check in (verdict.get("checks") or {}).values():
+            ok = bool(check.get("passed"))
+            rows.append(
+                f"<tr class='{'pass' if ok else 'fail'}'><th>{html.escape(str(check.get('quantity')))} "
+                f"{html.escape(str(check.get('comparison')))} {_fmt(check.get('limit'))}</th>"
+                f"<td>{_fmt(check.get('value'))}</td><td>{'pass' if ok else 'FAIL'}</td></tr>"
+            )
+        ok = bool(verdict.get("passed"))
+        rows.append(f"<tr class='{'pass' if ok else 'fail'}'><th>verdict</th><td></td><td>{'pass' if ok else 'FAIL'}"
+                    "</td></tr>")
+        parts.append("<h3>Acceptance</h3><table class='verdict'>" + "".join(rows) + "</table>")
+    loops = results.get("loops")
+    if isinstance(loops, list) and loops and all(isinstance(lp, Mapping) for lp in loops):
+        cols = ("index", "evaluated", "order", "rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec",
+                "loading_rate_nm_per_s")
+        head = "".join(f"<th>{c}</th>" for c in cols)
+        body = "".join(
+            "<tr>" + "".join(f"<td>{'yes' if lp.get(c) is True else 'no' if lp.get(c) is False else _fmt(lp.get(c))}</td>"
+                             for c in cols) + "</tr>"
+            for lp in loops
+        )
+        parts.append(f"<h3>Loops</h3><table class='loops'><tr>{head}</tr>{body}</table>")
+    warnings = results.get("warnings")
+    if isinstance(warnings, list) and warnings:
+        parts.append("<h3>Warnings</h3><ul>" + "".join(f"<li>{html.escape(str(w))}</li>" for w in warnings) + "</ul>")
+    details = "".join(
+        f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in flatten_results(results)
+    )
+    parts.append(f"<details><summary>all values</summary><table class='details'>{details}</table></details>")
+    return "\n".join(parts)
