@@ -197,12 +197,16 @@ class VirtualContext:
 
     config: Any = None
     physics_factory: PhysicsFactory | None = None
+    config_dir: Any = None
     benches: dict[str, VirtualBench] = field(default_factory=dict)
 
     def bench(self, name: str) -> VirtualBench:
         if name not in self.benches:
-            factory = self.physics_factory or default_physics_factory
-            self.benches[name] = VirtualBench(factory(self.config), name=name)
+            if self.physics_factory is not None:
+                physics = self.physics_factory(self.config)
+            else:
+                physics = default_physics_factory(self.config, config_dir=self.config_dir)
+            self.benches[name] = VirtualBench(physics, name=name)
         return self.benches[name]
 
 
@@ -212,7 +216,8 @@ def _section(config: Any, key: str) -> Any:
     return getattr(config, key, None)
 
 
-def default_physics_factory(config: Any, *, reducer: Any = None, seed: int | None = None) -> Any:
+def default_physics_factory(config: Any, *, reducer: Any = None, seed: int | None = None,
+                            config_dir: Any = None) -> Any:
     """``sim.bench.SimulatedBench`` from a whole bench config ([sim], [bench]) (``reducer``/``seed`` override
     ``[sim]``); when ``[sim] geometry`` names a measuring-chain geometry file, the encoder reads through that
     chain's errors (the compensation module's forward model), so the compensator has something to correct."""
@@ -224,7 +229,12 @@ def default_physics_factory(config: Any, *, reducer: Any = None, seed: int | Non
         from tcms_daq.compensation import Compensator
 
         resolve = getattr(config, "resolve", None)
-        path = resolve(geometry) if resolve is not None else geometry
+        if resolve is not None:
+            path = resolve(geometry)
+        else:  # a plain mapping: relative to the directory it came from
+            from pathlib import Path
+
+            path = Path(geometry) if config_dir is None else Path(config_dir) / geometry
         chain = Compensator.from_geometry(path).encoder_reading
     return SimulatedBench(config, reducer=reducer, seed=seed, measuring_chain=chain)
 
@@ -402,5 +412,6 @@ class VirtualDriver:
     def from_config(cls, kind: str, options: Mapping[str, Any], context: dict[str, Any]):
         ctx = context.get("virtual")
         if ctx is None:
-            ctx = context["virtual"] = VirtualContext(context.get("config"), context.get("physics_factory"))
+            ctx = context["virtual"] = VirtualContext(context.get("config"), context.get("physics_factory"),
+                                                      context.get("config_dir"))
         return cls(kind=kind, context=ctx, **dict(options))

@@ -17,6 +17,7 @@ and judges the interlocks. The first trip is kept in :attr:`trip`; :meth:`wait` 
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -111,7 +112,7 @@ class AcquisitionLoop:
         self._io_locks = {"angle": threading.RLock(), "torque": threading.RLock()}
         self.last_status: LoaderStatus | None = None
         self._aligner = Aligner(max_wait_s=max_align_wait_s)
-        self._rate = TorqueRateMonitor(self.limits)
+        self._rate = TorqueRateMonitor(self._rate_limits(self.limits))
         now = self.clock.now()
         self._channels = {
             "angle": _Channel("angle", bench.angle.name, now),
@@ -171,10 +172,18 @@ class AcquisitionLoop:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _rate_limits(self, limits: InterlockLimits) -> InterlockLimits:
+        """On real time the rate window spans at least 0.2 s of real time: a faster-than-real-time simulator
+        that stalls for a moment and catches up must not look like a torque jump."""
+        if self.clock.stepped:
+            return limits
+        window = max(limits.rate_window_s, 0.2 * getattr(self.clock, "speed", 1.0))
+        return dataclasses.replace(limits, rate_window_s=window)
+
     def set_limits(self, limits: InterlockLimits) -> None:
         """New limits (a new run); clears a previous trip."""
         self.limits = limits
-        self._rate = TorqueRateMonitor(limits)
+        self._rate = TorqueRateMonitor(self._rate_limits(limits))
         self.trip = None
         self.trip_event.clear()
 
@@ -254,8 +263,11 @@ class AcquisitionLoop:
         return status
 
     def _status_poller(self) -> None:
+        # after a trip the procedure owns the loader (ramp down, disable, final status): polling on would only
+        # compete for the driver, e.g. with its reconnect attempts when the loader is the lost instrument
         while not self._stop.wait(self.status_period_s):
-            self.poll_status()
+            if self.trip is None:
+                self.poll_status()
 
     def _coordinator(self) -> None:
         while not self._stop.wait(self.period_s):

@@ -337,25 +337,34 @@ class TestRun:
                 return
             loader = self.bench.loader
             slope = self.options.ramp_down_slope_nm_per_s or max(s.slope_nm_per_s for s in self.segments)
-            try:
-                acq.loader_command(loader.set_torque, 0.0, slope)
-                ramp_s = abs(self._setpoint_nm) / slope
-                self._setpoint_nm = 0.0
-                limit_nm = self.limits.torque_limit_nm
+            trip = acq.trip
+            loader_lost = trip is not None and trip.interlock == "lost_instrument" and "loader" in trip.reason
+            if loader_lost:
+                # nothing to command the ramp with: the drive's own communication watchdog takes the torque off
+                self.record.notes.append("loader lost: no ramp to zero commanded; disable attempted")
+            else:
+                try:
+                    acq.loader_command(loader.set_torque, 0.0, slope)
+                    ramp_s = abs(self._setpoint_nm) / slope
+                    self._setpoint_nm = 0.0
+                    limit_nm = self.limits.torque_limit_nm
 
-                def over_limit() -> bool:  # a drive out of control: do not wait for the ramp, disable now
-                    return abs(acq.latest_torque_nm() or 0.0) > limit_nm
+                    def over_limit() -> bool:  # a drive out of control: do not wait for the ramp, disable now
+                        return abs(acq.latest_torque_nm() or 0.0) > limit_nm
 
-                if not acq.wait(ramp_s, check_trips=False, until=over_limit):
-                    acq.wait(self.options.ramp_down_timeout_s, check_trips=False,
-                             until=lambda: over_limit() or abs(acq.latest_torque_nm() or 0.0) <= self.tolerance_nm)
-            except Exception as exc:
-                self.record.notes.append(f"ramp to zero failed: {exc}")
+                    if not acq.wait(ramp_s, check_trips=False, until=over_limit):
+                        acq.wait(self.options.ramp_down_timeout_s, check_trips=False,
+                                 until=lambda: over_limit() or abs(acq.latest_torque_nm() or 0.0) <= self.tolerance_nm)
+                except Exception as exc:
+                    self.record.notes.append(f"ramp to zero failed: {exc}")
             try:
                 acq.loader_command(loader.disable)
             except Exception as exc:
                 self.record.notes.append(f"disable failed: {exc}")
             acq.wait(self.options.settle_s, check_trips=False)
+            if loader_lost:
+                self.record.loader_final = {"state": "unknown", "error": "loader lost"}
+                return
             try:
                 status: LoaderStatus = acq.loader_command(loader.status)
                 self.record.loader_final = {"state": status.state, "torque_actual_nm": status.torque_actual_nm,

@@ -5,6 +5,7 @@ virtual bench, and the protocol faults (Modbus timeout, drive fault, encoder fau
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import pytest
 
@@ -13,6 +14,7 @@ from tcms_daq.acquisition.procedure import analysis_evaluator
 from tcms_daq.procedure.profiles import continuous_profile
 
 SPEED = 4.0
+LOOPBACK_DIR = Path(__file__).resolve().parents[2] / "config"
 
 
 def short_profile(cycles: int = 2):
@@ -24,7 +26,7 @@ def in_process_reference(pb, profile):
     cfg = pb.bench_config()
     for kind in ("angle", "torque", "loader"):
         cfg["instruments"][kind] = {"driver": "virtual", "url": "virtual://sim"}
-    bench = compose_bench(cfg)
+    bench = compose_bench(cfg, config_dir=LOOPBACK_DIR)
     return TestRun(bench, profile, evaluate=analysis_evaluator(1078.0)).run()
 
 
