@@ -4,8 +4,8 @@ The drive's objects sit in holding registers described by a register map (``conf
 Kinco-style: controlword 0x3100, statusword 0x3200, 32-bit values low word first). URL:
 
 - ``tcp://host:port``                       Modbus TCP (MBAP framing)
-- anything else (``/dev/ttyUSB0``, ``socket://host:port``, ``rfc2217://…``) a serial line with RTU framing,
-  opened through pyserial; ``socket://`` carries RTU frames over TCP (simulator, serial-to-Ethernet gateways)
+- ``socket://host:port``                    RTU frames carried over TCP (simulator, serial-to-Ethernet gateways)
+- anything else (``/dev/ttyUSB0``, ``rfc2217://…``) a serial line with RTU framing, opened through pyserial
 
 Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; Modbus exception 4 (device failure)
 → DeviceFault, other exception responses → CommandRejected; connection lost and the bounded reconnect failed
@@ -165,10 +165,13 @@ def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trac
     """A pymodbus sync client for ``url`` (see module doc); automatic background reconnect is off."""
     parsed = urlparse(url)
     common = dict(timeout=timeout_s, retries=retries, reconnect_delay=0, trace_packet=trace_packet)
-    if parsed.scheme == "tcp":
+    if parsed.scheme in ("tcp", "socket"):
         if not parsed.hostname:
             raise ConfigError(f"Modbus URL {url!r} lacks a host")
-        return ModbusTcpClient(parsed.hostname, port=parsed.port or 502, framer=FramerType.SOCKET, **common)
+        # socket:// = RTU frames carried over TCP (serial-to-Ethernet gateway, the simulator): the TCP client with
+        # the RTU framer reads replies as they arrive, where the serial client polls the line for silence
+        framer = FramerType.SOCKET if parsed.scheme == "tcp" else FramerType.RTU
+        return ModbusTcpClient(parsed.hostname, port=parsed.port or 502, framer=framer, **common)
     return ModbusSerialClient(url, framer=FramerType.RTU, baudrate=baudrate, bytesize=8, parity="N",
                               stopbits=1, **common)
 
