@@ -24,6 +24,7 @@ import numpy as np
 
 from drivers import registry
 from tcms_daq.acquisition.clock import Clock, MonotonicClock, SimulatedClock
+from tcms_daq.acquisition.interlocks import InterlockLimits
 from tcms_daq.errors import ConfigError
 
 KINDS = ("angle", "torque", "loader")
@@ -50,6 +51,7 @@ class Bench:
     name: str = "bench"
     max_torque_nm: float = math.inf
     description: dict[str, Any] = field(default_factory=dict)
+    interlocks: dict[str, Any] = field(default_factory=dict)  # [interlocks] of the config: InterlockLimits fields
     connected: bool = False
 
     def compensate(self, angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
@@ -152,6 +154,11 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
     if instruments is None:
         raise ConfigError("bench config: missing [instruments] (angle, torque, loader)")
     max_torque_nm = float(bench_cfg.get("max_torque_nm", math.inf))
+    interlocks = _as_dict(_section(config, "interlocks"))
+    unknown = sorted(set(interlocks) - set(InterlockLimits.__dataclass_fields__))
+    if unknown:
+        raise ConfigError(f"bench config: unknown key {unknown[0]!r} in [interlocks] "
+                          f"(known: {', '.join(InterlockLimits.__dataclass_fields__)})")
     context: dict[str, Any] = {
         "config": config,
         "physics_factory": physics_factory,
@@ -206,7 +213,8 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         comp_source = type(compensator).__name__
     description["compensation"] = comp_source
     return Bench(drivers["angle"], drivers["torque"], drivers["loader"], clock, compensator,
-                 name=str(bench_cfg.get("name", "bench")), max_torque_nm=max_torque_nm, description=description)
+                 name=str(bench_cfg.get("name", "bench")), max_torque_nm=max_torque_nm, description=description,
+                 interlocks=interlocks)
 
 
 def read_bench_config(path: str | Path) -> Any:

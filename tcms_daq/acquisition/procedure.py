@@ -111,7 +111,8 @@ def as_segments(profile: Any) -> list[Segment]:
 def default_limits(bench: Bench, profile: Any, reducer_torque_limit_nm: float | None = None,
                    **overrides: Any) -> InterlockLimits:
     """Interlock limits for a run: bench and reducer torque, a rate limit of twice the steepest profile slope
-    (+5 % of the peak per second for sensor noise); ``overrides`` replace any field."""
+    (+5 % of the peak per second for sensor noise); the bench config's ``[interlocks]`` table, then
+    ``overrides``, replace any field."""
     segments = as_segments(profile)
     peak = max(abs(s.target_nm) for s in segments)
     slope = max(s.slope_nm_per_s for s in segments)
@@ -120,7 +121,8 @@ def default_limits(bench: Bench, profile: Any, reducer_torque_limit_nm: float | 
         "reducer_torque_limit_nm": reducer_torque_limit_nm,
         "torque_rate_limit_nm_per_s": 2.0 * slope + 0.05 * peak,
     }
-    values.update({k: v for k, v in overrides.items() if k in InterlockLimits.__dataclass_fields__})
+    for table in (getattr(bench, "interlocks", None) or {}, overrides):
+        values.update({k: v for k, v in table.items() if k in InterlockLimits.__dataclass_fields__})
     return InterlockLimits(**values)
 
 

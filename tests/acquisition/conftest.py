@@ -150,3 +150,9 @@ def protocol_bench():
     yield make
     for pb in made:
         pb.stop()
+
+
+@pytest.fixture
+def linear_physics():
+    """The stand-in physics class (for tests composing their own config)."""
+    return LinearPhysics
