@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -254,9 +255,14 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(total=round(profile.duration_s(), 1), unit="s", desc=f"{reducer.name} (sim time)",
                    file=sys.stderr, leave=False)
 
+        drawn_at = [0.0]
+
         def progress(done_s: float, total_s: float) -> None:
-            bar.n = round(done_s, 1)
-            bar.refresh()
+            now = time.monotonic()
+            if now - drawn_at[0] >= 0.1 or done_s >= total_s:  # redraw at most 10 times a second
+                drawn_at[0] = now
+                bar.n = round(done_s, 1)
+                bar.refresh()
 
     try:
         result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress, speed=args.speed,

@@ -106,3 +106,34 @@ def test_run_rejects_bad_options(capsys, argv):
         main(["run", *argv])
     assert exc.value.code == 2
     assert "error:" in capsys.readouterr().err
+
+
+def test_progress_bar_only_on_a_terminal():
+    import fcntl
+    import os
+    import pty
+    import select
+    import struct
+    import subprocess
+    import sys
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))
+    cmd = [sys.executable, "-m", "tcms_daq.cli", "run", "--cycles", "1", "--json"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=slave)
+    os.close(slave)
+    err = b""
+    while select.select([master], [], [], 60)[0]:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        err += chunk
+    out = proc.stdout.read()
+    assert proc.wait(timeout=60) == 0
+    os.close(master)
+    assert b"RV-110E (sim time)" in err and b"100%" in err
+    assert json.loads(out)["n_loops"] == 1  # stdout stays one JSON object
