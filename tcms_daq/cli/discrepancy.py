@@ -66,7 +66,11 @@ def format_result(result) -> str:
     else:
         lines.append("named: nothing (no catalogue effect improves the held-out error reliably)")
     for a in result.aliases:
-        lines.append(f"aliases: {', '.join(a.names)} cannot be told apart here — {a.separating_experiment}")
+        kept = ""
+        if a.in_model:
+            params = ", ".join(f"{k}={v:.4g}" for k, v in a.parameters.items())
+            kept = f" (in the model as {a.representative}: {params})"
+        lines.append(f"aliases: {', '.join(a.names)} cannot be told apart here{kept} — {a.separating_experiment}")
     for r in result.rejected:
         lines.append(f"rejected: {r['name']}: {r['reason']}")
     lines.append(f"RMS {result.rms_before_arcsec:.3f}″ → {result.rms_after_arcsec:.3f}″, max "

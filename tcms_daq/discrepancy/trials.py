@@ -198,6 +198,9 @@ def summarise(outcomes: list[TrialOutcome]) -> dict:
         "false_naming_rate_null": (sum(bool(o.named) for o in null_runs) / len(null_runs)) if null_runs else None,
         "spurious_names_per_run": wrong_names / len(outcomes) if outcomes else None,
         "pass_rate": sum(o.passed for o in outcomes) / len(outcomes) if outcomes else None,
+        "max_parameter_error": max((abs(v) for o in outcomes for v in o.parameter_errors.values()), default=None),
+        "held_out_over_floor_max": max((o.cv_rms_after_arcsec / o.noise_floor_arcsec for o in outcomes),
+                                       default=None),
         "per_case": per_case,
         "mean_seconds_per_run": float(np.mean([o.seconds for o in outcomes])) if outcomes else None,
     }
@@ -233,7 +236,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"naming accuracy {summary['naming_accuracy']:.1%} over "
               f"{sum(1 for o in outcomes if o.hidden)} effect runs; false naming on null runs "
               f"{summary['false_naming_rate_null'] if summary['false_naming_rate_null'] is None else format(summary['false_naming_rate_null'], '.1%')}"
-              f"; all criteria met in {summary['pass_rate']:.1%} of {len(outcomes)} runs")
+              f"; all criteria met in {summary['pass_rate']:.1%} of {len(outcomes)} runs; max |parameter error| "
+              f"{(summary['max_parameter_error'] or 0.0):.1%}; max held-out RMS / noise floor "
+              f"{summary['held_out_over_floor_max']:.2f}")
     return 0
 
 
