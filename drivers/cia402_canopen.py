@@ -182,7 +182,14 @@ class CiA402Canopen:
         self._wanted = True
 
     def close(self) -> None:
+        """Leave cleanly: switch off the drive's watch on this master's heartbeat (0x1016) before going quiet,
+        so a drive that is later commanded another way (e.g. Modbus) does not fault with 0x8130."""
         self._wanted = False
+        if self.node is not None and self.drive_consumer_timeout_ms > 0 and self._heartbeat_alive():
+            try:
+                self._sdo_write(0x1016, 0, subindex=1)
+            except (InstrumentTimeout, CommandRejected, Disconnected) as exc:
+                log.debug("%s: clearing the heartbeat consumer: %s", self.name, exc)
         self._teardown()
 
     def _open(self) -> None:

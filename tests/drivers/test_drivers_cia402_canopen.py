@@ -211,3 +211,16 @@ def test_quick_stop(can_sims):
         assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
         drive.quick_stop()
         assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+
+
+def test_clean_close_disarms_the_drive_watchdog(can_sims):
+    """After the CANopen master leaves, the drive may be commanded another way without a 0x8130 fault."""
+    with _driver(can_sims) as drive:
+        drive.enable()
+        drive.disable()
+    assert can_sims.canopen._consumer is None
+    drv = can_sims.drive
+    for cw in (0x06, 0x07, 0x0F):  # e.g. over Modbus
+        drv.write_controlword(cw)
+    time.sleep(0.5)  # longer than the consumer time (300 ms)
+    assert drv.error_code == 0 and drv.state.label == "OPERATION ENABLED"
