@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import InstrumentError, LoaderStatus
+from drivers.base import DeviceFault, InstrumentError, LoaderStatus
 from tcms_daq.acquisition.bench import Bench
 from tcms_daq.acquisition.fanout import DataMessage, Message
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip
@@ -266,10 +266,10 @@ class TestRun:
             if acq is None:  # could not even connect
                 self._finish_early(acq, recorder, FAILED, exc)
                 return self.record
-            trip = Trip("drive_fault" if "fault" in type(exc).__name__.lower() else "lost_instrument",
-                        str(exc), acq.clock.now())
-            acq.raise_trip(trip)
-            self._finish_early(acq, recorder, ABORTED, InterlockTripped(acq.trip or trip))
+            # loader commands already tripped the matching interlock (loader_command); others name theirs here
+            kind = "device_fault" if isinstance(exc, DeviceFault) else "lost_instrument"
+            acq.raise_trip(Trip(kind, f"instrument error: {exc}", acq.clock.now()))
+            self._finish_early(acq, recorder, ABORTED, InterlockTripped(acq.trip))
         except Exception as exc:
             self._finish_early(acq, recorder, FAILED, exc)
         finally:
