@@ -160,10 +160,12 @@ def analysis_evaluator(rated_torque_nm: float, **options: Any) -> Evaluator:
 class TestRun:
     """One test on a bench, run by :meth:`run` (blocking) or :meth:`start` (a thread).
 
-    subscribers: callables receiving every :class:`DataMessage` / state :class:`EventMessage` on their own
-    thread (lossy bounded queue, ``subscriber_queue`` batches), so they cannot block acquisition; or
-    :class:`~.fanout.Subscription` objects created by the caller on ``acquisition.fanout``.
+    subscribers: callables receiving every :class:`DataMessage` and :class:`EventMessage` (``state`` changes,
+    ``interlock`` trips) on their own thread from a lossy bounded queue of ``subscriber_queue`` messages (events
+    are never dropped), so they cannot block acquisition. A caller that needs every batch subscribes losslessly
+    on ``acquisition.fanout`` itself (``subscribe(name, maxsize=None)``), as the run's own recorder does.
     acquisition: a running :class:`AcquisitionLoop` to use (e.g. the service's live one); default: its own.
+    abort_event: set it (or call :meth:`abort`) to end the run ``aborted``.
     """
 
     __test__ = False  # not a pytest test class
@@ -184,7 +186,6 @@ class TestRun:
         self.subscriber_queue = subscriber_queue
         self._acq = acquisition
         self.abort_event = abort_event or threading.Event()
-        self._abort_reason = "aborted by operator"
         peak = max(abs(s.target_nm) for s in self.segments)
         self.tolerance_nm = (self.options.tolerance_nm if self.options.tolerance_nm is not None
                              else max(0.02 * peak, 1.0))
@@ -224,7 +225,6 @@ class TestRun:
 
     def abort(self, reason: str = "aborted by operator") -> None:
         """Request an abort: the run ramps down, disables the loader and ends ``aborted`` with ``reason``."""
-        self._abort_reason = reason
         self.abort_event.reason = reason  # type: ignore[attr-defined]
         self.abort_event.set()
 
