@@ -184,14 +184,6 @@ class DesignData:
     def __len__(self) -> int:
         return len(self.torque_nm)
 
-    def subset(self, idx: np.ndarray) -> DesignData:
-        """Rows ``idx`` (signals derived on the full trace are kept, not recomputed)."""
-        return DesignData(
-            self.time_s[idx], self.has_time, self.torque_nm[idx], self.sim_angle_arcsec[idx],
-            self.measured_angle_arcsec[idx], self.direction[idx], self.slope_arcsec_per_nm[idx],
-            self.segments[idx], self.groups[idx], self.group_kind, self.signal_period_arcsec,
-        )
-
 
 def build_design(measured: Samples, simulated: Samples, *, signal_period_arcsec: float = 72.0,
                  has_time: bool = True, torque_tolerance_nm: float | None = None,

@@ -35,7 +35,11 @@ def _binned(x: np.ndarray, r: np.ndarray, n_bins: int = N_BINS) -> tuple[np.ndar
 def angle_rate(data: DesignData) -> np.ndarray:
     if not data.has_time:
         return np.zeros(len(data))
-    return np.gradient(data.sim_angle_arcsec, data.time_s) if len(data) > 2 else np.zeros(len(data))
+    if len(data) <= 2:
+        return np.zeros(len(data))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = np.gradient(data.sim_angle_arcsec, data.time_s)
+    return np.where(np.isfinite(rate), rate, 0.0)
 
 
 def periodogram(x: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.ndarray:

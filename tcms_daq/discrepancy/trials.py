@@ -233,12 +233,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps({"summary": summary, "runs": [o.to_dict() for o in outcomes]}, indent=1))
     else:
-        print(f"naming accuracy {summary['naming_accuracy']:.1%} over "
-              f"{sum(1 for o in outcomes if o.hidden)} effect runs; false naming on null runs "
-              f"{summary['false_naming_rate_null'] if summary['false_naming_rate_null'] is None else format(summary['false_naming_rate_null'], '.1%')}"
-              f"; all criteria met in {summary['pass_rate']:.1%} of {len(outcomes)} runs; max |parameter error| "
-              f"{(summary['max_parameter_error'] or 0.0):.1%}; max held-out RMS / noise floor "
-              f"{summary['held_out_over_floor_max']:.2f}")
+        def pct(v):
+            return "n/a" if v is None else f"{v:.1%}"
+
+        n_effect = sum(1 for o in outcomes if o.hidden)
+        n_null = len(outcomes) - n_effect
+        ratio = summary["held_out_over_floor_max"]
+        print(f"naming accuracy {pct(summary['naming_accuracy'])} over {n_effect} effect runs; false naming "
+              f"{pct(summary['false_naming_rate_null'])} over {n_null} null runs; all criteria met in "
+              f"{pct(summary['pass_rate'])} of {len(outcomes)} runs; max |parameter error| "
+              f"{pct(summary['max_parameter_error'])}; max held-out RMS / noise floor "
+              f"{'n/a' if ratio is None else format(ratio, '.2f')}")
     return 0
 
 
