@@ -95,3 +95,19 @@ def test_separating_experiment_names_the_design_change():
     text = separating_experiment(["torsion_offset", "scale_error"])
     assert "lever arm" in text
     assert "rate" in separating_experiment(["time_skew", "backlash"])
+
+
+def test_bench_config_switches_effects_on():
+    """A [sim.effects] table in the bench config reaches the simulated bench through its effects hook."""
+    from sim.bench import SimulatedBench
+    from tcms_daq.config import load_bench_config, load_reducers_for
+
+    cfg = load_bench_config()
+    reducer = load_reducers_for(cfg)[cfg.sim.reducer]
+    runs = {}
+    for label, table in (("off", {}), ("on", {"thermal_drift": {"rate_arcsec_per_s": 1.0}})):
+        on = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"effects": table})})
+        bench = SimulatedBench.from_config(on, reducer, seed=3)
+        runs[label] = bench.advance(2.0)
+    diff = runs["on"].angle_arcsec - runs["off"].angle_arcsec
+    assert np.allclose(diff, runs["on"].time_s, atol=0.2)  # r·t with r = 1 ″/s (quantisation 0.1″)
