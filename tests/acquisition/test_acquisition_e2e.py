@@ -172,3 +172,19 @@ def test_heartbeat_loss_over_canopen(tmp_path):
         assert abs(status["applied_torque_nm"]) < 5.0
     finally:
         server.stop()
+
+
+def test_tcms_run_without_the_simulators_is_a_one_line_error(tmp_path, capsys):
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = tomllib.loads(LOOPBACK.read_text(encoding="utf-8"))
+    cfg["bench"]["compensation"] = str(CONFIG_DIR / cfg["bench"]["compensation"])
+    cfg["bench"]["reducers"] = str(CONFIG_DIR / cfg["bench"]["reducers"])
+    cfg["sim"]["geometry"] = str(CONFIG_DIR / cfg["sim"]["geometry"])
+    cfg["instruments"]["angle"]["url"] = f"socket://127.0.0.1:{port}"
+    path = tmp_path / "bench.toml"
+    path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
+    assert main(["run", "--config", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tcms: error: test failed: ND 287: cannot open") and err.count("\n") == 1

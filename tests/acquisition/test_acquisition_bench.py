@@ -1,0 +1,114 @@
+"""Bench composition from config, the clocks, and the virtual drivers' contracts."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from drivers.base import CommandRejected, DeviceFault, Disconnected
+from drivers.virtual import VirtualBench, VirtualLoader, parse_virtual_url
+from tcms_daq.acquisition import MonotonicClock, SimulatedClock, compose_bench
+from tcms_daq.acquisition.bench import read_bench_config
+from tcms_daq.errors import ConfigError
+
+VIRTUAL = {"driver": "virtual", "url": "virtual://sim"}
+
+
+def config(**instruments):
+    inst = {"angle": dict(VIRTUAL), "torque": dict(VIRTUAL), "loader": dict(VIRTUAL)}
+    inst.update(instruments)
+    return {"bench": {"name": "b", "max_torque_nm": 500.0}, "instruments": inst}
+
+
+def test_virtual_instruments_share_one_bench_and_its_simulated_clock(linear_physics):
+    bench = compose_bench(config(), physics_factory=lambda _c: linear_physics())
+    assert isinstance(bench.clock, SimulatedClock) and bench.clock.stepped
+    assert bench.angle.bench is bench.torque.bench is bench.loader.bench
+    assert bench.loader.max_torque_nm == 500.0  # the bench limit when the loader names none
+    bench.connect()
+    bench.clock.sleep(0.25)
+    a, t = bench.angle.read(), bench.torque.read()
+    assert len(a) == len(t) == 250 and bench.clock.now() == pytest.approx(0.25)
+    np.testing.assert_array_equal(a.time_s, t.time_s)
+    assert len(bench.angle.read()) == 0  # drained
+    bench.close()
+
+
+def test_composition_errors_are_one_line(linear_physics):
+    with pytest.raises(ConfigError, match="unknown driver 'nd999'"):
+        compose_bench(config(angle={"driver": "nd999", "url": "x"}))
+    with pytest.raises(ConfigError, match=r"missing \[instruments\.torque\]"):
+        cfg = config()
+        del cfg["instruments"]["torque"]
+        compose_bench(cfg)
+    with pytest.raises(ConfigError, match="cannot mix simulated"):
+        compose_bench(config(angle={"driver": "nd287", "url": "socket://127.0.0.1:1"}),
+                      physics_factory=lambda _c: linear_physics())
+    with pytest.raises(ConfigError, match="share one bench"):
+        compose_bench(config(angle={"driver": "virtual", "url": "virtual://other"}),
+                      physics_factory=lambda _c: linear_physics())
+    with pytest.raises(ConfigError, match="virtual://sim"):
+        parse_virtual_url("socket://127.0.0.1:4001")
+    with pytest.raises(ConfigError, match="no such file"):
+        read_bench_config("/nonexistent/bench.toml")
+
+
+def test_real_instruments_get_the_bench_clock():
+    bench = compose_bench(config(angle={"driver": "nd287", "url": "socket://127.0.0.1:1"},
+                                 torque={"driver": "aed", "url": "socket://127.0.0.1:1"},
+                                 loader={"driver": "cia402-modbus", "url": "tcp://127.0.0.1:1"}), speed=8.0)
+    assert isinstance(bench.clock, MonotonicClock) and bench.clock.speed == 8.0
+    assert bench.angle.clock == bench.clock.now and bench.torque.clock == bench.clock.now
+    assert bench.angle.clock() == pytest.approx(time.monotonic() * 8.0, abs=0.1)
+
+
+def test_simulated_clock_runs_free_or_paced(linear_physics):
+    vb = VirtualBench(linear_physics())
+    free = SimulatedClock(vb)
+    t0 = time.monotonic()
+    free.sleep(5.0)
+    assert vb.now_s() == pytest.approx(5.0) and time.monotonic() - t0 < 1.0
+    paced = SimulatedClock(vb, speed=20.0)
+    t0 = time.monotonic()
+    paced.sleep(1.0)  # 1 s simulated at 20× real time: at least 50 ms real
+    assert time.monotonic() - t0 >= 0.045
+    with pytest.raises(ValueError):
+        SimulatedClock(vb, speed=0)
+    with pytest.raises(ValueError):
+        MonotonicClock(speed=math.inf)
+
+
+def test_virtual_loader_validates_before_touching_the_physics(linear_physics):
+    vb = VirtualBench(linear_physics())
+    loader = VirtualLoader(vb, rated_torque_nm=300.0)
+    loader.connect()
+    with pytest.raises(CommandRejected, match="not in OPERATION ENABLED"):
+        loader.set_torque(100.0, 50.0)
+    loader.enable()
+    with pytest.raises(CommandRejected, match="outside ±300"):
+        loader.set_torque(301.0, 50.0)
+    with pytest.raises(CommandRejected, match="slope"):
+        loader.set_torque(100.0, -1.0)
+    assert vb.physics.target_nm == 0.0  # nothing reached the drive
+    vb.inject_drive_fault(0x2310)
+    status = loader.status()
+    assert status.fault and status.state == "FAULT" and status.error_code == 0x2310
+    with pytest.raises(DeviceFault):
+        loader.enable()
+    loader.fault_reset()
+    loader.enable()
+    assert loader.status().state == "OPERATION ENABLED"
+    vb.lose_loader_link()
+    with pytest.raises(Disconnected):
+        loader.status()
+
+
+def test_virtual_fault_hooks_fire_at_their_simulated_time(linear_physics):
+    vb = VirtualBench(linear_physics())
+    fired = []
+    vb.at(0.1234, lambda: fired.append(vb.now_s()))
+    vb.advance(0.5)
+    assert fired == [pytest.approx(0.123, abs=0.0011)]
