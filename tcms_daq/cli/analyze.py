@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from tcms_daq.analysis import Limits, evaluate, format_evaluation
+from tcms_daq.analysis import evaluate, format_evaluation
 from tcms_daq.errors import EvaluationError
 from tcms_daq.samples import read_csv
 
@@ -60,14 +60,10 @@ def _options(args: argparse.Namespace) -> dict:
     options: dict = {"lost_motion_pct": 3.0}
     if args.reducer is not None:
         from tcms_daq.config import get_reducer, load_reducer_catalogue
+        from tcms_daq.procedure.evaluation import catalogue_options
 
         spec = get_reducer(load_reducer_catalogue(args.catalogue), args.reducer, args.catalogue)
-        options.update(
-            rated_torque_nm=spec.rated_torque_nm,
-            lost_motion_pct=spec.lost_motion_pct,
-            hd_breakpoints_nm=spec.hd_breakpoints_nm,
-            limits=Limits(**spec.limits()),
-        )
+        options.update(catalogue_options(spec))
     elif args.rated_torque is None:
         raise EvaluationError("give the rated torque (--rated-torque NM) or a catalogue reducer (--reducer NAME)")
     if args.rated_torque is not None:

@@ -180,19 +180,9 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
 
 
 def evaluate_run(result: SimulatedRun):
-    from tcms_daq.analysis import Limits, evaluate
+    from tcms_daq.procedure.evaluation import evaluate_for_reducer
 
-    ev = result.evaluated
-    return evaluate(
-        ev.time_s,
-        ev.torque_nm,
-        ev.angle_arcsec,
-        rated_torque_nm=result.reducer.rated_torque_nm,
-        test_torque_nm=result.profile.test_torque_nm,
-        lost_motion_pct=result.reducer.lost_motion_pct,
-        hd_breakpoints_nm=result.reducer.hd_breakpoints_nm,
-        limits=Limits(**result.reducer.limits()),
-    )
+    return evaluate_for_reducer(result.evaluated, result.reducer, result.profile.test_torque_nm)
 
 
 def _profile_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Profile:

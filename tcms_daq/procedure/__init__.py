@@ -1,4 +1,6 @@
-"""Test procedures: loading profiles (pure data) and the simple in-process runner for the simulated bench."""
+"""Test procedures as data: loading profiles, and the evaluation of a test against its catalogue entry.
+
+The procedure that runs a profile on a bench is the state machine in ``tcms_daq.acquisition``."""
 
 from tcms_daq.procedure.profiles import (
     CONDITIONING,
@@ -11,7 +13,6 @@ from tcms_daq.procedure.profiles import (
     gb_waypoints,
     stepped_profile,
 )
-from tcms_daq.procedure.runner import evaluated_samples, run_stiffness_test
 
 __all__ = [
     "CONDITIONING",
@@ -21,8 +22,6 @@ __all__ = [
     "build_profile",
     "continuous_profile",
     "default_rate_nm_per_s",
-    "evaluated_samples",
     "gb_waypoints",
-    "run_stiffness_test",
     "stepped_profile",
 ]

@@ -309,32 +309,11 @@ class BenchRunner:
         return TestPlan(request, summary, _Plan(profile, spec))
 
     def _evaluator(self, plan: _Plan) -> Callable[[Any], dict[str, Any]]:
-        from tcms_daq.analysis import Limits, evaluate
-
-        spec, profile = plan.reducer, plan.profile
-        limits = Limits(
-            rigidity_min_nm_per_arcmin=spec.rigidity_min_nm_per_arcmin,
-            backlash_max_arcsec=spec.backlash_limit_arcsec,
-            lost_motion_max_arcsec=spec.lost_motion_limit_arcsec,
-        )
-
-        def once(samples: Any, skip: int) -> Any:
-            return evaluate(
-                samples.time_s, samples.torque_nm, samples.angle_arcsec,
-                rated_torque_nm=spec.rated_torque_nm, test_torque_nm=profile.test_torque_nm,
-                lost_motion_pct=spec.lost_motion_pct, hd_breakpoints_nm=spec.hd_breakpoints_nm,
-                limits=limits, skip_loops=skip,
-            )
+        from tcms_daq.procedure.evaluation import evaluate_for_reducer
 
         def run(samples: Any) -> dict[str, Any]:
-            # The evaluated loops are the last `cycles` full loops of the record; what comes before them
-            # (conditioning) is reported but not averaged. Counting from the end keeps this right however the
-            # analysis delimits the first loop after the approach ramp.
-            result = once(samples, 0)
-            extra = len(result.loops) - profile.cycles
-            if extra > 0:
-                result = once(samples, extra)
-            return result.to_dict()
+            # TestRun hands over the evaluated loops only (loop_index >= 1: conditioning removed)
+            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm).to_dict()
 
         return run
 

@@ -1,21 +1,17 @@
-"""Loading profiles (pure data) and the in-process runner on the simulated bench."""
+"""Loading profiles (pure data), and a stepped profile run through the test procedure."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sim.bench import SimulatedBench
-from sim.physics import physics_from_spec
 from tcms_daq.config import TestProfile
 from tcms_daq.procedure import (
     CONDITIONING,
     OUTSIDE_LOOPS,
     build_profile,
     continuous_profile,
-    evaluated_samples,
     gb_waypoints,
-    run_stiffness_test,
     stepped_profile,
 )
 
@@ -58,50 +54,20 @@ def test_build_profile_defaults_to_rated_torque(catalogue):
     assert build_profile(TestProfile(kind="stepped", max_torque_nm=500), None).kind == "stepped"
 
 
-def _bench(catalogue, name="RV-110E"):
-    spec = catalogue[name]
-    return SimulatedBench(physics_from_spec(spec), reducer=spec, torque_noise_nm=0.3, encoder_noise_arcsec=0.2,
-                          encoder_resolution_arcsec=0.1, seed=1)
+def test_stepped_profile_through_the_procedure_dwells_and_marks_loops(catalogue):
+    from tcms_daq.cli.run import simulate
+    from tcms_daq.config import load_bench_config
 
-
-def test_runner_records_marked_loops_and_ramps_down(catalogue):
-    bench = _bench(catalogue)
-    profile = continuous_profile(1078.0, 539.0, cycles=2, conditioning_loops=1)
-    seen, progress = [], []
-    rec = run_stiffness_test(bench, profile, on_batch=lambda b: seen.append(len(b)),
-                             progress=lambda done, total: progress.append((done, total)))
-    assert sum(seen) == len(rec)
-    assert progress[-1][0] == pytest.approx(progress[-1][1])
-    idx = rec.extra["loop_index"]
-    assert set(np.unique(idx)) == {-1.0, 0.0, 1.0, 2.0}
-    assert np.all(np.diff(idx[(idx >= 0)]) >= 0)  # loops in order
-    ev = evaluated_samples(rec)
-    applied = ev.extra["applied_torque_nm"]
-    assert applied[0] == pytest.approx(-1078.0, abs=0.5) and applied[-1] == pytest.approx(-1078.0, abs=0.5)
-    assert applied.max() == pytest.approx(1078.0, abs=0.01)
-    assert not bench.drive_enabled
-    assert abs(rec.extra["applied_torque_nm"][-1]) < 1.0
-
-
-def test_runner_ramps_down_when_interrupted(catalogue):
-    bench = _bench(catalogue)
-    profile = continuous_profile(1078.0, 1078.0, cycles=1)
-
-    def boom(batch):
-        if batch.time_s[-1] > 2.0:
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_stiffness_test(bench, profile, on_batch=boom)
-    assert not bench.drive_enabled
-    assert abs(bench.snapshot()["last"]["applied_torque_nm"]) < 1.0
-
-
-def test_runner_on_stepped_profile_dwells(catalogue):
-    bench = _bench(catalogue, "RV-60N")
+    spec = catalogue["RV-60N"]
     profile = stepped_profile(568.0, 100.0, 0.5, 500.0, cycles=1)
-    rec = run_stiffness_test(bench, profile)
-    demand = rec.extra["demand_nm"]
-    flat = np.isclose(np.diff(demand), 0.0)
-    assert flat.mean() > 0.5  # most of the time is spent dwelling
-    assert set(np.round(demand[1:][flat], 6)) >= {-500.0, -100.0, 0.0, 100.0, 500.0, 568.0, -568.0}
+    run = simulate(load_bench_config(), spec, profile, seed=1)
+    rec = run.record
+    idx = rec.extra["loop_index"]
+    assert set(np.unique(idx)) == {-1.0, 0.0, 1.0}
+    assert np.all(np.diff(idx[idx >= 0]) >= 0)  # loops in order
+    applied = rec.extra["applied_torque_nm"]
+    on_plateau = np.isclose(np.diff(applied), 0.0, atol=1e-6)
+    assert on_plateau.mean() > 0.4  # most of the time is spent dwelling on the steps
+    levels = set(np.round(applied[1:][on_plateau]))
+    assert levels >= {-500.0, -100.0, 0.0, 100.0, 500.0, 568.0, -568.0}
+    assert abs(applied[-1]) < 1.0  # ramped down at the end
