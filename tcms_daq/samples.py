@@ -121,7 +121,7 @@ def parse_csv_text(text: str, required: Iterable[str] = CANONICAL_COLUMNS, sourc
         if not name or name in out:
             continue
         raw = [row[j].strip() for row in body]
-        if name in required or name in OPTIONAL_COLUMNS:
+        if name in required or name in CANONICAL_COLUMNS or name in OPTIONAL_COLUMNS:
             col = _parse_column(name, raw, 2)
             bad = np.flatnonzero(~np.isfinite(col))
             if bad.size:
@@ -135,8 +135,9 @@ def parse_csv_text(text: str, required: Iterable[str] = CANONICAL_COLUMNS, sourc
     return out
 
 
-def read_csv(path: str | Path, required: Iterable[str] = CANONICAL_COLUMNS) -> Samples:
-    """Read a canonical sample CSV. Raises DataFormatError with a one-line message naming the problem."""
+def read_csv_columns(path: str | Path, required: Iterable[str] = CANONICAL_COLUMNS) -> dict[str, np.ndarray]:
+    """Read a CSV file into float columns (see ``parse_csv_text``); DataFormatError (one line, naming the file)
+    for a missing or unreadable file, a missing column or a bad value."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -144,8 +145,12 @@ def read_csv(path: str | Path, required: Iterable[str] = CANONICAL_COLUMNS) -> S
         raise DataFormatError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFormatError(f"{path}: cannot read ({exc})") from None
-    cols = parse_csv_text(text, required=required, source=str(path))
-    return samples_from_columns(cols)
+    return parse_csv_text(text, required=required, source=str(path))
+
+
+def read_csv(path: str | Path, required: Iterable[str] = CANONICAL_COLUMNS) -> Samples:
+    """Read a canonical sample CSV. Raises DataFormatError with a one-line message naming the problem."""
+    return samples_from_columns(read_csv_columns(path, required))
 
 
 def samples_from_columns(cols: Mapping[str, np.ndarray]) -> Samples:

@@ -13,19 +13,12 @@ import math
 from pathlib import Path
 
 from tcms_daq.errors import DataFormatError
-from tcms_daq.samples import Samples, parse_csv_text, samples_from_columns
+from tcms_daq.samples import Samples, read_csv_columns, samples_from_columns
 
 
 def read_pair_file(path: str | Path) -> tuple[Samples, bool]:
     """A sample CSV for the workflow (torque_nm and angle_arcsec required; time_s optional) and has_time."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DataFormatError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataFormatError(f"{path}: cannot read ({exc})") from None
-    cols = parse_csv_text(text, required=("torque_nm", "angle_arcsec"), source=str(path))
+    cols = read_csv_columns(path, required=("torque_nm", "angle_arcsec"))
     return samples_from_columns(cols), "time_s" in cols
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from tcms_daq.compensation.compensator import Compensator
 from tcms_daq.compensation.terms import Term, parse_term_spec
 from tcms_daq.errors import DataFormatError, EvaluationError
-from tcms_daq.samples import parse_csv_text
+from tcms_daq.samples import parse_csv_text, read_csv_columns
 
 CALIBRATION_COLUMNS = ("torque_nm", "encoder_arcsec", "reference_arcsec")
 DEFAULT_TERMS = ("offset", "scale")
@@ -44,26 +44,19 @@ class CalibrationData:
 
 
 def parse_calibration_csv(text: str, source: str = "<csv>") -> CalibrationData:
-    cols = parse_csv_text(text, required=CALIBRATION_COLUMNS, source=source)
-    n = len(cols["encoder_arcsec"])
-    if n == 0:
-        raise DataFormatError(f"{source}: no data rows")
-    time_s = cols.get("time_s")
-    if time_s is not None and not np.all(np.isfinite(time_s)):
-        raise DataFormatError(f"{source}: non-finite value in column 'time_s'")
-    return CalibrationData(cols["torque_nm"], cols["encoder_arcsec"], cols["reference_arcsec"], time_s, source)
+    return _calibration_data(parse_csv_text(text, required=CALIBRATION_COLUMNS, source=source), source)
 
 
 def read_calibration_csv(path: str | Path) -> CalibrationData:
     """Read a calibration CSV; DataFormatError (one line) for a missing file, column or bad value."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise DataFormatError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataFormatError(f"{path}: cannot read ({exc})") from None
-    return parse_calibration_csv(text, source=str(path))
+    return _calibration_data(read_csv_columns(path, CALIBRATION_COLUMNS), str(path))
+
+
+def _calibration_data(cols: dict[str, np.ndarray], source: str) -> CalibrationData:
+    if len(cols["encoder_arcsec"]) == 0:
+        raise DataFormatError(f"{source}: no data rows")
+    return CalibrationData(cols["torque_nm"], cols["encoder_arcsec"], cols["reference_arcsec"], cols.get("time_s"),
+                           source)
 
 
 @dataclass
