@@ -42,14 +42,22 @@ def stored_pair(run_id: str, data_dir: str | Path | None = None) -> tuple[Sample
     path = base / STORE_FILENAME
     if not path.exists():
         raise DataFormatError(f"no run store at {path} (give --data-dir)")
-    store = RunStore(path)
+    store = RunStore(path, recover=False)  # a service may be running a test in this store right now
     try:
-        record = store.get_run(run_id)
-        if record is None:
-            raise DataFormatError(f"unknown run {run_id!r} in {path}")
-        measured = store.read_samples(run_id)
+        return pair_from_store(store, run_id, where=f" in {path}")
     finally:
         store.close()
+
+
+def pair_from_store(store, run_id: str, where: str = "") -> tuple[Samples, Samples]:
+    """(measured, simulated) of run ``run_id`` of an open :class:`~tcms_daq.store.RunStore` (CLI and API).
+
+    Raises DataFormatError (one line) for an unknown run, too few samples or no recorded reducer.
+    """
+    record = store.get_run(run_id)
+    if record is None:
+        raise DataFormatError(f"unknown run {run_id!r}{where}")
+    measured = store.read_samples(run_id)
     if len(measured) < 12:
         raise DataFormatError(f"run {run_id!r} has {len(measured)} samples: too few to compare")
     name = _reducer_name(record)

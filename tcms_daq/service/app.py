@@ -22,18 +22,20 @@ from fastapi.staticfiles import StaticFiles
 
 from tcms_daq.service import exports
 from tcms_daq.service.auth import require_token, resolve_token
+from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
 from tcms_daq.service.events import CLOSE_TRY_AGAIN_LATER, EventHub
 from tcms_daq.service.live import LiveHub, schema_message
 from tcms_daq.service.metrics import ServiceCollector, make_registry, render
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
-from tcms_daq.service.schemas import Health, TestAccepted, TestRequest, TestSummary
+from tcms_daq.service.schemas import DiscrepancyRequest, Health, TestAccepted, TestRequest, TestSummary
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
 from tcms_daq.store import RunStore
 
 STATIC_DIR = Path(__file__).parent / "static"
 STORE_FILENAME = "tcms-runs.sqlite3"
 COMPENSATION_FILENAME = "compensation-active.toml"  # the last PUT /api/compensation, reloaded at start
+DISCREPANCY_DIRNAME = "discrepancy"  # one folder per POST /api/discrepancy analysis
 
 
 @dataclass
@@ -55,7 +57,7 @@ def _one_line_validation_error(exc: RequestValidationError) -> str:
     parts = []
     for err in exc.errors():
         loc = ".".join(str(p) for p in err.get("loc", ()) if p != "body")
-        msg = str(err.get("msg", "invalid value"))
+        msg = str(err.get("msg", "invalid value")).removeprefix("Value error, ")  # a validator's own message
         parts.append(f"{loc}: {msg}" if loc else msg)
     return "; ".join(parts) or "invalid request"
 
@@ -81,6 +83,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
             events.publish("test_state", id=run_id, status="interrupted", error="service restarted")
         app.state.store, app.state.runner, app.state.live = store, bench, live
         app.state.events, app.state.manager = events, manager
+        app.state.discrepancy = DiscrepancyRuns(store, settings.data_dir / DISCREPANCY_DIRNAME, events)
         app.state.metrics = make_registry(ServiceCollector(live, events, store, lambda: manager.active_id))
         framer = asyncio.create_task(live.run(), name="live-framer")
         await asyncio.to_thread(bench.open, live.publish)
@@ -212,6 +215,37 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         await asyncio.to_thread(path.write_text, text, "utf-8")
         state.events.publish("compensation_changed")
         return PlainTextResponse(state.runner.compensator_toml(), media_type="application/toml")
+
+    @app.post("/api/discrepancy", status_code=201, dependencies=auth, tags=["discrepancy"])
+    async def post_discrepancy(body: DiscrepancyRequest, request: Request, response: Response) -> dict:
+        """Name the effects the bench model misses on a stored run (as ``tcms discrepancy --run ID --json``).
+
+        The run's measured angle is compared with the catalogue reducer's model re-simulated on its torque
+        trace. 404 unknown run; 409 while the run is active or another analysis runs; 422 when the run cannot
+        be compared (too few samples, no reducer recorded …). The analysis is kept: ``report_url``.
+        """
+        doc = await asyncio.to_thread(request.app.state.discrepancy.analyse, body)
+        response.headers["Location"] = f"/api/discrepancy/{doc['id']}"
+        return doc
+
+    @app.get("/api/discrepancy", tags=["discrepancy"])
+    def list_discrepancy(request: Request, limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[dict]:
+        return request.app.state.discrepancy.list(limit)
+
+    @app.get("/api/discrepancy/{analysis_id}", tags=["discrepancy"])
+    def get_discrepancy(analysis_id: str, request: Request) -> dict:
+        return request.app.state.discrepancy.get(analysis_id)
+
+    @app.get("/api/discrepancy/{analysis_id}/report", response_class=HTMLResponse, tags=["discrepancy"])
+    def get_discrepancy_report(analysis_id: str, request: Request) -> FileResponse:
+        """The analysis report (residual before/after against time, torque and angle; the loops)."""
+        return FileResponse(request.app.state.discrepancy.path(analysis_id, "report.html"), media_type="text/html")
+
+    @app.get("/api/discrepancy/{analysis_id}/model", response_class=PlainTextResponse, tags=["discrepancy"])
+    def get_discrepancy_model(analysis_id: str, request: Request) -> FileResponse:
+        """The model file with the accepted terms (``tcms discrepancy`` model.toml)."""
+        return FileResponse(request.app.state.discrepancy.path(analysis_id, "model.toml"),
+                            media_type="application/toml")
 
     @app.get("/api/live/clients", tags=["live"])
     def live_clients(request: Request) -> dict:

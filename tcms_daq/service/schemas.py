@@ -55,3 +55,26 @@ class TestSummary(BaseModel):
 
 class Health(BaseModel):
     status: Literal["ok"]
+
+
+class DiscrepancyRequest(BaseModel):
+    """``POST /api/discrepancy``: a stored run against the bench model re-simulated on its torque trace."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    run_id: str = Field(min_length=1, max_length=64, description="id of a stored test run")
+    signal_period_arcsec: float = Field(
+        default=72.0, gt=0, le=3600, description="encoder signal period, arcsec (72 for the RON 786)"
+    )
+    effects: list[str] | None = Field(
+        default=None, min_length=1, description="restrict the candidate effects (default: the whole catalogue)"
+    )
+
+    @model_validator(mode="after")
+    def _known_effects(self) -> DiscrepancyRequest:
+        from tcms_daq.discrepancy.catalogue import EFFECT_NAMES
+
+        unknown = [e for e in self.effects or () if e not in EFFECT_NAMES]
+        if unknown:
+            raise ValueError(f"unknown effect {unknown[0]!r} (known: {', '.join(EFFECT_NAMES)})")
+        return self

@@ -6,7 +6,8 @@ stored in batches: each batch row is one little-endian float64 blob, channel-maj
 names kept on the run record. A committed batch survives a crash of the process (WAL, ``synchronous=NORMAL``).
 
 Opening the store marks runs left ``queued`` or ``running`` by a previous process as ``interrupted``; their
-samples are kept.
+samples are kept. Only the service does that: a reader beside a running service (``tcms discrepancy --run``)
+opens with ``recover=False`` and leaves the active run alone.
 """
 
 from __future__ import annotations
@@ -132,7 +133,7 @@ class RunStore:
     by a lock so batches of one run keep their order.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, recover: bool = True):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
@@ -142,7 +143,7 @@ class RunStore:
         self._closed = False
         conn = self._conn()
         conn.executescript(_SCHEMA)
-        self.recovered_run_ids: list[str] = self._mark_interrupted()
+        self.recovered_run_ids: list[str] = self._mark_interrupted() if recover else []
 
     # -- connections -----------------------------------------------------------------------------------------
     def _conn(self) -> sqlite3.Connection:

@@ -57,6 +57,10 @@ def test_reopen_marks_active_runs_interrupted_and_keeps_samples(tmp_path):
     store.append_samples("live", [_batch(0, 30)])
     store.create_run("waiting", {}, CHANNELS)
     # no close(): as if the process died
+    reader = RunStore(path, recover=False)  # a reader beside a live service leaves active runs alone
+    assert reader.recovered_run_ids == [] and reader.get_run("live").status == "running"
+    assert len(reader.read_columns("live")["time_s"]) == 30
+    reader.close()
     reopened = RunStore(path)
     assert sorted(reopened.recovered_run_ids) == ["live", "waiting"]
     assert reopened.get_run("done").status == "completed"
