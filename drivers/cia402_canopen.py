@@ -14,8 +14,13 @@ then walks 0x06 → 0x07 → 0x0F over RPDO1, confirming each state from TPDO1. 
 drive's FAULT state raises DeviceFault with the EMCY / 0x603F code.
 
 Failures: SDO without answer → InstrumentTimeout; SDO abort → CommandRejected; TPDO of the wrong length →
-MalformedReply; no heartbeat for ``heartbeat_timeout_s`` (or a broken socketcand link) → a bounded reconnect,
-then Disconnected. A boot-up message (the drive restarted) makes the driver configure the drive again.
+MalformedReply; no heartbeat for ``heartbeat_timeout_s`` (or a broken socketcand link) → a bounded reconnect
+(``reconnect_attempts`` re-opens, each waiting at most ``reconnect_timeout_s`` for the drive's heartbeat), then
+Disconnected. Once that bound is spent the link counts as lost: every later call re-probes once, waiting only
+``heartbeat_timeout_s`` for a heartbeat, so a dead drive costs each call a short wait, not the whole bound again,
+and a drive that comes back is configured again on the next call. Every method on a lost link (or before
+``connect()``/after ``close()``) raises Disconnected naming the instrument. A boot-up message (the drive
+restarted) makes the driver configure the drive again.
 """
 
 from __future__ import annotations
@@ -125,6 +130,7 @@ class CiA402Canopen:
         state_timeout_s: float = 2.0,
         connect_timeout_s: float = 2.0,
         reconnect_attempts: int = 2,
+        reconnect_timeout_s: float | None = None,
         clock: Clock = time.monotonic,
     ):
         if not 1 <= node_id <= 127 or not 1 <= master_node_id <= 127 or node_id == master_node_id:
@@ -147,6 +153,10 @@ class CiA402Canopen:
         self.state_timeout_s = float(state_timeout_s)
         self.connect_timeout_s = float(connect_timeout_s)
         self.reconnect_attempts = int(reconnect_attempts)
+        # one reconnect attempt waits this long for the drive's heartbeat (default: as long as connect() does)
+        self.reconnect_timeout_s = float(reconnect_timeout_s or self.connect_timeout_s)
+        if not (self.reconnect_attempts >= 1 and self.reconnect_timeout_s > 0 and self.connect_timeout_s > 0):
+            raise ValueError(f"{name}: reconnect_attempts must be >= 1 and the timeouts > 0")
         self.clock = clock
 
         self.network: canopen.Network | None = None
@@ -165,6 +175,7 @@ class CiA402Canopen:
         self.last_emcy: tuple[int, int] | None = None  # (code, register)
         self.reconnects = 0
         self._wanted = False  # connect() was called and close() was not: reconnect on a lost link
+        self._lost = False  # the bounded reconnect was spent without success: later calls only re-probe
 
     # -- link management -------------------------------------------------------------------------------
 
@@ -175,16 +186,18 @@ class CiA402Canopen:
     def connect(self) -> None:
         self._open()
         try:
-            self._setup()
+            self._setup(self.connect_timeout_s)
         except BaseException:
             self._teardown()
             raise
         self._wanted = True
+        self._lost = False
 
     def close(self) -> None:
         """Leave cleanly: switch off the drive's watch on this master's heartbeat (0x1016) before going quiet,
         so a drive that is later commanded another way (e.g. Modbus) does not fault with 0x8130."""
         self._wanted = False
+        self._lost = False
         if self.node is not None and self.drive_consumer_timeout_ms > 0 and self._heartbeat_alive():
             try:
                 self._sdo_write(0x1016, 0, subindex=1)
@@ -232,11 +245,10 @@ class CiA402Canopen:
             self._tpdo1 = self._tpdo2 = None
             self._last_heartbeat = None
 
-    def _setup(self) -> None:
-        node = self.node
-        assert node is not None
-        if not self._wait_heartbeat(self.connect_timeout_s):
-            raise Disconnected(self.name, f"no heartbeat from node {self.node_id} within {self.connect_timeout_s:g} s")
+    def _setup(self, heartbeat_wait_s: float) -> None:
+        node = self._link()
+        if not self._wait_heartbeat(heartbeat_wait_s):
+            raise Disconnected(self.name, f"no heartbeat from node {self.node_id} within {heartbeat_wait_s:g} s")
         self._booted = False
         self._send_nmt(lambda: setattr(node.nmt, "state", "PRE-OPERATIONAL"))
         device_type = self._sdo_read(0x1000)
@@ -252,8 +264,11 @@ class CiA402Canopen:
         if self.master_heartbeat_ms > 0:
             message = can.Message(arbitration_id=0x700 + self.master_node_id, data=[0x05], is_extended_id=False)
             # on_error -> False: a broken link stops the producer quietly; the heartbeat check reports it
+            network = self.network
+            if network is None or network.bus is None:
+                raise Disconnected(self.name, "CAN bus closed during configuration")
             self._master_heartbeat = ThreadBasedCyclicSendTask(
-                self.network.bus, self.network.send_lock, message, self.master_heartbeat_ms / 1000.0,
+                network.bus, network.send_lock, message, self.master_heartbeat_ms / 1000.0,
                 on_error=lambda exc: False,
             )
         with self._cond:
@@ -264,7 +279,7 @@ class CiA402Canopen:
             raise InstrumentTimeout(self.name, "no TPDO1 from the drive after NMT start")
 
     def _read_pdo_mapping(self) -> None:
-        node = self.node
+        node = self._link()
         try:
             node.tpdo.read()
             node.rpdo.read()
@@ -272,6 +287,8 @@ class CiA402Canopen:
             raise InstrumentTimeout(self.name, f"PDO configuration upload: {exc}") from None
         except SdoAbortedError as exc:
             raise CommandRejected(self.name, f"PDO configuration upload aborted: {exc}") from None
+        except (can.CanError, OSError, RuntimeError) as exc:
+            raise Disconnected(self.name, f"PDO configuration upload: {exc}") from None
 
         def layout(pdo_map) -> list[tuple[int, int]]:
             return [(var.index, var.length) for var in pdo_map.map]
@@ -284,27 +301,50 @@ class CiA402Canopen:
         node.tpdo[2].add_callback(self._on_tpdo2)
 
     def _ensure_link(self) -> None:
-        """Re-open the link (bounded) if the heartbeat is gone; re-configure a drive that booted again."""
+        """Re-open the link (bounded) if the heartbeat is gone; re-configure a drive that booted again.
+
+        The first loss gets ``reconnect_attempts`` attempts of up to ``reconnect_timeout_s`` each; a link already
+        declared lost gets one attempt of up to ``heartbeat_timeout_s`` (enough to hear a drive that is back),
+        never longer than ``reconnect_timeout_s``."""
         if not self._wanted:
             raise Disconnected(self.name, "not connected; call connect() first")
         alive = self.network is not None and self._heartbeat_alive()
         if alive and not self._booted:
             return
-        reason = "drive restarted (boot-up)" if alive else f"heartbeat lost (none for {self.heartbeat_timeout_s:g} s)"
+        if alive:
+            reason = "drive restarted (boot-up)"
+        elif self._lost:
+            reason = "link lost earlier"
+        else:
+            reason = f"heartbeat lost (none for {self.heartbeat_timeout_s:g} s)"
+        if self._lost:
+            attempts, wait_s = 1, min(self.heartbeat_timeout_s, self.reconnect_timeout_s)
+        else:
+            attempts, wait_s = self.reconnect_attempts, self.reconnect_timeout_s
         last: Exception | None = None
-        for _attempt in range(max(1, self.reconnect_attempts)):
+        for _attempt in range(attempts):
             try:
                 if not alive:
                     self._teardown()
                     self._open()
-                self._setup()
+                self._setup(wait_s)
                 self.reconnects += 1
+                self._lost = False
                 return
             except (Disconnected, InstrumentTimeout) as exc:
                 last = exc
                 alive = False
         self._teardown()
-        raise Disconnected(self.name, f"{reason}; {self.reconnect_attempts} reconnect attempts failed: {last}")
+        self._lost = True
+        raise Disconnected(self.name, f"{reason}; {attempts} reconnect attempt{'s' if attempts > 1 else ''} "
+                                      f"failed: {last}")
+
+    def _link(self) -> canopen.RemoteNode:
+        """The node of an open link, else Disconnected (never an AttributeError on a torn-down link)."""
+        node = self.node
+        if node is None:
+            raise Disconnected(self.name, "no link to the drive (lost, reconnect failed, or not connected)")
+        return node
 
     # -- callbacks (python-can notifier thread) --------------------------------------------------------
 
@@ -374,11 +414,11 @@ class CiA402Canopen:
     def _send_nmt(self, action) -> None:
         try:
             action()
-        except (can.CanError, OSError) as exc:
+        except (can.CanError, OSError, RuntimeError) as exc:
             raise Disconnected(self.name, f"NMT: {exc}") from None
 
     def _sdo_read(self, index: int, subindex: int | None = None) -> int:
-        node = self.node
+        node = self._link()
         try:
             var = node.sdo[index] if subindex is None else node.sdo[index][subindex]
             return var.raw
@@ -386,11 +426,11 @@ class CiA402Canopen:
             raise InstrumentTimeout(self.name, f"SDO read 0x{index:04X}: {exc}") from None
         except SdoAbortedError as exc:
             raise CommandRejected(self.name, f"SDO read 0x{index:04X} aborted: {exc}") from None
-        except (can.CanError, OSError) as exc:
+        except (can.CanError, OSError, RuntimeError) as exc:  # RuntimeError: canopen's "Not connected"
             raise Disconnected(self.name, f"SDO read 0x{index:04X}: {exc}") from None
 
     def _sdo_write(self, index: int, value: int, subindex: int | None = None) -> None:
-        node = self.node
+        node = self._link()
         try:
             var = node.sdo[index] if subindex is None else node.sdo[index][subindex]
             var.raw = value
@@ -398,19 +438,17 @@ class CiA402Canopen:
             raise InstrumentTimeout(self.name, f"SDO write 0x{index:04X} = {value}: {exc}") from None
         except SdoAbortedError as exc:
             raise CommandRejected(self.name, f"SDO write 0x{index:04X} = {value} aborted: {exc}") from None
-        except (can.CanError, OSError) as exc:
+        except (can.CanError, OSError, RuntimeError) as exc:
             raise Disconnected(self.name, f"SDO write 0x{index:04X}: {exc}") from None
 
     def _send_rpdo(self, controlword: int, target_permille: int) -> float:
-        if self.node is None:
-            raise Disconnected(self.name, "no link to the drive (reconnect failed or not connected)")
-        rpdo = self.node.rpdo[1]
+        rpdo = self._link().rpdo[1]
         rpdo[0x6040].raw = controlword
         rpdo[0x6071].raw = target_permille
         sent_at = time.monotonic()
         try:
             rpdo.transmit()
-        except (can.CanError, OSError) as exc:
+        except (can.CanError, OSError, RuntimeError) as exc:
             raise Disconnected(self.name, f"RPDO1: {exc}") from None
         self._controlword, self._target_permille = controlword, target_permille
         return sent_at
@@ -438,13 +476,17 @@ class CiA402Canopen:
                                     f"(statusword 0x{sw:04X}: {state_from_statusword(sw)})")
         self._raise_if_fault(tpdo[0], f"waiting for {target_state}")
 
-    def _latest_statusword(self) -> int:
+    def _latest_tpdo(self) -> tuple[int, int, int, float]:
+        """The latest TPDO1 (statusword, torque ‰, position, time), InstrumentTimeout if none or stale."""
         tpdo = self._wait_tpdo(lambda sw: True, self.state_timeout_s)
         if tpdo is None:
             raise InstrumentTimeout(self.name, "no TPDO1 from the drive")
         if time.monotonic() - tpdo[3] > self.heartbeat_timeout_s:
             raise InstrumentTimeout(self.name, f"TPDO1 stale for {time.monotonic() - tpdo[3]:.2f} s")
-        return tpdo[0]
+        return tpdo
+
+    def _latest_statusword(self) -> int:
+        return self._latest_tpdo()[0]
 
     def _scaling(self) -> TorqueScaling:
         if self.scaling is None:
@@ -492,18 +534,26 @@ class CiA402Canopen:
     def disable(self) -> None:
         """Target 0 (ramped), wait (bounded) for the torque to come down, then disable voltage.
 
-        Best effort on a degraded link: with the heartbeat gone but the bus still open the commands are sent
-        anyway (the drive may still hear them); only without any bus is one reconnect tried first."""
+        Best effort on a degraded link: with the heartbeat gone but the bus still open both commands are sent
+        at once (the drive may still hear them; there is no live TPDO to wait on) and then Disconnected is
+        raised, since nothing confirms them; without any bus one reconnect is tried first."""
         scaling = self._scaling()
         if self.node is None:
             self._ensure_link()
+        degraded = not self._heartbeat_alive()
         self._send_rpdo(self._controlword, 0)
         tpdo = self._tpdo1
-        if tpdo is not None and state_from_statusword(tpdo[0]) == "OPERATION ENABLED":
+        if not degraded and tpdo is not None and state_from_statusword(tpdo[0]) == "OPERATION ENABLED":
             slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
             wait_s = min(10.0, abs(scaling.newton_metres(tpdo[1])) / max(slope_nm_per_s, 1e-9) + 0.5)
             self._wait_tpdo_torque_below(5, wait_s)
         self._send_rpdo(CW_DISABLE_VOLTAGE, 0)
+        if degraded:
+            self._raise_unconfirmed("disable")
+
+    def _raise_unconfirmed(self, what: str) -> None:
+        raise Disconnected(self.name, f"{what} sent on a degraded link (no heartbeat for {self.heartbeat_timeout_s:g} s); "
+                                      "not confirmed")
 
     def _wait_tpdo_torque_below(self, permille: int, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
@@ -517,9 +567,7 @@ class CiA402Canopen:
         self._ensure_link()
         scaling = self._scaling()
         time_s = self.clock()
-        self._latest_statusword()
-        with self._cond:
-            sw, torque, position, _ = self._tpdo1
+        sw, torque, position, _ = self._latest_tpdo()
         fault = is_fault(sw)
         return LoaderStatus(
             state=state_from_statusword(sw),
@@ -535,7 +583,10 @@ class CiA402Canopen:
         quick-stop ramp and, with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
         if self.node is None:
             self._ensure_link()
+        degraded = not self._heartbeat_alive()
         self._send_rpdo(CW_QUICK_STOP, 0)
+        if degraded:
+            self._raise_unconfirmed("quick stop")
 
     def fault_reset(self) -> None:
         self._ensure_link()

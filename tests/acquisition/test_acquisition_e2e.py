@@ -57,8 +57,9 @@ class SimServe:
         assert reply["ok"], reply
         return reply
 
-    def config_file(self, tmp_path: Path, loader: str) -> Path:
-        """The loopback config with this server's URLs (loader: "canopen" or "modbus"), paths made absolute."""
+    def config_file(self, tmp_path: Path, loader: str, loader_options: dict | None = None) -> Path:
+        """The loopback config with this server's URLs (loader: "canopen" or "modbus"), paths made absolute,
+        ``loader_options`` added to the loader's table."""
         cfg = tomllib.loads(LOOPBACK.read_text(encoding="utf-8"))
         cfg["bench"]["compensation"] = str(CONFIG_DIR / cfg["bench"]["compensation"])
         cfg["bench"]["reducers"] = str(CONFIG_DIR / cfg["bench"]["reducers"])
@@ -69,6 +70,7 @@ class SimServe:
             cfg["instruments"]["loader"] = {"driver": "cia402-modbus", "url": self.urls["loader_modbus"]}
         else:
             cfg["instruments"]["loader"]["url"] = self.urls["loader_canopen"]
+        cfg["instruments"]["loader"].update(loader_options or {})
         path = tmp_path / f"bench-{loader}.toml"
         path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
         return path
@@ -126,10 +128,10 @@ def test_tcms_run_over_protocols_matches_in_process(loader, sim_serve, tmp_path,
 
 
 # -- protocol faults in another process ----------------------------------------------------------------
-def run_with_fault(server: SimServe, tmp_path: Path, loader: str, request: dict):
+def run_with_fault(server: SimServe, tmp_path: Path, loader: str, request: dict, loader_options: dict | None = None):
     from tcms_daq.config import load_bench_config
 
-    path = server.config_file(tmp_path, loader)
+    path = server.config_file(tmp_path, loader, loader_options)
     bench = compose_bench(load_bench_config(path), config_dir=path.parent, speed=SPEED)
     fired = threading.Event()
 
@@ -162,8 +164,10 @@ def test_drive_fault_with_emcy_over_canopen(tmp_path):
 def test_heartbeat_loss_over_canopen(tmp_path):
     server = SimServe()
     try:
+        # a short reconnect bound (the driver default waits 2 × 2 s for the heartbeat before giving up)
         bench, record = run_with_fault(server, tmp_path, "canopen", {"cmd": "inject", "instrument": "canopen",
-                                                                    "fault": "heartbeat_loss"})
+                                                                    "fault": "heartbeat_loss"},
+                                       loader_options={"reconnect_timeout_s": 0.5})
         assert "lost loader instrument" in record.reason and record.trip["interlock"] == "lost_instrument"
         server.control(cmd="inject", instrument="canopen", fault=None)
         drive = server.control(cmd="status")["drive"]

@@ -163,6 +163,60 @@ def test_heartbeat_loss_is_disconnected(can_sims):
         assert drive.status().error_code == 0x8130
 
 
+LOADER_CALLS = {
+    "enable": lambda d: d.enable(),
+    "disable": lambda d: d.disable(),
+    "set_torque": lambda d: d.set_torque(10.0),
+    "status": lambda d: d.status(),
+    "quick_stop": lambda d: d.quick_stop(),
+    "fault_reset": lambda d: d.fault_reset(),
+}
+
+
+def _all_disconnected(drive, match: str) -> None:
+    for method, call in LOADER_CALLS.items():
+        with pytest.raises(Disconnected, match=match) as info:
+            call(drive)
+        assert info.value.instrument == drive.name, method
+
+
+def test_every_method_on_a_lost_link_raises_disconnected(can_sims):
+    """Heartbeat lost and the drive never comes back: each method raises Disconnected naming the drive, in
+    every phase (degraded bus, bounded reconnect spent, link torn down), never AttributeError & co."""
+    with _driver(can_sims, reconnect_attempts=2, reconnect_timeout_s=0.2) as drive:
+        drive.enable()
+        drive.set_torque(100.0)
+        can_sims.inject("canopen", "heartbeat_loss")
+        time.sleep(0.6)
+        # bus still open, heartbeat gone: target 0 and disable voltage are sent (best effort), not confirmed
+        with pytest.raises(Disconnected, match="CANopen.*disable sent on a degraded link"):
+            drive.disable()
+        with pytest.raises(Disconnected, match="CANopen.*quick stop sent on a degraded link"):
+            drive.quick_stop()
+        with pytest.raises(Disconnected, match="CANopen.*heartbeat lost.*2 reconnect attempts failed"):
+            drive.status()
+        assert drive.node is None  # torn down after the bounded reconnect
+        # the reported bug: disable() after the loss raised AttributeError ('NoneType' … 'rpdo')
+        with pytest.raises(Disconnected, match="CANopen.*link lost earlier; 1 reconnect attempt failed"):
+            drive.disable()
+        _all_disconnected(drive, "CANopen.*1 reconnect attempt failed")
+        assert drive.rated_torque_nm == pytest.approx(2000.0)  # still known from the last configuration
+        can_sims.inject("canopen", None)
+        # back after one re-probe; the best-effort disable reached the drive before the link was dropped
+        assert drive.status().state == "SWITCH ON DISABLED"
+        assert drive.reconnects == 1
+
+
+def test_methods_without_a_link_raise_disconnected(can_sims):
+    drive = _driver(can_sims)
+    _all_disconnected(drive, "CANopen.*not connected")
+    with pytest.raises(Disconnected, match="CANopen.*not connected"):
+        drive.rated_torque_nm  # noqa: B018
+    with drive:
+        drive.enable()
+    _all_disconnected(drive, "CANopen.*not connected")  # after close()
+
+
 def test_across_processes_socketcand_hub(make_sims):
     """The drive behind the loopback socketcand hub (the path `tcms sim serve` offers other processes)."""
     sims = make_sims(instruments=("canopen",), can_interface="socketcand", heartbeat_ms=50)
