@@ -1,14 +1,18 @@
 """CiA 402 drive semantics shared by the CANopen and Modbus loader drivers (protocols.md §3.1–3.2).
 
-Statusword decoding, the controlword commands, torque scaling (‰ of the motor rated torque 0x6076) and the
-validation of torque commands before any byte leaves.
+Statusword decoding, the controlword commands, torque scaling (‰ of the motor rated torque 0x6076), the
+validation of torque commands before any byte leaves, and ``CiA402Loader``: the Loader logic (state walk,
+ramp-down, status) that both transports share.
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
+from typing import Any, Self
 
-from drivers.base import CommandRejected
+from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, LoaderStatus
 
 MODE_PROFILE_TORQUE = 4
 
@@ -91,3 +95,212 @@ class TorqueScaling:
         if not 1 <= value <= 0xFFFFFFFF:
             raise CommandRejected(self.instrument, f"torque slope {slope_nm_per_s:g} N·m/s is out of range")
         return value
+
+
+class CiA402Loader:
+    """The transport-independent half of a CiA 402 loader (``drivers.base.Loader``): validation, the state
+    walk to OPERATION ENABLED in profile torque mode, torque scaling, status decoding, the ramp-down on disable.
+
+    A transport subclass (CANopen SDO/PDO, Modbus registers) provides the primitives below; everything a
+    method validates is checked before its first primitive is called, so a rejected command sends nothing.
+    Torque in N·m at this interface, ‰ of the rated torque on the wire; positive torque twists positive.
+    """
+
+    name: str
+    scaling: TorqueScaling | None
+
+    def __init__(self, *, name: str, max_torque_nm: float | None, torque_slope_nm_per_s: float,
+                 state_timeout_s: float, clock: Clock):
+        if not (isinstance(torque_slope_nm_per_s, int | float) and math.isfinite(torque_slope_nm_per_s)
+                and torque_slope_nm_per_s > 0):
+            raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
+        self.name = name
+        self.max_torque_nm = max_torque_nm
+        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
+        self.state_timeout_s = float(state_timeout_s)
+        self.clock = clock
+        self.scaling = None
+        self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
+
+    # -- transport primitives (subclasses) ---------------------------------------------------------------
+
+    def _ensure_ready(self) -> None:
+        """Before a command: re-establish a lost link (bounded) or raise Disconnected."""
+
+    def _stop_link_degraded(self) -> str | None:
+        """Before a stop command (disable, quick stop): the reason the link cannot confirm it, else None.
+        A degraded link still gets the stop commands (the drive may hear them); the method then raises."""
+        return None
+
+    def _read_statusword(self) -> int:
+        raise NotImplementedError
+
+    def _read_error_code(self) -> int:
+        raise NotImplementedError
+
+    def _read_torque_permille(self) -> int:
+        raise NotImplementedError
+
+    def _read_process(self) -> tuple[int, int, int]:
+        """(statusword, torque actual ‰, position actual counts)."""
+        raise NotImplementedError
+
+    def _read_mode_display(self) -> int:
+        raise NotImplementedError
+
+    def _write_setting(self, name: str, value: int) -> None:
+        """Write one drive setting: ``max_torque`` (‰), ``torque_slope`` (‰/s) or ``mode``."""
+        raise NotImplementedError
+
+    def _write_target(self, permille: int) -> None:
+        """Send a new target torque (‰) now."""
+        raise NotImplementedError
+
+    def _reset_target(self) -> None:
+        """Make the target 0 ‰ before a state change (at once, or with the next controlword)."""
+        self._write_target(0)
+
+    def _write_controlword(self, controlword: int) -> float | None:
+        """Send a controlword; returns a marker for ``_await_statusword`` (e.g. the time it was sent)."""
+        raise NotImplementedError
+
+    def _await_statusword(self, predicate: Callable[[int], bool], since: float | None,
+                          timeout_s: float) -> tuple[int | None, int]:
+        """(the first statusword after ``since`` satisfying ``predicate`` or None after ``timeout_s``,
+        the last statusword seen)."""
+        raise NotImplementedError
+
+    # -- shared logic ------------------------------------------------------------------------------------
+
+    def _configure_scaling(self, rated_torque_mnm: int) -> None:
+        """Set up the torque scaling from the drive's rated torque (0x6076, mN·m) after (re)connecting."""
+        self.scaling = TorqueScaling(self.name, rated_torque_mnm / 1000.0, self.max_torque_nm)
+        self._slope_permille = None
+
+    def _scaling(self) -> TorqueScaling:
+        if self.scaling is None:
+            raise Disconnected(self.name, "not connected; call connect() first")
+        return self.scaling
+
+    @property
+    def rated_torque_nm(self) -> float:
+        return self._scaling().rated_torque_nm
+
+    def _raise_if_fault(self, statusword: int, doing: str) -> None:
+        if is_fault(statusword):
+            code = self._read_error_code()
+            raise DeviceFault(self.name, f"{doing}: drive in FAULT, error code 0x{code:04X}", code=code)
+
+    def _command(self, controlword: int, target_state: str, *, stop_on_fault: bool = True) -> None:
+        """Send ``controlword`` and wait (``state_timeout_s``) for the statusword of ``target_state``."""
+        mask, value = STATE_PATTERN[target_state]
+        since = self._write_controlword(controlword)
+        found, last = self._await_statusword(lambda sw: sw & mask == value or (stop_on_fault and is_fault(sw)),
+                                             since, self.state_timeout_s)
+        if found is None:
+            self._raise_if_fault(last, f"waiting for {target_state}")
+            raise InstrumentTimeout(self.name, f"drive did not reach {target_state} within {self.state_timeout_s:g} s "
+                                    f"(statusword 0x{last:04X}: {state_from_statusword(last)})")
+        self._raise_if_fault(found, f"waiting for {target_state}")
+
+    def _set_slope(self, slope_permille: int) -> None:
+        if slope_permille != self._slope_permille:
+            self._write_setting("torque_slope", slope_permille)
+            self._slope_permille = slope_permille
+
+    def enable(self) -> None:
+        """Profile torque mode (4) with target 0, then 0x06 → 0x07 → 0x0F to OPERATION ENABLED; DeviceFault if
+        the drive is in FAULT (reset it first), CommandRejected if the mode does not take."""
+        self._ensure_ready()
+        scaling = self._scaling()
+        sw = self._read_statusword()
+        self._raise_if_fault(sw, "enable")
+        self._reset_target()
+        if self.max_torque_nm is not None:
+            self._write_setting("max_torque", min(0xFFFF, scaling.permille(scaling.max_torque_nm)))
+        self._set_slope(scaling.slope_permille_per_s(self.default_slope_nm_per_s))
+        self._write_setting("mode", MODE_PROFILE_TORQUE)
+        shown = self._read_mode_display()
+        if shown != MODE_PROFILE_TORQUE:
+            raise CommandRejected(self.name, f"drive shows mode {shown} (mode display), not profile torque (4)")
+        state = state_from_statusword(sw)
+        if state == "OPERATION ENABLED":
+            self._write_controlword(CW_ENABLE_OPERATION)
+            return
+        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
+            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
+        if state != "SWITCHED ON":
+            self._command(CW_SWITCH_ON, "SWITCHED ON")
+        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+
+    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        scaling = self._scaling()
+        permille = scaling.target_permille(target_nm)
+        slope = scaling.slope_permille_per_s(self.default_slope_nm_per_s if slope_nm_per_s is None else slope_nm_per_s)
+        self._ensure_ready()
+        self._set_slope(slope)
+        self._write_target(permille)
+
+    def disable(self) -> None:
+        """Target 0 (ramped), wait (bounded) for the torque to come down, then disable voltage. The disable
+        voltage is sent even if the wait fails; on a degraded link both go out at once and Disconnected follows."""
+        scaling = self._scaling()
+        degraded = self._stop_link_degraded()
+        self._write_target(0)
+        try:
+            if degraded is None and state_from_statusword(self._read_statusword()) == "OPERATION ENABLED":
+                slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
+                actual_nm = abs(scaling.newton_metres(self._read_torque_permille()))
+                deadline = time.monotonic() + min(10.0, actual_nm / max(slope_nm_per_s, 1e-9) + 0.5)
+                while time.monotonic() < deadline and abs(self._read_torque_permille()) > 5:
+                    time.sleep(0.01)
+        finally:
+            self._write_controlword(CW_DISABLE_VOLTAGE)
+        self._raise_unconfirmed("disable", degraded)
+
+    def quick_stop(self) -> None:
+        """Quick stop (controlword 0x000B, target 0): the drive ramps the torque to zero with its quick-stop
+        ramp and, with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
+        degraded = self._stop_link_degraded()
+        self._reset_target()
+        self._write_controlword(CW_QUICK_STOP)
+        self._raise_unconfirmed("quick stop", degraded)
+
+    def _raise_unconfirmed(self, what: str, degraded: str | None) -> None:
+        if degraded is not None:
+            raise Disconnected(self.name, f"{what} sent on a degraded link ({degraded}); not confirmed")
+
+    def fault_reset(self) -> None:
+        """Controlword bit 7 low, then high (a rising edge): FAULT → SWITCH ON DISABLED."""
+        self._ensure_ready()
+        self._reset_target()
+        self._write_controlword(CW_DISABLE_VOLTAGE)
+        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED", stop_on_fault=False)
+
+    def status(self) -> LoaderStatus:
+        self._ensure_ready()
+        scaling = self._scaling()
+        time_s = self.clock()
+        sw, torque_permille, position = self._read_process()
+        fault = is_fault(sw)
+        return LoaderStatus(
+            state=state_from_statusword(sw),
+            torque_actual_nm=scaling.newton_metres(torque_permille),
+            fault=fault,
+            error_code=self._read_error_code() if fault else 0,
+            position_counts=position,
+            time_s=time_s,
+        )
+
+    def connect(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -38,29 +38,8 @@ import canopen
 from can.broadcastmanager import ThreadBasedCyclicSendTask
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from drivers.base import (
-    Clock,
-    CommandRejected,
-    DeviceFault,
-    Disconnected,
-    InstrumentTimeout,
-    LoaderStatus,
-    MalformedReply,
-)
-from drivers.cia402 import (
-    CW_DISABLE_VOLTAGE,
-    CW_ENABLE_OPERATION,
-    CW_FAULT_RESET,
-    CW_QUICK_STOP,
-    CW_SHUTDOWN,
-    CW_SWITCH_ON,
-    MODE_PROFILE_TORQUE,
-    STATE_PATTERN,
-    TorqueScaling,
-    is_fault,
-    state_from_statusword,
-    to_int16,
-)
+from drivers.base import Clock, CommandRejected, Disconnected, InstrumentTimeout, MalformedReply
+from drivers.cia402 import CW_DISABLE_VOLTAGE, CiA402Loader, to_int16
 from drivers.registry import register
 from tcms_daq.errors import ConfigError
 
@@ -82,6 +61,7 @@ DEVICE_TYPE_402 = 0x0192  # low word of 0x1000
 TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
 TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
 RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
+SETTING_OBJECTS = {"max_torque": 0x6072, "torque_slope": 0x6087, "mode": 0x6060}  # CiA402Loader settings
 
 
 def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
@@ -108,7 +88,7 @@ def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
 
 
 @register("cia402-canopen")
-class CiA402Canopen:
+class CiA402Canopen(CiA402Loader):
     """Loader: a CiA 402 drive in profile torque mode over CANopen (SDO configuration, PDO process data)."""
 
     def __init__(
@@ -135,33 +115,27 @@ class CiA402Canopen:
     ):
         if not 1 <= node_id <= 127 or not 1 <= master_node_id <= 127 or node_id == master_node_id:
             raise ValueError(f"{name}: node ids must be 1…127 and differ (drive {node_id}, master {master_node_id})")
-        if not (torque_slope_nm_per_s > 0):
-            raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
-        self.name = name
+        super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
+                         state_timeout_s=state_timeout_s, clock=clock)
         self.url = url
         self.bus_options = parse_can_url(url, bitrate)
         self.node_id = node_id
         self.master_node_id = master_node_id
         self.eds = str(eds or DEFAULT_EDS)
-        self.max_torque_nm = max_torque_nm
-        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
         self.sdo_timeout_s = float(sdo_timeout_s)
         self.heartbeat_ms = int(heartbeat_ms)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s or max(3.5 * heartbeat_ms / 1000.0, 0.2))
         self.master_heartbeat_ms = int(master_heartbeat_ms)
         self.drive_consumer_timeout_ms = int(drive_consumer_timeout_ms)
-        self.state_timeout_s = float(state_timeout_s)
         self.connect_timeout_s = float(connect_timeout_s)
         self.reconnect_attempts = int(reconnect_attempts)
         # one reconnect attempt waits this long for the drive's heartbeat (default: as long as connect() does)
         self.reconnect_timeout_s = float(reconnect_timeout_s or self.connect_timeout_s)
         if not (self.reconnect_attempts >= 1 and self.reconnect_timeout_s > 0 and self.connect_timeout_s > 0):
             raise ValueError(f"{name}: reconnect_attempts must be >= 1 and the timeouts > 0")
-        self.clock = clock
 
         self.network: canopen.Network | None = None
         self.node: canopen.RemoteNode | None = None
-        self.scaling: TorqueScaling | None = None
         self._master_heartbeat = None
         self._cond = threading.Condition()
         self._tpdo1: tuple[int, int, int, float] | None = None  # statusword, torque ‰, position, time
@@ -171,17 +145,12 @@ class CiA402Canopen:
         self._booted = False
         self._controlword = CW_DISABLE_VOLTAGE
         self._target_permille = 0
-        self._slope_permille: int | None = None
         self.last_emcy: tuple[int, int] | None = None  # (code, register)
         self.reconnects = 0
         self._wanted = False  # connect() was called and close() was not: reconnect on a lost link
         self._lost = False  # the bounded reconnect was spent without success: later calls only re-probe
 
     # -- link management -------------------------------------------------------------------------------
-
-    @property
-    def rated_torque_nm(self) -> float:
-        return self._scaling().rated_torque_nm
 
     def connect(self) -> None:
         self._open()
@@ -254,13 +223,12 @@ class CiA402Canopen:
         device_type = self._sdo_read(0x1000)
         if device_type & 0xFFFF != DEVICE_TYPE_402:
             raise ConfigError(f"{self.name}: node {self.node_id} device type 0x{device_type:08X} is not CiA 402")
-        self.scaling = TorqueScaling(self.name, self._sdo_read(0x6076) / 1000.0, self.max_torque_nm)
+        self._configure_scaling(self._sdo_read(0x6076))
         self._sdo_write(0x1017, self.heartbeat_ms)
         if self.drive_consumer_timeout_ms > 0:
             self._sdo_write(0x1016, (self.master_node_id << 16) | self.drive_consumer_timeout_ms, subindex=1)
         self._read_pdo_mapping()
         self._target_permille = 0
-        self._slope_permille = None
         if self.master_heartbeat_ms > 0:
             message = can.Message(arbitration_id=0x700 + self.master_node_id, data=[0x05], is_extended_id=False)
             # on_error -> False: a broken link stops the producer quietly; the heartbeat check reports it
@@ -453,28 +421,12 @@ class CiA402Canopen:
         self._controlword, self._target_permille = controlword, target_permille
         return sent_at
 
-    def _raise_if_fault(self, statusword: int, doing: str) -> None:
-        if is_fault(statusword):
-            code = self._error_code()
-            raise DeviceFault(self.name, f"{doing}: drive in FAULT, error code 0x{code:04X}", code=code)
-
     def _error_code(self) -> int:
         with self._cond:
             tpdo2, emcy = self._tpdo2, self.last_emcy
         if tpdo2 is not None and tpdo2[1]:
             return tpdo2[1]
         return emcy[0] if emcy else 0
-
-    def _command(self, controlword: int, target_state: str, *, stop_on_fault: bool = True) -> None:
-        mask, value = STATE_PATTERN[target_state]
-        sent_at = self._send_rpdo(controlword, self._target_permille)
-        tpdo = self._wait_tpdo(lambda sw: sw & mask == value or (stop_on_fault and is_fault(sw)),
-                               self.state_timeout_s, after=sent_at)
-        if tpdo is None:
-            sw = self._tpdo1[0] if self._tpdo1 else 0
-            raise InstrumentTimeout(self.name, f"drive did not reach {target_state} within {self.state_timeout_s:g} s "
-                                    f"(statusword 0x{sw:04X}: {state_from_statusword(sw)})")
-        self._raise_if_fault(tpdo[0], f"waiting for {target_state}")
 
     def _latest_tpdo(self) -> tuple[int, int, int, float]:
         """The latest TPDO1 (statusword, torque ‰, position, time), InstrumentTimeout if none or stale."""
@@ -485,119 +437,53 @@ class CiA402Canopen:
             raise InstrumentTimeout(self.name, f"TPDO1 stale for {time.monotonic() - tpdo[3]:.2f} s")
         return tpdo
 
-    def _latest_statusword(self) -> int:
+    # -- CiA402Loader primitives: SDO settings, RPDO1 commands, TPDO process data ------------------------
+
+    def _ensure_ready(self) -> None:
+        self._ensure_link()
+
+    def _stop_link_degraded(self) -> str | None:
+        if self.node is None:
+            self._ensure_link()
+        return None if self._heartbeat_alive() else f"no heartbeat for {self.heartbeat_timeout_s:g} s"
+
+    def _read_statusword(self) -> int:
         return self._latest_tpdo()[0]
 
-    def _scaling(self) -> TorqueScaling:
-        if self.scaling is None:
-            raise Disconnected(self.name, "not connected; call connect() first")
-        return self.scaling
+    def _read_error_code(self) -> int:
+        return self._error_code()
 
-    # -- Loader ------------------------------------------------------------------------------------------
+    def _read_torque_permille(self) -> int:
+        return self._latest_tpdo()[1]
 
-    def enable(self) -> None:
-        self._ensure_link()
-        scaling = self._scaling()
-        sw = self._latest_statusword()
-        self._raise_if_fault(sw, "enable")
-        self._target_permille = 0
-        if self.max_torque_nm is not None:
-            self._sdo_write(0x6072, min(0xFFFF, scaling.permille(scaling.max_torque_nm)))
-        self._set_slope(scaling.slope_permille_per_s(self.default_slope_nm_per_s))
-        self._sdo_write(0x6060, MODE_PROFILE_TORQUE)
-        shown = to_int16(self._sdo_read(0x6061))
-        if shown != MODE_PROFILE_TORQUE:
-            raise CommandRejected(self.name, f"drive shows mode {shown} (0x6061), not profile torque (4)")
-        state = state_from_statusword(sw)
-        if state == "OPERATION ENABLED":
-            self._send_rpdo(CW_ENABLE_OPERATION, 0)
-            return
-        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
-            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
-        if state != "SWITCHED ON":
-            self._command(CW_SWITCH_ON, "SWITCHED ON")
-        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+    def _read_process(self) -> tuple[int, int, int]:
+        statusword, torque_permille, position, _ = self._latest_tpdo()
+        return statusword, torque_permille, position
 
-    def _set_slope(self, slope_permille: int) -> None:
-        if slope_permille != self._slope_permille:
-            self._sdo_write(0x6087, slope_permille)
-            self._slope_permille = slope_permille
+    def _read_mode_display(self) -> int:
+        return to_int16(self._sdo_read(0x6061))
 
-    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
-        scaling = self._scaling()
-        permille = scaling.target_permille(target_nm)
-        slope = scaling.slope_permille_per_s(self.default_slope_nm_per_s if slope_nm_per_s is None else slope_nm_per_s)
-        self._ensure_link()
-        self._set_slope(slope)
+    def _write_setting(self, name: str, value: int) -> None:
+        self._sdo_write(SETTING_OBJECTS[name], value)
+
+    def _write_target(self, permille: int) -> None:
         self._send_rpdo(self._controlword, permille)
 
-    def disable(self) -> None:
-        """Target 0 (ramped), wait (bounded) for the torque to come down, then disable voltage.
+    def _reset_target(self) -> None:
+        self._target_permille = 0  # RPDO1 carries it with the next controlword
 
-        Best effort on a degraded link: with the heartbeat gone but the bus still open both commands are sent
-        at once (the drive may still hear them; there is no live TPDO to wait on) and then Disconnected is
-        raised, since nothing confirms them; without any bus one reconnect is tried first."""
-        scaling = self._scaling()
-        if self.node is None:
-            self._ensure_link()
-        degraded = not self._heartbeat_alive()
-        self._send_rpdo(self._controlword, 0)
-        tpdo = self._tpdo1
-        if not degraded and tpdo is not None and state_from_statusword(tpdo[0]) == "OPERATION ENABLED":
-            slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
-            wait_s = min(10.0, abs(scaling.newton_metres(tpdo[1])) / max(slope_nm_per_s, 1e-9) + 0.5)
-            self._wait_tpdo_torque_below(5, wait_s)
-        self._send_rpdo(CW_DISABLE_VOLTAGE, 0)
-        if degraded:
-            self._raise_unconfirmed("disable")
+    def _write_controlword(self, controlword: int) -> float:
+        return self._send_rpdo(controlword, self._target_permille)
 
-    def _raise_unconfirmed(self, what: str) -> None:
-        raise Disconnected(self.name, f"{what} sent on a degraded link (no heartbeat for {self.heartbeat_timeout_s:g} s); "
-                                      "not confirmed")
-
-    def _wait_tpdo_torque_below(self, permille: int, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
+    def _await_statusword(self, predicate, since, timeout_s):
+        tpdo = self._wait_tpdo(predicate, timeout_s, after=since)
+        if tpdo is not None:
+            return tpdo[0], tpdo[0]
         with self._cond:
-            while time.monotonic() < deadline:
-                if self._tpdo1 is not None and abs(self._tpdo1[1]) <= permille:
-                    return
-                self._cond.wait(0.05)
-
-    def status(self) -> LoaderStatus:
-        self._ensure_link()
-        scaling = self._scaling()
-        time_s = self.clock()
-        sw, torque, position, _ = self._latest_tpdo()
-        fault = is_fault(sw)
-        return LoaderStatus(
-            state=state_from_statusword(sw),
-            torque_actual_nm=scaling.newton_metres(torque),
-            fault=fault,
-            error_code=self._error_code() if fault else 0,
-            position_counts=position,
-            time_s=time_s,
-        )
-
-    def quick_stop(self) -> None:
-        """Quick stop (controlword 0x000B over RPDO1, target 0): the drive ramps the torque to zero with its
-        quick-stop ramp and, with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
-        if self.node is None:
-            self._ensure_link()
-        degraded = not self._heartbeat_alive()
-        self._send_rpdo(CW_QUICK_STOP, 0)
-        if degraded:
-            self._raise_unconfirmed("quick stop")
+            last = self._tpdo1[0] if self._tpdo1 else 0
+        return None, last
 
     def fault_reset(self) -> None:
-        self._ensure_link()
-        self._send_rpdo(CW_DISABLE_VOLTAGE, 0)  # bit 7 low first, so the next RPDO is a rising edge
-        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED", stop_on_fault=False)
+        super().fault_reset()
         with self._cond:
             self.last_emcy = None
-
-    def __enter__(self) -> CiA402Canopen:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()

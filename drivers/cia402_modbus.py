@@ -14,40 +14,18 @@ Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; M
 
 from __future__ import annotations
 
-import math
 import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 from urllib.parse import urlparse
 
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
-from drivers.base import (
-    Clock,
-    CommandRejected,
-    DeviceFault,
-    Disconnected,
-    InstrumentTimeout,
-    LoaderStatus,
-    MalformedReply,
-)
-from drivers.cia402 import (
-    CW_DISABLE_VOLTAGE,
-    CW_ENABLE_OPERATION,
-    CW_FAULT_RESET,
-    CW_QUICK_STOP,
-    CW_SHUTDOWN,
-    CW_SWITCH_ON,
-    MODE_PROFILE_TORQUE,
-    STATE_PATTERN,
-    TorqueScaling,
-    is_fault,
-    state_from_statusword,
-)
+from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
+from drivers.cia402 import CiA402Loader
 from drivers.registry import register
 from tcms_daq.errors import ConfigError
 
@@ -177,7 +155,7 @@ def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trac
 
 
 @register("cia402-modbus")
-class CiA402Modbus:
+class CiA402Modbus(CiA402Loader):
     """Loader: a CiA 402 drive in profile torque mode over Modbus TCP/RTU."""
 
     def __init__(
@@ -198,32 +176,19 @@ class CiA402Modbus:
         clock: Clock = time.monotonic,
         trace_packet=None,
     ):
-        self.name = name
+        super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
+                         state_timeout_s=state_timeout_s, clock=clock)
         self.url = url
         self.map = register_map if isinstance(register_map, RegisterMap) else load_register_map(register_map)
         self.device_id = self.map.device_id if device_id is None else int(device_id)
-        self.max_torque_nm = max_torque_nm
-        if not (math.isfinite(torque_slope_nm_per_s) and torque_slope_nm_per_s > 0):
-            raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
-        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
         self.timeout_s = float(timeout_s)
         self.reconnect_attempts = int(reconnect_attempts)
         self.reconnect_delay_s = float(reconnect_delay_s)
-        self.state_timeout_s = float(state_timeout_s)
-        self.clock = clock
         self._user_trace = trace_packet
         self._rx_seen = b""  # reply bytes seen during the current call (tells "garbage" from "silence")
         self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
                                   trace_packet=self._trace)
-        self.scaling: TorqueScaling | None = None
-        self._slope_permille: int | None = None
         self.reconnects = 0
-
-    @property
-    def rated_torque_nm(self) -> float:
-        if self.scaling is None:
-            raise Disconnected(self.name, "not connected (rated torque unknown)")
-        return self.scaling.rated_torque_nm
 
     # -- Modbus access with error mapping --------------------------------------------------------------
 
@@ -310,118 +275,45 @@ class CiA402Modbus:
     def connect(self) -> None:
         if not self.client.connect():
             raise Disconnected(self.name, f"cannot connect to {self.url}")
-        rated_mnm = self.read_register("rated_torque")
-        self.scaling = TorqueScaling(self.name, rated_mnm / 1000.0, self.max_torque_nm)
-        self._slope_permille = None
+        self._configure_scaling(self.read_register("rated_torque"))
 
     def close(self) -> None:
         self.client.close()
 
-    def _statusword(self) -> int:
+    # -- CiA402Loader primitives: one register per object ----------------------------------------------
+
+    def _read_statusword(self) -> int:
         return self.read_register("statusword")
 
-    def _raise_if_fault(self, statusword: int, doing: str) -> None:
-        if is_fault(statusword):
-            code = self.read_register("error_code")
-            raise DeviceFault(self.name, f"{doing}: drive in FAULT, error code 0x{code:04X}", code=code)
+    def _read_error_code(self) -> int:
+        return self.read_register("error_code")
 
-    def _command(self, controlword: int, target_state: str) -> None:
-        self.write_register("controlword", controlword)
-        mask, value = STATE_PATTERN[target_state]
-        deadline = time.monotonic() + self.state_timeout_s
-        while True:
-            sw = self._statusword()
-            if sw & mask == value:
-                return
-            self._raise_if_fault(sw, f"waiting for {target_state}")
-            if time.monotonic() > deadline:
-                raise InstrumentTimeout(
-                    self.name, f"drive did not reach {target_state} within {self.state_timeout_s:g} s "
-                    f"(statusword 0x{sw:04X}: {state_from_statusword(sw)})"
-                )
-            time.sleep(0.005)
+    def _read_torque_permille(self) -> int:
+        return self.read_register("torque_actual")
 
-    def _ensure_slope(self, slope_permille: int) -> None:
-        if slope_permille != self._slope_permille:
-            self.write_register("torque_slope", slope_permille)
-            self._slope_permille = slope_permille
+    def _read_process(self) -> tuple[int, int, int]:
+        return (self.read_register("statusword"), self.read_register("torque_actual"),
+                self.read_register("position_actual"))
 
-    def enable(self) -> None:
-        scaling = self._scaling()
-        sw = self._statusword()
-        self._raise_if_fault(sw, "enable")
-        self.write_register("target_torque", 0)
-        if self.max_torque_nm is not None:
-            self.write_register("max_torque", min(0xFFFF, scaling.permille(scaling.max_torque_nm)))
-        self._ensure_slope(scaling.slope_permille_per_s(self.default_slope_nm_per_s))
-        self.write_register("mode", MODE_PROFILE_TORQUE)
-        shown = self.read_register("mode_display")
-        if shown != MODE_PROFILE_TORQUE:
-            raise CommandRejected(self.name, f"drive shows mode {shown}, not profile torque (4)")
-        state = state_from_statusword(sw)
-        if state == "OPERATION ENABLED":
-            return
-        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
-            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
-        if state != "SWITCHED ON":
-            self._command(CW_SWITCH_ON, "SWITCHED ON")
-        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+    def _read_mode_display(self) -> int:
+        return self.read_register("mode_display")
 
-    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
-        scaling = self._scaling()
-        permille = scaling.target_permille(target_nm)
-        slope = scaling.slope_permille_per_s(self.default_slope_nm_per_s if slope_nm_per_s is None else slope_nm_per_s)
-        self._ensure_slope(slope)
+    def _write_setting(self, name: str, value: int) -> None:
+        self.write_register(name, value)
+
+    def _write_target(self, permille: int) -> None:
         self.write_register("target_torque", permille)
 
-    def disable(self) -> None:
-        """Target 0, wait (bounded) for the torque to ramp down, then disable voltage."""
-        scaling = self._scaling()
-        self.write_register("target_torque", 0)
-        sw = self._statusword()
-        if state_from_statusword(sw) == "OPERATION ENABLED":
-            slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
-            actual_nm = abs(scaling.newton_metres(self.read_register("torque_actual")))
-            deadline = time.monotonic() + min(10.0, actual_nm / max(slope_nm_per_s, 1e-9) + 0.5)
-            while time.monotonic() < deadline:
-                if abs(self.read_register("torque_actual")) <= 5:
-                    break
-                time.sleep(0.01)
-        self.write_register("controlword", CW_DISABLE_VOLTAGE)
+    def _write_controlword(self, controlword: int) -> None:
+        self.write_register("controlword", controlword)
 
-    def status(self) -> LoaderStatus:
-        scaling = self._scaling()
-        time_s = self.clock()
-        sw = self._statusword()
-        torque = self.read_register("torque_actual")
-        position = self.read_register("position_actual")
-        error = self.read_register("error_code") if is_fault(sw) else 0
-        return LoaderStatus(
-            state=state_from_statusword(sw),
-            torque_actual_nm=scaling.newton_metres(torque),
-            fault=is_fault(sw),
-            error_code=error,
-            position_counts=position,
-            time_s=time_s,
-        )
-
-    def quick_stop(self) -> None:
-        """Quick stop (controlword 0x000B): the drive ramps the torque to zero with its quick-stop ramp and,
-        with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
-        self.write_register("controlword", CW_QUICK_STOP)
-
-    def fault_reset(self) -> None:
-        self.write_register("controlword", CW_DISABLE_VOLTAGE)  # bit 7 low, so the next write is a rising edge
-        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED")
-
-    def _scaling(self) -> TorqueScaling:
-        if self.scaling is None:
-            raise Disconnected(self.name, "not connected; call connect() first")
-        return self.scaling
-
-    def __enter__(self) -> CiA402Modbus:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def _await_statusword(self, predicate, since, timeout_s):
+        """Poll the statusword (a read after the write's reply always sees the write)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            sw = self.read_register("statusword")
+            if predicate(sw):
+                return sw, sw
+            if time.monotonic() > deadline:
+                return None, sw
+            time.sleep(0.005)
