@@ -18,12 +18,11 @@ from __future__ import annotations
 import re
 import time
 
-import numpy as np
 import serial
 
-from drivers.base import Batch, Clock, CommandRejected, DeviceFault, MalformedReply
+from drivers.base import Clock, CommandRejected, DeviceFault, MalformedReply
 from drivers.registry import register
-from drivers.transport import SerialLink, open_serial_url, require_terminated
+from drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
 MSV_RE = re.compile(rb"^([+-]\d{7})\r\n$")
 MSV_REPLY_LENGTH = 10
@@ -50,7 +49,7 @@ def parse_msv(reply: bytes, instrument: str = "AED") -> int:
 
 
 @register("aed")
-class AED:
+class AED(SerialInstrument):
     """TorqueSource over the AED ASCII command set. ``read()`` returns one reading (N·m) per call."""
 
     def __init__(
@@ -71,23 +70,11 @@ class AED:
             raise ValueError(f"{name}: nominal_torque_nm must be > 0, got {nominal_torque_nm}")
         if not (isinstance(nominal_output, int) and 0 <= nominal_output <= MAX_NOV):
             raise ValueError(f"{name}: nominal_output (NOV) must be an integer 0…{MAX_NOV}, got {nominal_output!r}")
-        self.name = name
+        super().__init__(url, name=name, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
+                         reconnect_delay_s=reconnect_delay_s, clock=clock, opener=opener, baudrate=baudrate,
+                         bytesize=serial.EIGHTBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_ONE)
         self.nominal_torque_nm = float(nominal_torque_nm)
         self.nominal_output = nominal_output
-        self.clock = clock
-        self.link = SerialLink(
-            name,
-            url,
-            timeout_s=timeout_s,
-            reconnect_attempts=reconnect_attempts,
-            reconnect_delay_s=reconnect_delay_s,
-            opener=opener,
-            baudrate=baudrate,
-            bytesize=serial.EIGHTBITS,
-            parity=serial.PARITY_EVEN,
-            stopbits=serial.STOPBITS_ONE,
-            xonxoff=False,
-        )
         self._configured_epoch: int | None = None
 
     @property
@@ -98,11 +85,11 @@ class AED:
     # -- connection and configuration -------------------------------------------------------------------
 
     def connect(self) -> None:
-        self.link.open()
+        super().connect()
         self._configure()
 
     def close(self) -> None:
-        self.link.close()
+        super().close()
         self._configured_epoch = None
 
     def _configure(self) -> None:
@@ -116,8 +103,7 @@ class AED:
         self._configured_epoch = self.link.reconnects
 
     def _setting(self, command: bytes) -> None:
-        reply = self.link.exchange(command, _read_line)
-        require_terminated(self.name, reply)
+        reply = self.request(command, _read_line)
         if reply == b"0\r\n":
             return
         if reply == b"?\r\n":
@@ -143,18 +129,7 @@ class AED:
         value = parse_msv(self._query(b"MSV?;"), self.name)
         return time_s, value * self.nm_per_count
 
-    def read(self) -> Batch:
-        time_s, torque_nm = self.read_one()
-        return Batch(np.array([time_s]), np.array([torque_nm]))
-
     def tare(self) -> None:
         if self._configured_epoch != self.link.reconnects:
             self._configure()
         self._setting(b"TAR;")
-
-    def __enter__(self) -> AED:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()

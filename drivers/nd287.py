@@ -20,12 +20,11 @@ from __future__ import annotations
 import re
 import time
 
-import numpy as np
 import serial
 
-from drivers.base import Batch, Clock, DeviceFault, MalformedReply
+from drivers.base import Clock, DeviceFault, MalformedReply
 from drivers.registry import register
-from drivers.transport import SerialLink, open_serial_url, require_terminated
+from drivers.transport import SerialInstrument, open_serial_url
 from tcms_daq.units import ARCSEC_PER_DEG, ARCSEC_PER_RAD
 
 STX = b"\x02"
@@ -77,8 +76,8 @@ def _read_frame(port: serial.SerialBase) -> bytes:
 
 
 @register("nd287")
-class ND287:
-    """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls once and returns one reading (arcsec)."""
+class ND287(SerialInstrument):
+    """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls ``readings_per_read`` times (arcsec)."""
 
     def __init__(
         self,
@@ -95,47 +94,12 @@ class ND287:
     ):
         if readings_per_read < 1:
             raise ValueError(f"{name}: readings_per_read must be >= 1")
-        self.name = name
-        self.clock = clock
+        super().__init__(url, name=name, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
+                         reconnect_delay_s=reconnect_delay_s, clock=clock, opener=opener, baudrate=baudrate,
+                         bytesize=serial.SEVENBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO)
         self.readings_per_read = int(readings_per_read)
-        self.link = SerialLink(
-            name,
-            url,
-            timeout_s=timeout_s,
-            reconnect_attempts=reconnect_attempts,
-            reconnect_delay_s=reconnect_delay_s,
-            opener=opener,
-            baudrate=baudrate,
-            bytesize=serial.SEVENBITS,
-            parity=serial.PARITY_EVEN,
-            stopbits=serial.STOPBITS_TWO,
-            xonxoff=False,
-        )
-
-    def connect(self) -> None:
-        self.link.open()
-
-    def close(self) -> None:
-        self.link.close()
 
     def read_one(self) -> tuple[float, float]:
         """One Ctrl-B exchange -> (time_s at request, angle_arcsec)."""
         time_s = self.clock()
-        reply = self.link.exchange(STX, _read_frame)
-        require_terminated(self.name, reply)
-        return time_s, parse_frame(reply, self.name)
-
-    def read(self) -> Batch:
-        n = self.readings_per_read
-        time_s = np.empty(n)
-        angle_arcsec = np.empty(n)
-        for i in range(n):
-            time_s[i], angle_arcsec[i] = self.read_one()
-        return Batch(time_s, angle_arcsec)
-
-    def __enter__(self) -> ND287:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        return time_s, parse_frame(self.request(STX, _read_frame), self.name)

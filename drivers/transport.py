@@ -8,17 +8,21 @@ Failure mapping (one exception type per failure, the instrument always named):
 - no byte within the timeout                     -> InstrumentTimeout
 - some bytes, but not a complete reply            -> MalformedReply (the caller validates complete replies too)
 - the link is gone and ``reconnect_attempts`` re-opens did not bring it back -> Disconnected
+
+``SerialInstrument`` is the driver shell both ASCII instruments share: one link, connect/close, a polled
+``read()`` that returns a Batch of ``read_one()`` readings stamped at the request.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Self
 
+import numpy as np
 import serial
 
-from drivers.base import Disconnected, InstrumentTimeout, MalformedReply
+from drivers.base import Batch, Clock, Disconnected, InstrumentTimeout, MalformedReply
 
 # A function that reads one reply from an open port (e.g. ``lambda port: port.read_until(b"\r\n", 64)``).
 ReplyReader = Callable[[serial.SerialBase], bytes]
@@ -148,3 +152,59 @@ def require_terminated(instrument: str, reply: bytes, terminator: bytes = b"\r\n
     if not reply.endswith(terminator):
         raise MalformedReply(instrument, f"incomplete reply {reply!r} (no {terminator!r} before the timeout)")
     return reply
+
+
+class SerialInstrument:
+    """A polled request/reply instrument on one ``SerialLink``; subclasses define ``read_one()``.
+
+    ``serial_settings`` (baudrate, bytesize, parity, stopbits) go to the port's constructor; software flow
+    control is always off (the replies are binary-clean ASCII frames, XON/XOFF would eat bytes).
+    """
+
+    readings_per_read = 1
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        name: str,
+        timeout_s: float,
+        reconnect_attempts: int,
+        reconnect_delay_s: float,
+        clock: Clock,
+        opener: Callable[..., serial.SerialBase],
+        **serial_settings: Any,
+    ):
+        self.name = name
+        self.clock = clock
+        self.link = SerialLink(name, url, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
+                               reconnect_delay_s=reconnect_delay_s, opener=opener, xonxoff=False, **serial_settings)
+
+    def connect(self) -> None:
+        self.link.open()
+
+    def close(self) -> None:
+        self.link.close()
+
+    def request(self, command: bytes, reader: ReplyReader, terminator: bytes = b"\r\n") -> bytes:
+        """One exchange; the reply is complete (ends with ``terminator``) or MalformedReply."""
+        return require_terminated(self.name, self.link.exchange(command, reader), terminator)
+
+    def read_one(self) -> tuple[float, float]:
+        """One reading: (time_s at the request, value in the channel's unit)."""
+        raise NotImplementedError
+
+    def read(self) -> Batch:
+        """``readings_per_read`` polled readings."""
+        n = self.readings_per_read
+        time_s, value = np.empty(n), np.empty(n)
+        for i in range(n):
+            time_s[i], value[i] = self.read_one()
+        return Batch(time_s, value)
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
