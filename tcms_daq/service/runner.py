@@ -55,19 +55,6 @@ class Runner(Protocol):
 
     def status(self) -> dict[str, Any]: ...
 
-    def _monotonic_at_clock_zero(self) -> float | None:
-        """``time.monotonic()`` (system-wide on Linux) at which the sample clock read 0, so a client can turn
-        sample time stamps into its own monotonic time: ``t_mono = this + time_s / speed``. Real instruments
-        stamp with ``time.monotonic`` itself (0); a paced simulated clock has a fixed offset; None when unpaced."""
-        clock = self.bench.clock
-        if not getattr(clock, "stepped", False):
-            return 0.0
-        real_start, sim_start = getattr(clock, "_real_start", None), getattr(clock, "_sim_start", None)
-        speed = getattr(clock, "speed", float("inf"))
-        if real_start is None or sim_start is None or not np.isfinite(speed):
-            return None
-        return float(real_start - sim_start / speed)
-
     def config_snapshot(self) -> dict[str, Any]: ...
 
     def compensator_toml(self) -> str: ...
@@ -150,8 +137,7 @@ class BenchRunner:
         self._live = live_sink
         self.bench.connect()
         self.acq = AcquisitionLoop(self.bench)
-        self._live_sub = self.acq.fanout.subscribe("live", maxsize=64)
-        self._spawn(self._pump_live, "tcms-live-pump")
+        self._live_sub = self.acq.fanout.subscribe_callback(self._to_live, name="live", maxsize=64)
         self.acq.start()
         if self.acq.clock.stepped:
             self._spawn(self._pump_idle_clock, "tcms-idle-clock")
@@ -163,6 +149,8 @@ class BenchRunner:
 
     def close(self) -> None:
         self._stop.set()
+        if self._live_sub is not None:
+            self._live_sub.close()
         for thread in self._threads:
             thread.join(5.0)
         self._threads.clear()
@@ -170,14 +158,9 @@ class BenchRunner:
             self.acq.close()
         self.bench.close()
 
-    def _pump_live(self) -> None:
-        from tcms_daq.acquisition import DataMessage
-
-        sub = self._live_sub
-        while not self._stop.is_set():
-            msg = sub.get(timeout=0.2)
-            if isinstance(msg, DataMessage) and self._live is not None:
-                self._live(_columns(msg.samples))
+    def _to_live(self, msg: Any) -> None:
+        if msg.kind == "data" and self._live is not None:
+            self._live(_columns(msg.samples))
 
     def _pump_idle_clock(self) -> None:
         """Between tests, let simulated time pass (paced by the clock's speed) so the live view keeps moving."""
@@ -324,7 +307,7 @@ class BenchRunner:
         payload: _Plan = plan.payload
         if self.acq is None:
             raise TcmsError("the bench is not open")
-        sub = self.acq.fanout.subscribe(f"store-{run_id}", maxsize=None)  # lossless
+
         def handle(msg: Any) -> None:
             if isinstance(msg, DataMessage):
                 record(_columns(msg.samples))
@@ -334,33 +317,25 @@ class BenchRunner:
                 else:
                     on_phase(msg.event, **msg.details)
 
-        def pump() -> None:  # get() hands out what is queued even after close(), then None
-            while True:
-                msg = sub.get(timeout=0.1)
-                if msg is None:
-                    if sub.closed:
-                        return
-                    continue
-                handle(msg)
-
-        pump_thread = threading.Thread(target=pump, name=f"tcms-store-{run_id}", daemon=True)
-        pump_thread.start()
-        try:
-            with self._clock_lock:
-                try:
-                    run = TestRun(
-                        self.bench, payload.profile,
-                        reducer_torque_limit_nm=1.1 * payload.reducer.rated_torque_nm,
-                        evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
-                        run_id=run_id, profile_info={"reducer": payload.reducer.name},
-                    )
-                    result = run.run()
-                except ProfileRejected as exc:
-                    return RunOutcome("failed", error=str(exc))
-                finally:
-                    sub.close()  # before the idle clock resumes: nothing after the run reaches the store
-        finally:
-            pump_thread.join(30.0)
+        # lossless, delivered on its own thread; close() lets it hand over what is queued, then joins it
+        sub = self.acq.fanout.subscribe_callback(handle, name=f"store-{run_id}", maxsize=None)
+        with self._clock_lock:
+            try:
+                run = TestRun(
+                    self.bench, payload.profile,
+                    reducer_torque_limit_nm=1.1 * payload.reducer.rated_torque_nm,
+                    evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
+                    run_id=run_id, profile_info={"reducer": payload.reducer.name},
+                )
+                result = run.run()
+            except ProfileRejected as exc:
+                return RunOutcome("failed", error=str(exc))
+            finally:
+                # before the idle clock resumes: nothing after the run reaches the store
+                sub.close(join_timeout_s=30.0)
+        lost = [e for e in self.acq.fanout.callback_errors if e.startswith(f"{sub.name}: ")]
+        if lost:  # a sample batch or phase did not reach the store
+            return RunOutcome("failed", error=f"recording failed: {lost[0]}", results=result.evaluation)
         if result.state == "completed":
             return RunOutcome("completed", results=result.evaluation)
         return RunOutcome(result.state if result.state in ("aborted", "failed") else "failed",

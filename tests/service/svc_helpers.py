@@ -8,7 +8,11 @@ runner over the simulated bench.
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -167,3 +171,32 @@ def wait_for(predicate: Callable[[], object], timeout_s: float = 20.0, interval_
         if time.monotonic() > deadline:
             raise AssertionError("condition not met in time")
         time.sleep(interval_s)
+
+
+def start_serve_process(args: list[str], *, cwd=None, timeout_s: float = 30.0) -> tuple[subprocess.Popen, str]:
+    """``tcms serve ARGS`` as a child process (token ``TOKEN``); (process, base URL) once it printed its URL."""
+    env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "tcms_daq.cli", "serve", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=env, cwd=cwd)
+    deadline = time.monotonic() + timeout_s
+    seen = []
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        seen.append(line)
+        if "service on http://" in line:
+            return proc, "http://" + line.split("http://", 1)[1].split("/", 1)[0]
+        if not line and proc.poll() is not None:
+            break
+    stop_process(proc)
+    raise AssertionError(f"tcms serve did not start: {''.join(seen)!r}")
+
+
+def stop_process(proc: subprocess.Popen) -> None:
+    """SIGTERM (the service aborts a test and ramps the bench down), then SIGKILL after 20 s."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)

@@ -7,15 +7,12 @@ import io
 import json
 import os
 import signal
-import subprocess
-import sys
-import time
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import websocket
-from svc_helpers import TOKEN, serve, wait_for
+from svc_helpers import TOKEN, serve, start_serve_process, stop_process, wait_for
 from test_service_api import LiveReader
 
 from tcms_daq.samples import parse_csv_text
@@ -101,23 +98,9 @@ def test_http_and_websocket_end_to_end(settings_factory, sim_config, tmp_path):
         assert c.put("/api/compensation", content=comp.text).status_code == 200
 
 
-def _start_service(data_dir, config, port_file_timeout_s=30.0):
-    env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tcms_daq.cli", "serve", "--port", "0", "--data-dir", str(data_dir),
-         "--config", str(config), "--sim-speed", "5"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-    )
-    deadline = time.monotonic() + port_file_timeout_s
-    line = ""
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if "service on http://" in line:
-            return proc, line.split("http://", 1)[1].split("/", 1)[0]
-        if not line and proc.poll() is not None:
-            break
-    proc.kill()
-    raise AssertionError(f"tcms serve did not start: {line!r}")
+def _start_service(data_dir, config):
+    return start_serve_process(["--port", "0", "--data-dir", str(data_dir), "--config", str(config),
+                                "--sim-speed", "5"])
 
 
 @pytest.mark.timeout(120)
@@ -125,9 +108,9 @@ def test_killed_service_marks_run_interrupted_and_keeps_samples(sim_config, tmp_
     import httpx
 
     data_dir = tmp_path / "data"
-    proc, hostport = _start_service(data_dir, sim_config)
+    proc, base = _start_service(data_dir, sim_config)
     try:
-        c = httpx.Client(base_url=f"http://{hostport}", headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
+        c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
         wait_for(lambda: c.get("/api/health").status_code == 200)
         run_id = c.post("/api/tests", json={**REQUEST, "rate_nm_per_s": 50, "cycles": 3}).json()["id"]
         wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"] == "running"
@@ -139,9 +122,9 @@ def test_killed_service_marks_run_interrupted_and_keeps_samples(sim_config, tmp_
             proc.kill()
             proc.wait(10)
 
-    proc2, hostport2 = _start_service(data_dir, sim_config)
+    proc2, base2 = _start_service(data_dir, sim_config)
     try:
-        c2 = httpx.Client(base_url=f"http://{hostport2}", timeout=20)
+        c2 = httpx.Client(base_url=base2, timeout=20)
         run = wait_for(lambda: c2.get(f"/api/tests/{run_id}").json())
         assert run["status"] == "interrupted" and run["sample_count"] > 500
         assert "stopped" in run["error"]
@@ -149,9 +132,4 @@ def test_killed_service_marks_run_interrupted_and_keeps_samples(sim_config, tmp_
         assert len(csv["time_s"]) == run["sample_count"]
         assert c2.get("/api/bench").json()["active_test"] is None
     finally:
-        proc2.send_signal(signal.SIGTERM)
-        try:
-            proc2.wait(20)
-        except subprocess.TimeoutExpired:
-            proc2.kill()
-            proc2.wait(10)
+        stop_process(proc2)

@@ -5,8 +5,6 @@ instruments pointed at the simulator process instead of the host ``sim``."""
 from __future__ import annotations
 
 import json
-import os
-import signal
 import subprocess
 import sys
 import time
@@ -16,19 +14,9 @@ from pathlib import Path
 import httpx
 import pytest
 import tomli_w
-from svc_helpers import TOKEN, wait_for
+from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
 
 
 @pytest.mark.timeout(180)
@@ -53,15 +41,9 @@ def test_service_and_simulators_as_two_processes(tmp_path):
         cfg = tmp_path / "bench-loopback-compose.toml"
         cfg.write_text(tomli_w.dumps(data), encoding="utf-8")
 
-        env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
-        service = subprocess.Popen(
-            [sys.executable, "-m", "tcms_daq.cli", "serve", "--config", str(cfg), "--port", "0",
-             "--data-dir", str(tmp_path / "data")],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO,
+        service, base = start_serve_process(
+            ["--config", str(cfg), "--port", "0", "--data-dir", str(tmp_path / "data")], cwd=REPO
         )
-        first = service.stdout.readline()
-        assert "service on http://" in first, first + service.stdout.read()
-        base = "http://" + first.split("http://", 1)[1].split("/", 1)[0]
         c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
         wait_for(lambda: c.get("/api/health").status_code == 200, timeout_s=30)
         bench = c.get("/api/bench").json()
@@ -81,5 +63,5 @@ def test_service_and_simulators_as_two_processes(tmp_path):
         assert run["sample_count"] > 100 and time.monotonic() - t0 < 90
     finally:
         if service is not None:
-            _stop(service)
-        _stop(sim)
+            stop_process(service)
+        stop_process(sim)
