@@ -27,6 +27,7 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError
 
 from sim.instruments.drive402 import Drive402Model, DriveCommandError
+from sim.instruments.loop import PeriodicThread
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +60,7 @@ class DriveCanopenNode:
         self.fault: str | None = None
         self.network: canopen.Network | None = None
         self.node: canopen.LocalNode | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._timer = PeriodicThread(self._cycle, self.tpdo_period_s, f"drive-canopen-{node_id}")
         self._send_lock = threading.Lock()
         self._consumer: tuple[int, float] | None = None  # (master node id, timeout s)
         self._master_seen: float | None = None
@@ -70,7 +70,6 @@ class DriveCanopenNode:
     # -- lifecycle -------------------------------------------------------------------------------------
 
     def start(self) -> None:
-        self._stop.clear()
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1  # receive-thread poll period: bounds how long stop() waits for it
         network.connect(**self.bus_options)
@@ -87,14 +86,10 @@ class DriveCanopenNode:
         self.drive.add_emcy_listener(self._on_emcy)
         network.send_message(0x700 + self.node_id, [0x00])  # boot-up
         node.nmt.state = "PRE-OPERATIONAL"  # INITIALISING -> PRE-OP: the heartbeat producer starts
-        self._thread = threading.Thread(target=self._run, name=f"drive-canopen-{self.node_id}", daemon=True)
-        self._thread.start()
+        self._timer.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._timer.stop()
         self.drive.remove_emcy_listener(self._on_emcy)
         if self.node is not None:
             self.node.nmt.stop_heartbeat()
@@ -214,13 +209,13 @@ class DriveCanopenNode:
             tpdo1.transmit()
             tpdo2.transmit()
 
-    def _run(self) -> None:
-        while not self._stop.wait(self.tpdo_period_s):
-            try:
-                self._send_tpdos()
-                consumer, seen = self._consumer, self._master_seen
-                if consumer and seen is not None and time.monotonic() - seen > consumer[1]:
-                    self._master_seen = None  # one fault per loss
-                    self.drive.communication_lost()
-            except Exception as exc:  # noqa: BLE001 - keep the node alive; the bus may be reconnecting
-                log.debug("drive CANopen sim cycle: %s", exc)
+    def _cycle(self) -> None:
+        """Every event-timer period: the TPDOs, and the heartbeat consumer's check of the master."""
+        try:
+            self._send_tpdos()
+            consumer, seen = self._consumer, self._master_seen
+            if consumer and seen is not None and time.monotonic() - seen > consumer[1]:
+                self._master_seen = None  # one fault per loss
+                self.drive.communication_lost()
+        except Exception as exc:  # noqa: BLE001 - keep the node alive; the bus may be reconnecting
+            log.debug("drive CANopen sim cycle: %s", exc)

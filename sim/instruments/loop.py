@@ -1,11 +1,12 @@
-"""An asyncio event loop in a daemon thread, so blocking code (tests, the CLI, canopen callbacks) can start,
-stop and poke the asyncio instrument servers."""
+"""Background threads of the simulators: ``LoopThread``, an asyncio event loop in a daemon thread, so blocking
+code (tests, the CLI, canopen callbacks) can start, stop and poke the asyncio instrument servers; and
+``PeriodicThread``, a daemon thread calling one step function at a fixed period (physics ticker, PDO timer)."""
 
 from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Coroutine
+from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -43,3 +44,39 @@ class LoopThread:
         self._thread.join(timeout=5.0)
         if not self._thread.is_alive():
             self.loop.close()
+
+
+class PeriodicThread:
+    """Calls ``step()`` every ``period_s`` (s) in a daemon thread from ``start()`` until ``stop()``.
+
+    ``start()`` on a running thread does nothing; ``stop()`` waits (bounded) for the step in progress."""
+
+    def __init__(self, step: Callable[[], None], period_s: float, name: str):
+        if not period_s > 0:
+            raise ValueError(f"{name}: period must be > 0 s, got {period_s}")
+        self.step = step
+        self.period_s = float(period_s)
+        self.name = name
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout_s)
+            self._thread = None
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            self.step()

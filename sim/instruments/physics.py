@@ -15,6 +15,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from sim.instruments.loop import PeriodicThread
+
 
 class BenchLike(Protocol):
     now_s: float
@@ -60,8 +62,8 @@ class SharedPhysics:
         self._lock = threading.RLock()
         self._hooks: list[TickHook] = []
         self._latest = PhysicsReading(time_s=float(getattr(bench, "now_s", 0.0)))
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._ticker = PeriodicThread(self._tick, self.tick_s, "sim-physics")
+        self._last_tick_s = 0.0  # time.monotonic() of the previous real-time tick
         self.speed = 1.0
         self.advance(self.tick_s)  # a first sample so servers never serve an empty state
 
@@ -118,23 +120,17 @@ class SharedPhysics:
         """Advance the physics in a daemon thread at real time × ``speed``."""
         if speed <= 0:
             raise ValueError(f"speed must be > 0, got {speed}")
-        if self._thread is not None:
+        if self._ticker.running:
             return
         self.speed = float(speed)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sim-physics", daemon=True)
-        self._thread.start()
+        self._last_tick_s = time.monotonic()
+        self._ticker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._ticker.stop()
 
-    def _run(self) -> None:
-        last = time.monotonic()
-        while not self._stop.wait(self.tick_s):
-            now = time.monotonic()
-            # cap one step so a stalled process does not produce a huge jump of the simulated clock
-            self.advance(min(now - last, 0.1) * self.speed)
-            last = now
+    def _tick(self) -> None:
+        now = time.monotonic()
+        # cap one step so a stalled process does not produce a huge jump of the simulated clock
+        self.advance(min(now - self._last_tick_s, 0.1) * self.speed)
+        self._last_tick_s = now

@@ -22,6 +22,8 @@ import re
 import socket
 import time
 
+from sim.instruments.tcp import TcpServer
+
 SEND_RE = re.compile(r"^< send ([0-9A-Fa-f]{1,8}) ([0-9A-Fa-f])((?: [0-9A-Fa-f]{1,2})*) *>$")
 FAULTS = ("mute",)
 
@@ -33,41 +35,20 @@ class _Client:
         self.raw = False
 
 
-class SocketcandHub:
+class SocketcandHub(TcpServer):
     name = "socketcand hub"
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
-        self.host = host
-        self.port = port
-        self.fault: str | None = None
+        super().__init__(host, port)
         self.frames_relayed = 0
         self.malformed = 0
-        self._server: asyncio.base_events.Server | None = None
         self._clients: set[_Client] = set()
 
-    def inject(self, fault: str | None) -> None:
-        if fault is not None and fault not in FAULTS:
-            raise ValueError(f"{self.name}: unknown fault {fault!r} (known: {', '.join(FAULTS)})")
-        self.fault = fault
+    @property
+    def faults(self) -> tuple[str, ...]:
+        return FAULTS
 
-    async def start(self) -> int:
-        if self._server is None:
-            self._server = await asyncio.start_server(self._handle, self.host, self.port)
-            self.port = self._server.sockets[0].getsockname()[1]
-        return self.port
-
-    async def stop(self) -> None:
-        server, self._server = self._server, None
-        if server is not None:
-            server.close()
-        for client in list(self._clients):
-            client.writer.close()
-        self._clients.clear()
-        if server is not None:
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(server.wait_closed(), 1.0)
-
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         client = _Client(writer)
         self._clients.add(client)
         sock = writer.get_extra_info("socket")
@@ -78,10 +59,7 @@ class SocketcandHub:
             writer.write(b"< hi >")
             await writer.drain()
             buffer = ""
-            while True:
-                data = await reader.read(4096)
-                if not data:
-                    return
+            while data := await reader.read(4096):
                 buffer += data.decode("ascii", errors="replace")
                 while ">" in buffer:
                     end = buffer.index(">") + 1
@@ -91,11 +69,8 @@ class SocketcandHub:
                 if len(buffer) > 1000:
                     buffer = ""
                     self.malformed += 1
-        except (ConnectionError, asyncio.CancelledError):
-            pass
         finally:
             self._clients.discard(client)
-            writer.close()
 
     async def _command(self, client: _Client, message: str) -> None:
         if message.startswith("< open ") and message.endswith(" >"):

@@ -1,4 +1,6 @@
-"""A small asyncio TCP server base for the serial-line instrument simulators (ND 287, AED).
+"""asyncio TCP server bases: ``TcpServer`` (listener, connections, fault switch) for every simulator on TCP
+(instrument servers, the fault proxy, the socketcand hub), and ``TcpInstrumentServer`` for the serial-line
+instrument simulators (ND 287, AED).
 
 The driver side opens ``socket://host:port`` with pyserial. ``stop()`` closes the listener *and* every open
 connection, so a driver sees the link drop exactly as if the instrument had been power-cycled; ``start()``
@@ -17,24 +19,25 @@ import contextlib
 COMMON_FAULTS = ("mute", "garbage", "partial")
 
 
-class TcpInstrumentServer:
-    name = "instrument"
-    DEVICE_FAULTS: tuple[str, ...] = ()
+class TcpServer:
+    """A TCP listener on ``host:port`` (0 = ephemeral, known after ``start()``) that keeps track of its open
+    connections. Subclasses implement ``serve_connection`` and list the faults ``inject`` accepts."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, reply_delay_s: float = 0.0):
+    name = "TCP server"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0):
         self.host = host
         self.port = port
-        self.reply_delay_s = float(reply_delay_s)
         self.fault: str | None = None
-        self.requests = 0  # requests answered or swallowed (diagnostics, tests)
         self._server: asyncio.base_events.Server | None = None
         self._writers: set[asyncio.StreamWriter] = set()
 
     @property
     def faults(self) -> tuple[str, ...]:
-        return COMMON_FAULTS + self.DEVICE_FAULTS
+        return ()
 
     def inject(self, fault: str | None) -> None:
+        """Switch a fault on (``None`` clears it); ValueError for a fault this server does not know."""
         if fault is not None and fault not in self.faults:
             raise ValueError(f"{self.name}: unknown fault {fault!r} (known: {', '.join(self.faults)})")
         self.fault = fault
@@ -50,6 +53,7 @@ class TcpInstrumentServer:
         return self.port
 
     async def stop(self) -> None:
+        """Close the listener and drop every connection (a cable pulled, an instrument switched off)."""
         server, self._server = self._server, None
         if server is not None:
             server.close()
@@ -60,8 +64,12 @@ class TcpInstrumentServer:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(server.wait_closed(), 1.0)
 
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def track(self, writer: asyncio.StreamWriter) -> None:
+        """Count ``writer`` (e.g. an upstream connection) among the connections ``stop()`` drops."""
         self._writers.add(writer)
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self.track(writer)
         try:
             await self.serve_connection(reader, writer)
         except (ConnectionError, asyncio.IncompleteReadError):
@@ -72,6 +80,22 @@ class TcpInstrumentServer:
 
     async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         raise NotImplementedError
+
+
+class TcpInstrumentServer(TcpServer):
+    """A serial-line instrument on TCP: the common faults (mute, garbage, partial) plus ``DEVICE_FAULTS``."""
+
+    name = "instrument"
+    DEVICE_FAULTS: tuple[str, ...] = ()
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, reply_delay_s: float = 0.0):
+        super().__init__(host, port)
+        self.reply_delay_s = float(reply_delay_s)
+        self.requests = 0  # requests answered or swallowed (diagnostics, tests)
+
+    @property
+    def faults(self) -> tuple[str, ...]:
+        return COMMON_FAULTS + self.DEVICE_FAULTS
 
     async def reply(self, writer: asyncio.StreamWriter, payload: bytes, garbage: bytes) -> None:
         """Send ``payload`` after the reply delay, transformed by the injected fault."""

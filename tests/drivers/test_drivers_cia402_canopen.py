@@ -119,7 +119,8 @@ def test_malformed_pdo(can_sims):
                 drive.status()
                 time.sleep(0.01)
         can_sims.inject("canopen", None)
-        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+        # a junk TPDO still in flight when the fault is cleared may be reported once more; then it recovers
+        assert _wait_for(lambda: getattr(_status_or_none(drive), "state", None) == "SWITCH ON DISABLED")
 
 
 def test_reconnect_after_drive_restart(can_sims):
@@ -237,7 +238,7 @@ def test_across_processes_socketcand_hub(make_sims):
 def _status_or_none(drive):
     try:
         return drive.status()
-    except (Disconnected, InstrumentTimeout):
+    except (Disconnected, InstrumentTimeout, MalformedReply):
         return None
 
 
