@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from tcms_daq.service.app import ServiceSettings, create_app
+    from tcms_daq.service.app import STORE_FILENAME, ServiceSettings, create_app
     from tcms_daq.service.runner import BenchRunner
 
     if not (args.sim_speed > 0 and math.isfinite(args.sim_speed)):
@@ -63,27 +63,62 @@ def run(args: argparse.Namespace) -> int:
     settings = ServiceSettings(
         data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(args.config)
     )
-    # Compose the bench before the server starts, so a bad config is a one-line error, not a startup traceback.
+    # Compose the bench and reach its instruments before the server starts, so a bad config or an instrument
+    # that does not answer is a one-line error, not a startup traceback after the URL was printed.
     runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed)
-    app = create_app(settings, runner=runner)
-
     sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((args.host, args.port))
     except OSError as exc:
+        sock.close()
         raise ConfigError(f"cannot listen on {args.host}:{args.port} ({exc.strerror})") from None
-    port = sock.getsockname()[1]
-    shown_host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
-    token = app.state.api_token
-    where = {"generated": "generated for this session", "environment": "from TCMS_API_TOKEN",
-             "config": f"from {args.config}"}[app.state.api_token_source]
-    print(f"TCMS-DAQ service on http://{shown_host}:{port}/  (store: {data_dir}, sim speed {args.sim_speed:g})")
-    print(f"  dashboard: http://{shown_host}:{port}/?token={token}")
-    print(f"  API token ({where}): {token}")
-    print(f"  OpenAPI docs: http://{shown_host}:{port}/docs", flush=True)
+    try:
+        runner.bench.connect()
+    except BaseException:
+        sock.close()
+        raise
+    app = create_app(settings, runner=runner)
+    sock.listen(2048)  # connections made from now on wait in the backlog until the app is ready
+    _print_banner(args, app, runner, sock.getsockname()[1], Path(data_dir) / STORE_FILENAME)
     config = uvicorn.Config(app, log_level=args.log_level, ws_per_message_deflate=False, lifespan="on",
                             timeout_graceful_shutdown=10)
-    server = uvicorn.Server(config)
-    server.run(sockets=[sock])
+    server = _server(config)
+    server.run(sockets=[sock])  # after a signal, uvicorn re-raises it here: the process ends with its status
+    if not server.started:
+        print("TCMS-DAQ service did not start (see the error above).", flush=True)
     return 0 if server.started else 1
+
+
+def _server(config):
+    """uvicorn's server, saying so when a signal (Ctrl+C, SIGTERM) starts the shutdown."""
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        def handle_exit(self, sig, frame) -> None:
+            if not self.should_exit:
+                print("TCMS-DAQ service stopping: an active test is aborted, the bench ramps down …", flush=True)
+            super().handle_exit(sig, frame)
+
+    return Server(config)
+
+
+def _print_banner(args: argparse.Namespace, app, runner, port: int, store_path: Path) -> None:
+    """What a test engineer needs: the dashboard URL with the token, the token for scripts, the bench."""
+    host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+    host = f"[{host}]" if ":" in host else host
+    base = f"http://{host}:{port}"
+    token = app.state.api_token
+    where = {"generated": "generated for this session", "environment": "from TCMS_API_TOKEN",
+             "config": f"from {args.config} [service] api_token"}[app.state.api_token_source]
+    status = runner.status()
+    clock = (f"simulated clock at {args.sim_speed:g}× real time" if status["clock"] == "simulated"
+             else "real-time clock")
+    listening = f" (listening on {args.host})" if args.host in ("0.0.0.0", "::") else ""
+    print(f"TCMS-DAQ service on {base}/{listening}")
+    print(f"  Dashboard:  {base}/?token={token}    <- open this in a browser")
+    print(f"  API token:  {token}  ({where}; scripts send 'Authorization: Bearer <token>')")
+    print(f"  API docs:   {base}/docs")
+    print(f"  Bench:      {status['name']} ({status['config']}), {clock}")
+    print(f"  Run store:  {store_path.resolve()}")
+    print("  Stop with Ctrl+C (an active test is aborted and the bench ramps down).", flush=True)

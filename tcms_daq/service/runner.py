@@ -135,7 +135,8 @@ class BenchRunner:
         from tcms_daq.acquisition import AcquisitionLoop
 
         self._live = live_sink
-        self.bench.connect()
+        if not self.bench.connected:  # tcms serve connects first, to fail with one line before it starts
+            self.bench.connect()
         self.acq = AcquisitionLoop(self.bench)
         self._live_sub = self.acq.fanout.subscribe_callback(self._to_live, name="live", maxsize=64)
         self.acq.start()

@@ -103,6 +103,25 @@ def _start_service(data_dir, config):
                                 "--sim-speed", "5"])
 
 
+def test_serve_banner_shows_dashboard_url_with_token_and_the_bench(sim_config, tmp_path):
+    """What `tcms serve` prints for a test engineer; the printed URL answers at once (the socket listens)."""
+    import httpx
+
+    proc, base = _start_service(tmp_path / "fresh", sim_config)
+    try:
+        banner = [proc.stdout.readline().strip() for _ in range(6)]
+        assert httpx.get(f"{base}/api/health", timeout=20).json() == {"status": "ok"}
+    finally:
+        stop_process(proc)
+    rest = proc.stdout.read()
+    assert banner[0] == f"Dashboard:  {base}/?token={TOKEN}    <- open this in a browser"
+    assert banner[1].startswith(f"API token:  {TOKEN}  (from TCMS_API_TOKEN;")
+    assert banner[2] == f"API docs:   {base}/docs"
+    assert banner[3] == f"Bench:      simulated bench ({sim_config}), simulated clock at 5× real time"
+    assert banner[4] == f"Run store:  {(tmp_path / 'fresh' / 'tcms-runs.sqlite3').resolve()}"
+    assert banner[5].startswith("Stop with Ctrl+C") and rest.startswith("TCMS-DAQ service stopping: ")
+
+
 @pytest.mark.timeout(120)
 def test_killed_service_marks_run_interrupted_and_keeps_samples(sim_config, tmp_path):
     import httpx
