@@ -2,15 +2,26 @@
 
     θ_c = θ − Σ_i term_i(θ, T, t)        (θ raw encoder reading in arcsec, T torque in N·m, t time in s)
 
-``apply`` is vectorised and runs in cache-sized chunks with preallocated buffers:
+``apply`` is vectorised; the fast path is shaped by memory traffic, not by arithmetic:
 
-* all terms that are linear (offset, scale, torsion) collapse into three numbers: θ_c = (1 − s)·θ − c_T·T − c0;
+* all terms that are linear (offset, scale, torsion) collapse into three numbers: θ_c = g·θ − c_T·T − c0
+  with g = 1 − s;
 * when there are non-linear terms that depend on θ alone (eccentricity, periodic, …), they are summed with the
   offset into one lookup table on a grid of step h ≤ tolerance / max|d Σ/dθ| (a power of two), so the
   nearest grid value differs from the exact sum by at most tolerance/2 (default tolerance 0.001″, far below
   the encoder's 0.7″ resolution). The table is built lazily over the range the data visit and kept for later
   batches; data it cannot cover (non-finite, too wide a range) are evaluated directly; ``exact=True``
-  evaluates every term directly.
+  evaluates every term directly;
+* the batch is processed in chunks of ``CHUNK`` samples with two preallocated scratch buffers, so θ and T are
+  read from memory once, every intermediate stays in the CPU's L2 cache, and the result is written once, by a
+  plain copy of the finished chunk (``np.copyto``: a streaming copy does not read the destination first, a
+  ufunc writing straight into it does). Per chunk, seven passes: index (2), table gather, c_T·T, add,
+  g·θ, subtract — then the copy;
+* the table's first and last cells hold a signalling NaN: any sample outside the tabulated range (and any NaN
+  or ±inf) lands on one of them (``np.take(mode="clip")``), and the first arithmetic on it raises the IEEE
+  invalid flag, which the chunk loop turns into FloatingPointError (``np.errstate(invalid="raise")``) and
+  answers by redoing that chunk the careful way (extend the table, or evaluate directly). So the common case
+  pays no range check;
 * anything else (time-dependent terms, terms registered later) is evaluated directly on the whole batch.
 
 ``encoder_reading`` is the forward direction: what the encoder reads for a true angle, so that ``apply``
@@ -32,9 +43,11 @@ from tcms_daq.compensation.geometry import GeometricModel, Geometry, evaluate_ge
 from tcms_daq.compensation.terms import Eccentricity, Scale, Term, Torsion, term_from_dict
 from tcms_daq.errors import ConfigError, DataFormatError
 
-CHUNK = 16384
+CHUNK = 32768  # samples per chunk: θ, T and two scratch buffers (1 MiB) plus the table stay in L2
 MAX_TABLE_POINTS = 1 << 22
 DEFAULT_TOLERANCE_ARCSEC = 1e-3
+# a signalling NaN (quiet bit clear, payload 1): copying it (np.take) keeps it, arithmetic on it raises invalid
+_SIGNALLING_NAN_BITS = 0x7FF0000000000001
 
 
 class _AngleTable:
@@ -42,7 +55,9 @@ class _AngleTable:
 
     h is a power of two, so the index of the nearest grid point needs no multiplication: θ + K with
     K = 1.5·2^52·h lands in a binade whose spacing is exactly h, so the result is K + round(θ/h)·h and its bit
-    pattern minus that of K is round(θ/h) (for |θ| < K/2; anything else lands far outside the table).
+    pattern minus that of K is round(θ/h) (for |θ| < K/3). Positive doubles order like their bit patterns and
+    negative ones have the sign bit set, so every θ outside [lo, hi] (and NaN, ±inf) gives an index ≤ 0 or
+    ≥ size − 1: the two guard cells, which hold a signalling NaN.
     """
 
     __slots__ = ("h", "add_const", "bits_offset", "i0", "values", "size", "lo", "hi")
@@ -57,10 +72,54 @@ class _AngleTable:
         values = np.full_like(x, offset)
         for term in terms:
             values += term.evaluate(x, 0.0, None)
+        bits = values.view(np.uint64)
+        bits[0] = bits[-1] = _SIGNALLING_NAN_BITS
         self.values = values
         self.size = values.size
         self.lo = (self.i0 + 1) * h
         self.hi = (i1 - 1) * h
+
+    def lookup_checked(self, th: np.ndarray, u: np.ndarray, out: np.ndarray) -> bool:
+        """out ← table at the nearest grid point of each θ (u: scratch); False (out undefined) if any θ is
+        outside the table (explicit index check: the slow path must not rely on the guard cells)."""
+        idx = u.view(np.int64)
+        np.add(th, self.add_const, out=u)
+        np.subtract(idx, self.bits_offset, out=idx)
+        if idx.size and not (idx.min() >= 1 and idx.max() <= self.size - 2):
+            return False
+        np.take(self.values, idx, out=out, mode="clip")
+        return True
+
+
+class _Linear:
+    """The folded linear terms: θ_c = gain·θ − (z + c_T·T + const), z the tabulated angle-only sum."""
+
+    __slots__ = ("gain", "c_t", "const")
+
+    def __init__(self, gain: float, c_t: float, const: float):
+        self.gain, self.c_t, self.const = gain, c_t, const
+
+    def finish(self, th, tq, z, u, o, have_z: bool) -> None:
+        """o ← gain·θ − (z + c_T·T + const) with u as scratch; z is consumed (undefined if not have_z).
+        o is written last, by a plain copy (o may alias θ)."""
+        if tq is not None:
+            if have_z:
+                np.multiply(tq, self.c_t, out=u)
+                np.add(z, u, out=z)
+            else:
+                np.multiply(tq, self.c_t, out=z)
+                have_z = True
+        if self.const != 0.0 or not have_z:
+            if have_z:
+                np.add(z, self.const, out=z)
+            else:
+                z.fill(self.const)
+        if self.gain != 1.0:
+            np.multiply(th, self.gain, out=u)
+            np.subtract(u, z, out=u)
+        else:
+            np.subtract(th, z, out=u)
+        np.copyto(o, u)
 
 
 class Compensator:
@@ -173,12 +232,19 @@ class Compensator:
         theta_f = np.ascontiguousarray(theta).reshape(-1)
         n = theta_f.size
         torque = np.asarray(torque_nm, dtype=float)
-        if torque.shape != shape:
-            try:
-                torque = np.broadcast_to(torque, shape)
-            except ValueError:
-                raise DataFormatError(f"torque shape {torque.shape} does not match angle shape {shape}") from None
-        torque_f = np.ascontiguousarray(torque).reshape(-1)
+        torque_const = 0.0
+        torque_f: np.ndarray | None = None
+        if torque.ndim == 0:
+            torque_const = float(torque)
+        else:
+            if torque.shape != shape:
+                try:
+                    torque = np.broadcast_to(torque, shape)
+                except ValueError:
+                    raise DataFormatError(
+                        f"torque shape {torque.shape} does not match angle shape {shape}"
+                    ) from None
+            torque_f = np.ascontiguousarray(torque).reshape(-1)
         if out is None:
             out = np.empty(shape)
         elif out.shape != shape or out.dtype != np.float64:
@@ -192,59 +258,64 @@ class Compensator:
             time_f = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), shape).reshape(-1)
             direct_corr = np.zeros(n)
             for term in self._direct:
-                direct_corr += term.evaluate(theta_f, torque_f, time_f)
+                direct_corr += term.evaluate(theta_f, torque_f if torque_f is not None else torque_const, time_f)
 
-        one_minus_s = 1.0 - self._per_arcsec
-        c_t, c0 = self._per_nm, self._offset
-        use_table = bool(self._tabulable) and not exact and self.tolerance_arcsec > 0
+        c_t = self._per_nm
+        if c_t == 0.0:
+            torque_f = None
+        angle_terms = bool(self._tabulable)
+        # constants not in the table: the offset (when there is no table) and c_T·T for a scalar torque
+        const = c_t * torque_const + (0.0 if angle_terms else self._offset)
+        lin = _Linear(1.0 - self._per_arcsec, c_t, const)
+        use_table = angle_terms and not exact and self.tolerance_arcsec > 0
         size = min(CHUNK, n) or 1
-        buf = np.empty(size)
-        ubuf = np.empty(size)
-        mul, sub, add, take = np.multiply, np.subtract, np.add, np.take  # hot loop: no attribute lookups
-        for s in range(0, n, CHUNK):
-            e = min(n, s + CHUNK)
-            th = theta_f[s:e]
-            o = out_f[s:e]
-            b = buf[: e - s]
-            u = ubuf[: e - s]
-            table = self._table if use_table else None
-            if table is not None:
-                # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one integer subtract
-                idx = u.view(np.int64)
-                add(th, table.add_const, out=u)
-                sub(idx, table.bits_offset, out=idx)
-                if idx.view(np.uint64).max() < table.size:  # negative, NaN and out-of-range fail here
-                    take(table.values, idx, out=b, mode="clip")  # range checked: clip skips the check
-                else:
-                    table = None
-            if table is None and not (use_table and self._lookup(th, u, b)):
-                b.fill(c0)
-                for term in self._tabulable:
-                    add(b, term.evaluate(th, 0.0, None), out=b)
-            mul(th, one_minus_s, out=o)
-            sub(o, b, out=o)
-            if c_t != 0.0:
-                mul(torque_f[s:e], c_t, out=u)
-                sub(o, u, out=o)
+        u = np.empty(size)
+        z = np.empty(size)
+        idx = u.view(np.int64)
+        add, sub, take = np.add, np.subtract, np.take  # hot loop: no attribute lookups
+        caller_err = np.geterr()
+        with np.errstate(invalid="raise"):
+            for s in range(0, n, CHUNK):
+                e = min(n, s + CHUNK)
+                m = e - s
+                th = theta_f[s:e]
+                tq = None if torque_f is None else torque_f[s:e]
+                uu, zz = u[:m], z[:m]
+                table = self._table if use_table else None
+                if table is not None:
+                    ii = idx[:m]
+                    # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one subtract
+                    add(th, table.add_const, out=uu)
+                    sub(ii, table.bits_offset, out=ii)
+                    take(table.values, ii, out=zz, mode="clip")
+                    try:
+                        lin.finish(th, tq, zz, uu, out_f[s:e], True)
+                        continue
+                    except FloatingPointError:  # a guard cell (or inf·0 and the like): redo the chunk below
+                        pass
+                with np.errstate(**caller_err):
+                    if angle_terms:
+                        self._angle_sum(th, uu, zz, use_table)
+                    lin.finish(th, tq, zz, uu, out_f[s:e], angle_terms)
         if direct_corr is not None:
             np.subtract(out_f, direct_corr, out=out_f)
         return out
 
     __call__ = apply
 
-    def _lookup(self, th: np.ndarray, u: np.ndarray, out: np.ndarray) -> bool:
-        """Slow path of a table miss: extend the table over ``th`` and look up; False if the chunk cannot be
-        tabulated (non-finite or too wide a range), then the caller evaluates the terms directly."""
-        table = self._extend_table(th)
-        if table is None:
-            return False
-        idx = u.view(np.int64)
-        np.add(th, table.add_const, out=u)
-        np.subtract(idx, table.bits_offset, out=idx)
-        if idx.size and idx.view(np.uint64).max() >= table.size:
-            return False
-        np.take(table.values, idx, out=out, mode="clip")
-        return True
+    def _angle_sum(self, th: np.ndarray, u: np.ndarray, out: np.ndarray, use_table: bool) -> None:
+        """Slow path: out ← offset + Σ angle-only terms, from the table (extended over ``th`` if needed) when
+        allowed and possible, else evaluated directly (non-finite data, too wide a range, exact=True)."""
+        if use_table:
+            table = self._table
+            if table is not None and table.lookup_checked(th, u, out):
+                return
+            table = self._extend_table(th)
+            if table is not None and table.lookup_checked(th, u, out):
+                return
+        out.fill(self._offset)
+        for term in self._tabulable:
+            np.add(out, term.evaluate(th, 0.0, None), out=out)
 
     def _extend_table(self, th: np.ndarray) -> _AngleTable | None:
         lo = float(th.min())
