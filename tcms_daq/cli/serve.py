@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port must be 0…65535, got {args.port}")
     data_dir = args.data_dir or Path(os.environ.get("TCMS_DATA_DIR", DEFAULT_DATA_DIR))
+    _check_store(Path(data_dir) / STORE_FILENAME)
     settings = ServiceSettings(
         data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(args.config)
     )
@@ -88,6 +89,20 @@ def run(args: argparse.Namespace) -> int:
     if not server.started:
         print("TCMS-DAQ service did not start (see the error above).", flush=True)
     return 0 if server.started else 1
+
+
+def _check_store(path: Path) -> None:
+    """The run store can be created or opened (one-line error otherwise; runs are left as they are)."""
+    import sqlite3
+
+    from tcms_daq.store import RunStore
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        RunStore(path, recover=False).close()
+    except (OSError, sqlite3.Error) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise ConfigError(f"run store {path}: cannot open it ({reason}); choose another --data-dir") from None
 
 
 def _server(config):

@@ -18,6 +18,16 @@ def test_bad_arguments_and_configs_are_one_line_errors(tmp_path, capsys):
     assert main(["serve", "--config", str(bad), "--data-dir", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("tcms: error: ") and "max_torque_nm" in err and "\n" not in err
+    not_a_dir = tmp_path / "file"
+    not_a_dir.write_text("x", encoding="utf-8")
+    assert main(["serve", "--data-dir", str(not_a_dir), "--port", "0"]) == 2
+    assert capsys.readouterr().err.strip() == (f"tcms: error: run store {not_a_dir}/tcms-runs.sqlite3: cannot open "
+                                               "it (File exists); choose another --data-dir")
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "tcms-runs.sqlite3").write_bytes(b"not a database at all" * 10)
+    assert main(["serve", "--data-dir", str(broken), "--port", "0"]) == 2
+    assert "(file is not a database)" in capsys.readouterr().err
 
 
 def test_an_instrument_that_does_not_answer_is_a_one_line_error_before_the_banner(tmp_path, capsys):
