@@ -4,8 +4,10 @@ The drive's objects sit in holding registers described by a register map (``conf
 Kinco-style: controlword 0x3100, statusword 0x3200, 32-bit values low word first). URL:
 
 - ``tcp://host:port``                       Modbus TCP (MBAP framing)
-- ``socket://host:port``                    RTU frames carried over TCP (simulator, serial-to-Ethernet gateways)
+- ``socket://host:port``                    RTU frames carried over TCP (simulator, serial-to-Ethernet gateways);
+  with ``serial_line=True`` through the serial-line client below (a raw converter in front of an RS-485 line)
 - anything else (``/dev/ttyUSB0``, ``rfc2217://…``) a serial line with RTU framing, opened through pyserial
+  (``drivers.modbus_rtu.RtuSerialClient``: replies read by their known length, t3.5 kept before each request)
 
 Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; Modbus exception 4 (device failure)
 → DeviceFault, other exception responses → CommandRejected; connection lost and the bounded reconnect failed
@@ -21,11 +23,12 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 from pymodbus import FramerType
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
 from drivers.cia402 import CiA402Loader
+from drivers.modbus_rtu import RtuSerialClient
 from drivers.registry import register
 from tcms_daq.errors import ConfigError
 
@@ -139,19 +142,22 @@ def load_register_map(path: Path | str | None = None) -> RegisterMap:
 
 # -- the driver -------------------------------------------------------------------------------------------------
 
-def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trace_packet=None):
-    """A pymodbus sync client for ``url`` (see module doc); automatic background reconnect is off."""
+def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trace_packet=None,
+                serial_line: bool = False):
+    """A pymodbus sync client for ``url`` (see module doc); automatic background reconnect is off.
+
+    ``serial_line``: a ``socket://`` URL gets the serial-line client too (t3.5 kept between frames), for a raw
+    serial-to-Ethernet converter that passes bytes straight onto an RS-485 line."""
     parsed = urlparse(url)
     common = dict(timeout=timeout_s, retries=retries, reconnect_delay=0, trace_packet=trace_packet)
-    if parsed.scheme in ("tcp", "socket"):
+    if parsed.scheme == "tcp" or (parsed.scheme == "socket" and not serial_line):
         if not parsed.hostname:
             raise ConfigError(f"Modbus URL {url!r} lacks a host")
         # socket:// = RTU frames carried over TCP (serial-to-Ethernet gateway, the simulator): the TCP client with
         # the RTU framer reads replies as they arrive, where the serial client polls the line for silence
         framer = FramerType.SOCKET if parsed.scheme == "tcp" else FramerType.RTU
         return ModbusTcpClient(parsed.hostname, port=parsed.port or 502, framer=framer, **common)
-    return ModbusSerialClient(url, framer=FramerType.RTU, baudrate=baudrate, bytesize=8, parity="N",
-                              stopbits=1, **common)
+    return RtuSerialClient(url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, **common)
 
 
 @register("cia402-modbus")
@@ -175,6 +181,7 @@ class CiA402Modbus(CiA402Loader):
         state_timeout_s: float = 2.0,
         clock: Clock = time.monotonic,
         trace_packet=None,
+        serial_line: bool = False,
     ):
         super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
                          state_timeout_s=state_timeout_s, clock=clock)
@@ -187,7 +194,7 @@ class CiA402Modbus(CiA402Loader):
         self._user_trace = trace_packet
         self._rx_seen = b""  # reply bytes seen during the current call (tells "garbage" from "silence")
         self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
-                                  trace_packet=self._trace)
+                                  trace_packet=self._trace, serial_line=serial_line)
         self.reconnects = 0
 
     # -- Modbus access with error mapping --------------------------------------------------------------

@@ -16,6 +16,7 @@ from drivers.base import (
     MalformedReply,
 )
 from drivers.cia402_modbus import CiA402Modbus, load_register_map
+from drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
 from sim.instruments.proxy import FaultProxy
 from tcms_daq.errors import ConfigError
 
@@ -207,3 +208,70 @@ def test_quick_stop_ramps_down_and_disables(drive_sims):
         drive.quick_stop()
         assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
         assert abs(drive.status().torque_actual_nm) <= 12.0
+
+
+def test_rtu_reply_length_from_the_first_three_bytes():
+    assert rtu_reply_length(bytes.fromhex("01 03 02")) == 7  # one register: id, fc, n, 2 data, CRC
+    assert rtu_reply_length(bytes.fromhex("01 03 04")) == 9
+    assert rtu_reply_length(bytes.fromhex("01 06 31")) == 8  # write single register: echo of the request
+    assert rtu_reply_length(bytes.fromhex("01 10 31")) == 8  # write multiple registers: address + quantity
+    assert rtu_reply_length(bytes.fromhex("01 83 02")) == 5  # exception: id, fc | 0x80, code, CRC
+    assert rtu_reply_length(bytes.fromhex("01 2B 0E")) is None  # a function the driver never sends
+    assert rtu_reply_length(b"\x01\x03") is None
+    assert inter_frame_silence_s(115200, 10) == pytest.approx(1.75e-3)
+    assert inter_frame_silence_s(9600, 11) == pytest.approx(3.5 * 11 / 9600)
+
+
+def _serial_line(sims, port=None, **kw):
+    """The driver's serial-line client (pyserial, replies by length, t3.5) on the RTU simulator."""
+    return CiA402Modbus(f"socket://127.0.0.1:{port or sims.ports['modbus_rtu']}", serial_line=True,
+                        timeout_s=kw.pop("timeout_s", 0.3), **kw)
+
+
+def test_serial_line_client_exchange_and_failures(drive_sims):
+    sent = []
+    trace = lambda sending, data: (sent.append(bytes(data)) if sending else None, data)[1]  # noqa: E731
+    with _serial_line(drive_sims, trace_packet=trace, torque_slope_nm_per_s=20000.0) as drive:
+        assert isinstance(drive.client, RtuSerialClient)
+        drive.enable()
+        assert bytes.fromhex("01 06 31 00 00 0F C7 32") in sent
+        drive.set_torque(250.0)
+        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 250.0) <= 2.0)
+        assert drive.read_register("position_actual") > 0  # a two-register reply (9 bytes)
+        with pytest.raises(CommandRejected, match="exception 2"):
+            drive.write_register("statusword", 1)  # read-only: exception reply (5 bytes)
+        drive_sims.inject("modbus_rtu", "mute")
+        with pytest.raises(InstrumentTimeout, match="no response"):
+            drive.status()
+        drive_sims.inject("modbus_rtu", None)
+        drive.disable()
+        assert drive.status().state == "SWITCH ON DISABLED"
+
+
+def test_serial_line_client_malformed_reply(drive_sims):
+    proxy = FaultProxy("127.0.0.1", drive_sims.ports["modbus_rtu"])
+    port = drive_sims.loop.run(proxy.start())
+    try:
+        with _serial_line(drive_sims, port) as drive:
+            proxy.inject("garbage")
+            with pytest.raises(MalformedReply, match="do not form a valid frame"):
+                drive.status()
+            proxy.inject(None)
+            time.sleep(0.05)
+            assert drive.status().state == "SWITCH ON DISABLED"
+    finally:
+        drive_sims.loop.run(proxy.stop())
+
+
+def test_serial_line_client_keeps_the_inter_frame_silence(drive_sims):
+    """No request starts before t3.5 (1.75 ms at 115 200 Bd) after the last reply byte was read."""
+    with _serial_line(drive_sims) as drive:
+        port = drive.client.socket
+        events = []
+        read, write = port.read, port.write
+        port.read = lambda n=1: (data := read(n), events.append(("rx", time.monotonic())), data)[2]
+        port.write = lambda data: (events.append(("tx", time.monotonic())), write(data))[1]
+        for _ in range(5):
+            drive.read_register("statusword")
+        gaps = [t - events[i - 1][1] for i, (kind, t) in enumerate(events) if kind == "tx" and i > 0]
+        assert len(gaps) == 4 and min(gaps) >= drive.client.silence_s == pytest.approx(1.75e-3)
