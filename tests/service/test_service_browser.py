@@ -71,6 +71,13 @@ def test_dashboard_starts_a_test_and_draws_the_loop(settings_factory, sim_config
             assert "verdict" in page.text_content("#results")
             assert page.evaluate(COUNT_LOOP_PIXELS) > 100
             assert page.evaluate("window.tcms.state.gaps") == 0
+            # the finished run against the bench model (POST /api/discrepancy), with a link to its report
+            page.click("#discrepancy")
+            page.wait_for_selector("#discrepancy-link:not([hidden])", timeout=60_000)
+            assert page.text_content("#discrepancy-result").startswith("named: ")
+            assert "held-out RMS" in page.text_content("#discrepancy-result")
+            href = page.get_attribute("#discrepancy-link", "href")
+            assert href.startswith("/api/discrepancy/") and href.endswith("/report")
             assert errors == []
             shot = tmp_path / "dashboard.png"
             page.screenshot(path=str(shot), full_page=True)

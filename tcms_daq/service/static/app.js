@@ -14,7 +14,7 @@
     frames: 0, dropped: 0, lastSeq: 0, gaps: 0,
     chunks: [],                 // {t: Float64Array, torque, encoder, angle: Float32Array}
     loop: { x: [], y: [], stride: 1, counter: 0 },
-    activeId: null, testState: "idle", eventSeq: 0, dirty: false, schema: null,
+    activeId: null, testState: "idle", eventSeq: 0, dirty: false, schema: null, resultId: null,
   };
 
   // ---- token: ?token=... (printed by `tcms serve`) is kept for this tab and removed from the address bar ----
@@ -274,7 +274,41 @@
     const link = $("report-link");
     link.href = "/api/tests/" + encodeURIComponent(id) + "/report";
     link.hidden = false;
+    state.resultId = id;
+    $("discrepancy").disabled = !(run.sample_count > 0) || ["queued", "running"].includes(run.status);
+    $("discrepancy-link").hidden = true;
+    $("discrepancy-result").textContent = "";
   }
+
+  // ---- discrepancy: the shown run against the bench model (POST /api/discrepancy) ----
+  function describeDiscrepancy(d) {
+    const rms = (v) => (typeof v === "number" ? v.toFixed(3) + "″" : "–");
+    const named = d.effects.length
+      ? "named: " + d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
+        .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ")
+      : "named: nothing (no catalogue effect improves the held-out error reliably)";
+    const aliases = d.aliases.map((a) => "; cannot be told apart: " + a.names.join(" / ")).join("");
+    return `${named}${aliases}; held-out RMS ${rms(d.cv_rms_before_arcsec)} → ${rms(d.cv_rms_after_arcsec)}`;
+  }
+
+  $("discrepancy").addEventListener("click", async () => {
+    const id = state.resultId;
+    if (!id) return;
+    $("discrepancy").disabled = true;
+    $("discrepancy-result").textContent = "analysing run " + id + " …";
+    try {
+      const d = await api("POST", "/api/discrepancy", { run_id: id });
+      $("discrepancy-result").textContent = describeDiscrepancy(d);
+      const link = $("discrepancy-link");
+      link.href = d.report_url;
+      link.hidden = false;
+    } catch (e) {
+      $("discrepancy-result").textContent = "";
+      message("discrepancy: " + e.message, true);
+    } finally {
+      $("discrepancy").disabled = state.resultId !== id;
+    }
+  });
 
   function escapeHtml(s) { return s.replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
 
