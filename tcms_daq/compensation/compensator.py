@@ -272,31 +272,38 @@ class Compensator:
         u = np.empty(size)
         z = np.empty(size)
         idx = u.view(np.int64)
-        add, sub, take = np.add, np.subtract, np.take  # hot loop: no attribute lookups
-        caller_err = np.geterr()
-        with np.errstate(invalid="raise"):
+        if not use_table:  # linear terms only, or exact=True: no table, no guard cells
             for s in range(0, n, CHUNK):
                 e = min(n, s + CHUNK)
-                m = e - s
-                th = theta_f[s:e]
-                tq = None if torque_f is None else torque_f[s:e]
-                uu, zz = u[:m], z[:m]
-                table = self._table if use_table else None
-                if table is not None:
-                    ii = idx[:m]
-                    # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one subtract
-                    add(th, table.add_const, out=uu)
-                    sub(ii, table.bits_offset, out=ii)
-                    take(table.values, ii, out=zz, mode="clip")
-                    try:
+                th, uu, zz = theta_f[s:e], u[: e - s], z[: e - s]
+                if angle_terms:
+                    self._angle_sum(th, uu, zz, False)
+                lin.finish(th, None if torque_f is None else torque_f[s:e], zz, uu, out_f[s:e], angle_terms)
+        else:
+            add, sub, take = np.add, np.subtract, np.take  # hot loop: no attribute lookups
+            caller_err = np.geterr()
+            with np.errstate(invalid="raise"):  # a guard cell picked up by np.take raises here
+                for s in range(0, n, CHUNK):
+                    e = min(n, s + CHUNK)
+                    m = e - s
+                    th = theta_f[s:e]
+                    tq = None if torque_f is None else torque_f[s:e]
+                    uu, zz = u[:m], z[:m]
+                    table = self._table
+                    if table is not None:
+                        ii = idx[:m]
+                        # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one subtract
+                        add(th, table.add_const, out=uu)
+                        sub(ii, table.bits_offset, out=ii)
+                        take(table.values, ii, out=zz, mode="clip")
+                        try:
+                            lin.finish(th, tq, zz, uu, out_f[s:e], True)
+                            continue
+                        except FloatingPointError:  # a guard cell (or inf·0 and the like): redo the chunk
+                            pass
+                    with np.errstate(**caller_err):  # the careful way, under the caller's error handling
+                        self._angle_sum(th, uu, zz, True)
                         lin.finish(th, tq, zz, uu, out_f[s:e], True)
-                        continue
-                    except FloatingPointError:  # a guard cell (or inf·0 and the like): redo the chunk below
-                        pass
-                with np.errstate(**caller_err):
-                    if angle_terms:
-                        self._angle_sum(th, uu, zz, use_table)
-                    lin.finish(th, tq, zz, uu, out_f[s:e], angle_terms)
         if direct_corr is not None:
             np.subtract(out_f, direct_corr, out=out_f)
         return out
