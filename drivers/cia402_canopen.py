@@ -19,8 +19,11 @@ MalformedReply; no heartbeat for ``heartbeat_timeout_s`` (or a broken socketcand
 Disconnected. Once that bound is spent the link counts as lost: every later call re-probes once, waiting only
 ``heartbeat_timeout_s`` for a heartbeat, so a dead drive costs each call a short wait, not the whole bound again,
 and a drive that comes back is configured again on the next call. Every method on a lost link (or before
-``connect()``/after ``close()``) raises Disconnected naming the instrument. A boot-up message (the drive
-restarted) makes the driver configure the drive again.
+``connect()``/after ``close()``) raises Disconnected naming the instrument; ``disable()`` and ``quick_stop()``
+with the heartbeat gone but the bus still open send their frames anyway (the drive may still hear them) and
+then raise Disconnected, since nothing confirms them. A boot-up message (the drive restarted) makes the
+driver configure the drive again. The Loader logic itself (state walk, scaling, ramp-down) is
+``drivers.cia402.CiA402Loader``; this module supplies the CANopen primitives.
 """
 
 from __future__ import annotations

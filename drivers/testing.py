@@ -1,4 +1,5 @@
-"""Transcript testing of serial drivers (in the style of PyMeasure's ``expected_protocol``).
+"""Testing aids for drivers: transcript testing of serial drivers (in the style of PyMeasure's
+``expected_protocol``) and ``wait_until`` for tests against live simulators.
 
 ``ScriptedSerial`` stands in for a pyserial port: it holds a list of ``(expected_write, reply)`` pairs, checks
 that the driver writes exactly the expected bytes in order, and then offers the scripted reply for reading
@@ -12,7 +13,19 @@ that the driver writes exactly the expected bytes in order, and then offers the 
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from typing import Any
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float = 2.0, poll_s: float = 0.01) -> bool:
+    """Poll ``predicate`` until it is true (-> True) or ``timeout_s`` has passed (-> False)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return False
 
 
 class TranscriptMismatch(AssertionError):

@@ -18,6 +18,7 @@ from drivers.base import (
     MalformedReply,
 )
 from drivers.cia402_canopen import CiA402Canopen, parse_can_url
+from drivers.testing import wait_until
 from tcms_daq.errors import ConfigError
 
 # short but not tight: the heartbeat timeout leaves room for a loaded 2-core CI machine
@@ -35,15 +36,6 @@ def can_sims(make_sims):
 
 def _driver(sims, **kw):
     return CiA402Canopen(f"virtual://{sims.options.can_channel}", **{**FAST, **kw})
-
-
-def _wait_for(predicate, timeout_s=2.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_url_parsing():
@@ -85,10 +77,10 @@ def test_normal_exchange_torque_follows(can_sims):
         drive.enable()
         assert drive.status().state == "OPERATION ENABLED"
         drive.set_torque(400.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
         assert drive.status().position_counts > 0
         drive.disable()
-        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+        assert wait_until(lambda: drive.status().state == "SWITCH ON DISABLED")
 
 
 def test_commands_validated(can_sims):
@@ -120,7 +112,7 @@ def test_malformed_pdo(can_sims):
                 time.sleep(0.01)
         can_sims.inject("canopen", None)
         # a junk TPDO still in flight when the fault is cleared may be reported once more; then it recovers
-        assert _wait_for(lambda: getattr(_status_or_none(drive), "state", None) == "SWITCH ON DISABLED")
+        assert wait_until(lambda: getattr(_status_or_none(drive), "state", None) == "SWITCH ON DISABLED")
 
 
 def test_reconnect_after_drive_restart(can_sims):
@@ -139,7 +131,7 @@ def test_emcy_fault_and_reset(can_sims):
         drive.enable()
         drive.set_torque(200.0)
         can_sims.inject("drive", 0x2310)
-        assert _wait_for(lambda: drive.status().fault)
+        assert wait_until(lambda: drive.status().fault)
         status = drive.status()
         assert status.state == "FAULT" and status.error_code == 0x2310
         assert drive.last_emcy == (0x2310, 0x03)
@@ -160,7 +152,7 @@ def test_heartbeat_loss_is_disconnected(can_sims):
             drive.status()
         can_sims.inject("canopen", None)
         # the master went quiet while reconnecting: the drive's heartbeat consumer faulted it (0x8130)
-        assert _wait_for(lambda: drive.status().fault)
+        assert wait_until(lambda: drive.status().fault)
         assert drive.status().error_code == 0x8130
 
 
@@ -226,13 +218,13 @@ def test_across_processes_socketcand_hub(make_sims):
     with CiA402Canopen(url, **FAST) as drive:
         drive.enable()
         drive.set_torque(-300.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm + 300.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm + 300.0) <= 2.0)
         sims.stop_server("socketcand")  # the link breaks
         with pytest.raises(Disconnected):
             time.sleep(0.6)
             drive.status()
         sims.start_server("socketcand")
-        assert _wait_for(lambda: _status_or_none(drive) is not None, 3.0)
+        assert wait_until(lambda: _status_or_none(drive) is not None, 3.0)
 
 
 def _status_or_none(drive):
@@ -263,9 +255,9 @@ def test_quick_stop(can_sims):
     with _driver(can_sims) as drive:
         drive.enable()
         drive.set_torque(400.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
         drive.quick_stop()
-        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+        assert wait_until(lambda: drive.status().state == "SWITCH ON DISABLED")
 
 
 def test_clean_close_disarms_the_drive_watchdog(can_sims):

@@ -17,6 +17,7 @@ from drivers.base import (
 )
 from drivers.cia402_modbus import CiA402Modbus, load_register_map
 from drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
+from drivers.testing import wait_until
 from sim.instruments.proxy import FaultProxy
 from tcms_daq.errors import ConfigError
 
@@ -32,15 +33,6 @@ def _tcp(sims, port=None, **kw):
     kw.setdefault("timeout_s", 0.3)
     kw.setdefault("reconnect_delay_s", 0.05)
     return CiA402Modbus(f"tcp://127.0.0.1:{port or sims.ports['modbus']}", **kw)
-
-
-def _wait_for(predicate, timeout_s=2.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_register_map_file():
@@ -109,11 +101,11 @@ def test_normal_exchange_torque_follows(drive_sims):
         drive.enable()
         assert drive.status().state == "OPERATION ENABLED"
         drive.set_torque(300.0, slope_nm_per_s=20000.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 300.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 300.0) <= 2.0)
         status = drive.status()
         assert not status.fault and status.position_counts > 0  # positive torque twists positive
         drive.set_torque(-150.0)  # the default slope of the driver (10 kN·m/s)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm + 150.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm + 150.0) <= 2.0)
         drive.disable()
         assert drive.status().state == "SWITCH ON DISABLED"
         assert abs(drive_sims.physics.latest().applied_torque_nm) < 20.0
@@ -204,9 +196,9 @@ def test_quick_stop_ramps_down_and_disables(drive_sims):
     with _tcp(drive_sims, torque_slope_nm_per_s=20000.0) as drive:
         drive.enable()
         drive.set_torque(400.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
         drive.quick_stop()
-        assert _wait_for(lambda: drive.status().state == "SWITCH ON DISABLED")
+        assert wait_until(lambda: drive.status().state == "SWITCH ON DISABLED")
         assert abs(drive.status().torque_actual_nm) <= 12.0
 
 
@@ -236,7 +228,7 @@ def test_serial_line_client_exchange_and_failures(drive_sims):
         drive.enable()
         assert bytes.fromhex("01 06 31 00 00 0F C7 32") in sent
         drive.set_torque(250.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 250.0) <= 2.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 250.0) <= 2.0)
         assert drive.read_register("position_actual") > 0  # a two-register reply (9 bytes)
         with pytest.raises(CommandRejected, match="exception 2"):
             drive.write_register("statusword", 1)  # read-only: exception reply (5 bytes)
