@@ -60,7 +60,7 @@ class _AngleTable:
     ≥ size − 1: the two guard cells, which hold a signalling NaN.
     """
 
-    __slots__ = ("h", "add_const", "bits_offset", "i0", "values", "size", "lo", "hi")
+    __slots__ = ("h", "add_const", "bits_offset", "i0", "values", "size", "lo", "hi", "k", "off", "take")
 
     def __init__(self, terms: Sequence[Term], offset: float, h: float, lo: float, hi: float):
         self.h = h
@@ -78,6 +78,11 @@ class _AngleTable:
         self.size = values.size
         self.lo = (self.i0 + 1) * h
         self.hi = (i1 - 1) * h
+        # the hot loop's arguments, ready-made: 0-d arrays skip the Python-scalar conversion of every ufunc
+        # call and the bound method skips np.take's wrapper (per chunk, not per sample, but it adds up)
+        self.k = np.array(self.add_const)
+        self.off = np.array(self.bits_offset, dtype=np.int64)
+        self.take = values.take
 
     def lookup_checked(self, th: np.ndarray, u: np.ndarray, out: np.ndarray) -> bool:
         """out ← table at the nearest grid point of each θ (u: scratch); False (out undefined) if any θ is
@@ -94,10 +99,12 @@ class _AngleTable:
 class _Linear:
     """The folded linear terms: θ_c = gain·θ − (z + c_T·T + const), z the tabulated angle-only sum."""
 
-    __slots__ = ("gain", "c_t", "const")
+    __slots__ = ("gain", "c_t", "const", "scaled", "has_const")
 
     def __init__(self, gain: float, c_t: float, const: float):
-        self.gain, self.c_t, self.const = gain, c_t, const
+        self.scaled, self.has_const = gain != 1.0, const != 0.0
+        # 0-d arrays: no Python-scalar conversion in every ufunc call
+        self.gain, self.c_t, self.const = np.array(gain), np.array(c_t), np.array(const)
 
     def finish(self, th, tq, z, u, o, have_z: bool) -> None:
         """o ← gain·θ − (z + c_T·T + const) with u as scratch; z is consumed (undefined if not have_z).
@@ -109,12 +116,12 @@ class _Linear:
             else:
                 np.multiply(tq, self.c_t, out=z)
                 have_z = True
-        if self.const != 0.0 or not have_z:
+        if self.has_const or not have_z:
             if have_z:
                 np.add(z, self.const, out=z)
             else:
                 z.fill(self.const)
-        if self.gain != 1.0:
+        if self.scaled:
             np.multiply(th, self.gain, out=u)
             np.subtract(u, z, out=u)
         else:
@@ -280,7 +287,7 @@ class Compensator:
                     self._angle_sum(th, uu, zz, False)
                 lin.finish(th, None if torque_f is None else torque_f[s:e], zz, uu, out_f[s:e], angle_terms)
         else:
-            add, sub, take = np.add, np.subtract, np.take  # hot loop: no attribute lookups
+            add, sub, finish = np.add, np.subtract, lin.finish  # hot loop: no attribute lookups
             caller_err = np.geterr()
             with np.errstate(invalid="raise"):  # a guard cell picked up by np.take raises here
                 for s in range(0, n, CHUNK):
@@ -293,11 +300,11 @@ class Compensator:
                     if table is not None:
                         ii = idx[:m]
                         # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one subtract
-                        add(th, table.add_const, out=uu)
-                        sub(ii, table.bits_offset, out=ii)
-                        take(table.values, ii, out=zz, mode="clip")
+                        add(th, table.k, out=uu)
+                        sub(ii, table.off, out=ii)
+                        table.take(ii, None, zz, "clip")
                         try:
-                            lin.finish(th, tq, zz, uu, out_f[s:e], True)
+                            finish(th, tq, zz, uu, out_f[s:e], True)
                             continue
                         except FloatingPointError:  # a guard cell (or inf·0 and the like): redo the chunk
                             pass
