@@ -32,6 +32,7 @@ import logging
 import socket
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
@@ -478,7 +479,8 @@ class CiA402Canopen(CiA402Loader):
     def _write_controlword(self, controlword: int) -> float:
         return self._send_rpdo(controlword, self._target_permille)
 
-    def _await_statusword(self, predicate, since, timeout_s):
+    def _await_statusword(self, predicate: Callable[[int], bool], since: float | None,
+                          timeout_s: float) -> tuple[int | None, int]:
         tpdo = self._wait_tpdo(predicate, timeout_s, after=since)
         if tpdo is not None:
             return tpdo[0], tpdo[0]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import time
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlparse
@@ -314,7 +315,8 @@ class CiA402Modbus(CiA402Loader):
     def _write_controlword(self, controlword: int) -> None:
         self.write_register("controlword", controlword)
 
-    def _await_statusword(self, predicate, since, timeout_s):
+    def _await_statusword(self, predicate: Callable[[int], bool], since: float | None,
+                          timeout_s: float) -> tuple[int | None, int]:
         """Poll the statusword (a read after the write's reply always sees the write)."""
         deadline = time.monotonic() + timeout_s
         while True:
