@@ -49,6 +49,7 @@ class ServiceSettings:
     frame_rate_hz: float = 25.0
     live_queue_frames: int = 50
     live_stall_timeout_s: float = 5.0
+    live_max_samples_per_frame: int | None = 4000  # min/max decimation above this (live view only)
     recorder_flush_s: float = 0.2
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -75,7 +76,8 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         saved_compensation = settings.data_dir / COMPENSATION_FILENAME
         if saved_compensation.is_file():
             await asyncio.to_thread(bench.set_compensator_toml, saved_compensation.read_text(encoding="utf-8"))
-        live = LiveHub(settings.frame_rate_hz, settings.live_queue_frames, settings.live_stall_timeout_s)
+        live = LiveHub(settings.frame_rate_hz, settings.live_queue_frames, settings.live_stall_timeout_s,
+                       settings.live_max_samples_per_frame)
         events = EventHub()
         events.bind_loop(asyncio.get_running_loop())
         manager = TestManager(store, bench, events, recorder_flush_s=settings.recorder_flush_s)
@@ -254,6 +256,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
             "sequence": live.sequence,
             "frames_total": live.frames_total,
             "dropped_total": live.dropped_total(),
+            "samples_decimated_total": live.samples_decimated_total,
             "evicted_total": live.evicted_total,
             "clients": live.client_stats(),
         }
@@ -276,7 +279,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
     async def ws_live(ws: WebSocket) -> None:
         live: LiveHub = ws.app.state.live
         await ws.accept()
-        await ws.send_json(schema_message(live.frame_rate_hz))
+        await ws.send_json(schema_message(live.frame_rate_hz, live.max_samples_per_frame))
         client = await live.serve(ws.send_bytes, _until_disconnect(ws))
         if client.evicted:
             with contextlib.suppress(Exception):

@@ -17,6 +17,12 @@ Binary frame (little-endian), see :data:`FRAME_HEADER`::
     dropped u32    frames this client has lost so far (cumulative)
     then n_channels float32 columns of n_samples each, in schema order;
     the time column holds time_s − t0_s (s).
+
+Decimation: a frame holds at most ``max_samples_per_frame`` samples (default 4000: 100 kS/s at 25 frames/s
+pass untouched). Above that, the frame's samples are cut into equal buckets and each bucket keeps the samples
+holding its minimum and maximum torque and compensated angle — whole samples in time order, so the time traces
+keep their envelope and every (torque, angle) point of the live loop is a real measured pair. Stored samples
+and exports are never decimated.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ LIVE_CHANNELS: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def schema_message(frame_rate_hz: float) -> dict:
+def schema_message(frame_rate_hz: float, max_samples_per_frame: int | None = None) -> dict:
     """The JSON text message sent to a client before any binary frame."""
     return {
         "type": "schema",
@@ -60,8 +66,34 @@ def schema_message(frame_rate_hz: float) -> dict:
         "dtype": "float32",
         "layout": "channel-major",
         "frame_rate_hz": frame_rate_hz,
+        "max_samples_per_frame": max_samples_per_frame,
+        "decimation": "per bucket the samples with min and max torque_nm and angle_arcsec (whole samples, time "
+                      "order) when a frame would hold more than max_samples_per_frame",
         "channels": [{"name": n, "unit": u, "description": d} for n, u, d in LIVE_CHANNELS],
     }
+
+
+DECIMATION_KEYS: tuple[str, ...] = ("torque_nm", "angle_arcsec")
+
+
+def minmax_rows(columns: Mapping[str, np.ndarray], max_samples: int) -> np.ndarray | None:
+    """Row indices (ascending) of a min/max decimation to at most ``max_samples`` rows, or None when the
+    columns already fit. Each bucket contributes the rows of its min and max of every :data:`DECIMATION_KEYS`
+    channel (fewer when they coincide)."""
+    n = len(columns["time_s"])
+    per_bucket = 2 * len(DECIMATION_KEYS)
+    if n <= max_samples or max_samples < per_bucket:
+        return None
+    size = -(-n // (max_samples // per_bucket))  # samples per bucket (ceil)
+    buckets = -(-n // size)  # the last bucket may be short: it is padded with its own last sample
+    pad = buckets * size - n
+    picks = []
+    for key in DECIMATION_KEYS:
+        values = np.asarray(columns[key], dtype=float)
+        grid = np.pad(values, (0, pad), mode="edge").reshape(buckets, size)
+        start = np.arange(buckets) * size
+        picks += [start + grid.argmin(axis=1), start + grid.argmax(axis=1)]
+    return np.unique(np.minimum(np.concatenate(picks), n - 1))
 
 
 def encode_frame(sequence: int, columns: Mapping[str, np.ndarray], dropped: int = 0) -> bytes:
@@ -171,10 +203,15 @@ class LiveClient:
 class LiveHub:
     """Collects batches from the acquisition thread and fans encoded frames out to the live clients."""
 
-    def __init__(self, frame_rate_hz: float = 25.0, max_queue: int = 50, stall_timeout_s: float = 5.0):
+    def __init__(self, frame_rate_hz: float = 25.0, max_queue: int = 50, stall_timeout_s: float = 5.0,
+                 max_samples_per_frame: int | None = 4000):
         if not 1.0 <= frame_rate_hz <= 60.0:
             raise ValueError(f"frame rate {frame_rate_hz} Hz outside 1…60 Hz")
+        if max_samples_per_frame is not None and max_samples_per_frame < 2 * len(DECIMATION_KEYS):
+            raise ValueError(f"max_samples_per_frame {max_samples_per_frame} < {2 * len(DECIMATION_KEYS)}")
         self.frame_rate_hz = frame_rate_hz
+        self.max_samples_per_frame = max_samples_per_frame
+        self.samples_decimated_total = 0  # samples left out of live frames (all are recorded)
         self.max_queue = max_queue
         self.stall_timeout_s = stall_timeout_s
         self.sequence = 0
@@ -215,6 +252,11 @@ class LiveHub:
         self._rate_window.append((now, self.samples_total))
         if columns is None:
             return None
+        if self.max_samples_per_frame is not None:
+            rows = minmax_rows(columns, self.max_samples_per_frame)
+            if rows is not None:
+                self.samples_decimated_total += len(columns["time_s"]) - len(rows)
+                columns = {name: np.asarray(columns[name])[rows] for name, _, _ in LIVE_CHANNELS}
         self.sequence += 1
         frame = encode_frame(self.sequence, columns)
         self.frames_total += 1

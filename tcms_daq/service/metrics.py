@@ -34,6 +34,10 @@ class ServiceCollector(Collector):
             "tcms_live_dropped_frames", "Live frames dropped from client queues", value=self.live.dropped_total()
         )
         yield CounterMetricFamily(
+            "tcms_live_samples_decimated", "Samples left out of live frames by min/max decimation (all recorded)",
+            value=self.live.samples_decimated_total,
+        )
+        yield CounterMetricFamily(
             "tcms_live_evicted_clients", "Live clients evicted for stalling", value=self.live.evicted_total
         )
         yield GaugeMetricFamily("tcms_live_clients", "Connected live clients", value=len(self.live.clients))

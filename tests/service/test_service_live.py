@@ -9,6 +9,7 @@ from tcms_daq.service.live import (
     LiveHub,
     decode_frame,
     encode_frame,
+    minmax_rows,
     schema_message,
     with_dropped,
 )
@@ -165,3 +166,34 @@ async def test_event_client_that_falls_behind_is_disconnected_not_silently_skipp
     seqs = [m["seq"] for m in got[1:]]
     assert seqs == list(range(1, len(seqs) + 1)) and len(seqs) < 20  # an in-order prefix, never a gap
     assert [e["seq"] for e in hub.replay_after(12)] == list(range(13, 21))
+
+
+def test_minmax_decimation_keeps_envelopes_and_real_torque_angle_pairs():
+    rng = np.random.default_rng(4)
+    n = 100_003  # not a multiple of the bucket count: the last bucket is short
+    t = np.arange(n) * 1e-5
+    torque = 500 * np.sin(2 * np.pi * t) + rng.normal(0, 0.3, n)
+    angle = torque / 5 + 10 * np.sign(np.cos(2 * np.pi * t)) + rng.normal(0, 0.2, n)
+    angle[70_001] = 99.0  # a spike the live view must not lose
+    cols = {"time_s": t, "torque_nm": torque, "encoder_arcsec": 1.03 * angle, "angle_arcsec": angle}
+    assert minmax_rows(cols, n) is None
+    rows = minmax_rows(cols, 4000)
+    assert len(rows) <= 4000 and np.all(np.diff(rows) > 0)  # whole samples, in time order
+    assert {int(np.argmin(torque)), int(np.argmax(torque)), 70_001, int(np.argmin(angle))} <= set(rows.tolist())
+    bucket = -(-n // 1000)  # 101 samples: 991 buckets, the last one short
+    for b in (0, 517, 990):  # every bucket keeps its own extremes
+        sl = slice(b * bucket, min(n, (b + 1) * bucket))
+        assert sl.start + int(np.argmax(torque[sl])) in rows and sl.start + int(np.argmin(angle[sl])) in rows
+
+    hub = LiveHub(frame_rate_hz=25, max_samples_per_frame=4000)
+    hub.publish(cols)
+    dec = decode_frame(hub.tick())
+    assert dec.n_samples == len(rows) and hub.samples_decimated_total == n - len(rows)
+    np.testing.assert_array_equal(dec.columns["angle_arcsec"], angle[rows].astype(np.float32))
+    np.testing.assert_array_equal(dec.columns["encoder_arcsec"], cols["encoder_arcsec"][rows].astype(np.float32))
+    hub.publish(_cols(5.0, 3000))  # a frame that fits passes untouched
+    assert decode_frame(hub.tick()).n_samples == 3000 and hub.samples_decimated_total == n - len(rows)
+    schema = schema_message(25, 4000)
+    assert schema["max_samples_per_frame"] == 4000 and "min and max" in schema["decimation"]
+    with pytest.raises(ValueError, match="max_samples_per_frame 3"):
+        LiveHub(max_samples_per_frame=3)
