@@ -32,10 +32,11 @@ def applied_torque_estimate(time_s: np.ndarray, torque_nm: np.ndarray,
     """The torque the reducer felt, estimated from the sensor reading (N·m).
 
     The forward model is hysteretic: fed the raw reading, sensor noise makes tiny load reversals that walk
-    the model along minor loops (on the default simulated bench, without any effect: a spurious 1 %
-    ``scale_error`` on continuous runs, a narrower loop on stepped ones; 1.5–3″ RMS against the true twist).
-    A centred (zero-phase) moving average over ``window_s`` takes out most of the noise; a play operator
-    of three times the remaining noise then removes the reversals the noise still makes (0.06–0.08″ RMS).
+    the model along minor loops, enough to name a spurious ``scale_error`` on a run without any effect (±500 N·m
+    loops on the default simulated bench: 0.5″ RMS against the true twist; 0.06″ with this estimate, see
+    tests/discrepancy/test_discrepancy_stored.py). A centred (zero-phase) moving average over ``window_s``
+    takes out most of the noise; a play operator of three times the remaining noise then removes the reversals
+    the noise still makes.
     """
     torque = np.asarray(torque_nm, dtype=float)
     dt = np.diff(time_s)
@@ -68,8 +69,7 @@ def resimulate(measured: Samples, reducer_name: str) -> Samples:
 
     The torque is smoothed (:func:`applied_torque_estimate`). The reducer's friction (hysteresis) state at the
     start of a stored run is unknown: it depends on the tests run before it, and after a larger test it takes
-    several loops to settle (a 300 N·m run right after a 1000 N·m one: 3.7″ RMS against a virgin start). The
-    model's angle is linear in that state, so the state is fitted by least squares (one number within the
+    several loops to settle (a model started virgin is off by arcseconds for the whole run). The model's angle is linear in that state, so the state is fitted by least squares (one number within the
     physical ±hysteresis half-width; its influence decays over the first load reversals). The returned torque
     column is the measured one.
     """
