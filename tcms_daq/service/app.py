@@ -223,9 +223,13 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         """Name the effects the bench model misses on a stored run (as ``tcms discrepancy --run ID --json``).
 
         The run's measured angle is compared with the catalogue reducer's model re-simulated on its torque
-        trace. 404 unknown run; 409 while the run is active or another analysis runs; 422 when the run cannot
-        be compared (too few samples, no reducer recorded …). The analysis is kept: ``report_url``.
+        trace. 404 unknown run; 409 while a test runs (the analysis takes seconds of CPU that acquisition must not
+        lose) or another analysis runs; 422 when the run cannot be compared (too few samples, no reducer
+        recorded …). The analysis is kept: ``report_url``.
         """
+        active = request.app.state.manager.active_id
+        if active is not None:
+            raise Conflict(f"test {active} is running; find missing effects after it ends")
         doc = await asyncio.to_thread(request.app.state.discrepancy.analyse, body)
         response.headers["Location"] = f"/api/discrepancy/{doc['id']}"
         return doc
