@@ -17,7 +17,6 @@ Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; M
 from __future__ import annotations
 
 import time
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +30,7 @@ from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, Inst
 from drivers.cia402 import CiA402Loader
 from drivers.modbus_rtu import RtuSerialClient
 from drivers.registry import register
+from tcms_daq.config.loader import read_toml
 from tcms_daq.errors import ConfigError
 
 DEFAULT_MAP_PATH = Path(__file__).resolve().parent.parent / "config" / "modbus-drive.toml"
@@ -105,10 +105,7 @@ class RegisterMap:
 def load_register_map(path: Path | str | None = None) -> RegisterMap:
     """Read and validate a register map TOML (default ``config/modbus-drive.toml``)."""
     path = Path(path) if path is not None else DEFAULT_MAP_PATH
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read the Modbus register map: {exc}") from None
+    data = read_toml(path)
     modbus = data.get("modbus", {})
     word_order = modbus.get("word_order", "little")
     if word_order not in ("little", "big"):

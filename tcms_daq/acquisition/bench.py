@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import inspect
 import math
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -218,21 +217,10 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
 
 
 def read_bench_config(path: str | Path) -> Any:
-    """A bench config from TOML: the core's validated model when available, else the plain table."""
-    path = Path(path)
-    try:
-        from tcms_daq import config as core_config
-    except ImportError:
-        core_config = None
-    loader = getattr(core_config, "load_bench_config", None) if core_config else None
-    if loader is not None:
-        return loader(path)
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+    """A validated bench config from TOML (``tcms_daq.config.load_bench_config``)."""
+    from tcms_daq.config import load_bench_config
+
+    return load_bench_config(Path(path))
 
 
 def bench_from_file(path: str | Path, **kwargs: Any) -> Bench:

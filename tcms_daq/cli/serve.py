@@ -35,14 +35,9 @@ def _service_token(config_path: Path | None) -> str | None:
     """``[service] api_token`` from the bench config, if present."""
     if config_path is None:
         return None
-    import tomllib
+    from tcms_daq.config.loader import read_toml
 
-    try:
-        data = tomllib.loads(config_path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{config_path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{config_path}: invalid TOML ({exc})") from None
+    data = read_toml(config_path)
     token = (data.get("service") or {}).get("api_token")
     return str(token) if token else None
 

@@ -31,7 +31,6 @@ recovers the truth (used by the simulated bench as its measuring chain).
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ import tomli_w
 
 from tcms_daq.compensation.geometry import GeometricModel, Geometry, evaluate_geometry, load_geometry
 from tcms_daq.compensation.terms import Eccentricity, Scale, Term, Torsion, term_from_dict
+from tcms_daq.config.loader import read_toml
 from tcms_daq.errors import ConfigError, DataFormatError
 
 CHUNK = 32768  # samples per chunk: θ, T and two scratch buffers (1 MiB) plus the table stay in L2
@@ -432,14 +432,7 @@ class Compensator:
     def load(cls, path: str | Path) -> Compensator:
         """Load a compensator TOML ([compensator] + [[terms]]) or a geometry TOML ([structure] + [parts.N])."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: no such file") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: cannot read ({exc})") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+        data = read_toml(path)
         if "structure" in data:
             return cls.from_geometry(path)
         if "terms" in data or "compensator" in data:

@@ -21,13 +21,13 @@ encoder axis is x6; positive torque twists the output towards positive angle.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tcms_daq.config.loader import read_toml
 from tcms_daq.errors import ConfigError
 from tcms_daq.units import ARCSEC_PER_RAD
 
@@ -285,16 +285,7 @@ def geometry_from_dict(data: dict[str, Any], source: str = "<geometry>") -> Geom
 
 def load_geometry(path: str | Path) -> Geometry:
     """Read a geometry TOML file (Table 2 in [structure], Table 3 in [parts.N], options in [model])."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read ({exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
-    return geometry_from_dict(data, source=str(path))
+    return geometry_from_dict(read_toml(path), source=str(path))
 
 
 # ---------------------------------------------------------------------------------------------------------
