@@ -38,7 +38,13 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from tcms_daq.compensation.geometry import GeometricModel, Geometry, evaluate_geometry, load_geometry
+from tcms_daq.compensation.geometry import (
+    GeometricModel,
+    Geometry,
+    evaluate_geometry,
+    geometry_from_dict,
+    load_geometry,
+)
 from tcms_daq.compensation.terms import Eccentricity, Scale, Term, Torsion, term_from_dict
 from tcms_daq.config.loader import read_toml
 from tcms_daq.errors import ConfigError, DataFormatError
@@ -434,7 +440,7 @@ class Compensator:
         path = Path(path)
         data = read_toml(path)
         if "structure" in data:
-            return cls.from_geometry(path)
+            return cls.from_geometry(geometry_from_dict(data, source=str(path)))
         if "terms" in data or "compensator" in data:
             return cls.from_dict(data, source=str(path))
         raise ConfigError(f"{path}: neither a compensator ([[terms]]) nor a geometry file ([structure], [parts.N])")
