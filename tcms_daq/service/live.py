@@ -33,7 +33,7 @@ import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -325,7 +325,3 @@ class LiveHub:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await task
         return client
-
-
-def channel_names() -> Sequence[str]:
-    return [name for name, _, _ in LIVE_CHANNELS]

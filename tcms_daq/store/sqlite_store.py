@@ -262,9 +262,6 @@ class RunStore:
         if cur.rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
-    def set_profile(self, run_id: str, profile: Mapping[str, Any]) -> None:
-        self._write("UPDATE runs SET profile=? WHERE id=?", (_dumps(dict(profile)), run_id))
-
     def get_run(self, run_id: str) -> RunRecord | None:
         row = self._conn().execute(
             "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
