@@ -23,7 +23,7 @@ import numpy as np
 from tcms_daq.compensation.compensator import Compensator
 from tcms_daq.compensation.terms import Term, parse_term_spec
 from tcms_daq.errors import DataFormatError, EvaluationError
-from tcms_daq.samples import parse_csv_text, read_csv_columns
+from tcms_daq.samples import read_csv_columns
 
 CALIBRATION_COLUMNS = ("torque_nm", "encoder_arcsec", "reference_arcsec")
 DEFAULT_TERMS = ("offset", "scale")
@@ -41,10 +41,6 @@ class CalibrationData:
 
     def __len__(self) -> int:
         return len(self.encoder_arcsec)
-
-
-def parse_calibration_csv(text: str, source: str = "<csv>") -> CalibrationData:
-    return _calibration_data(parse_csv_text(text, required=CALIBRATION_COLUMNS, source=source), source)
 
 
 def read_calibration_csv(path: str | Path) -> CalibrationData:

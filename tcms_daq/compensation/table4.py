@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from tcms_daq.compensation.calibration import CalibrationData, calibrate, parse_calibration_csv
+from tcms_daq.compensation.calibration import CALIBRATION_COLUMNS, CalibrationData, calibrate
 from tcms_daq.compensation.geometry import evaluate_geometry, load_geometry
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import parse_csv_text
@@ -47,10 +47,10 @@ def load_table4() -> Table4:
     """The transcribed Table 4 shipped with the package, with its provenance."""
     base = resources.files(DATA_PACKAGE)
     text = base.joinpath(CSV_NAME).read_text(encoding="utf-8")
-    data = parse_calibration_csv(text, source="paper_table4.csv")
-    cols = parse_csv_text(text, required=("paper_compensated_arcsec",), source="paper_table4.csv")
+    cols = parse_csv_text(text, required=(*CALIBRATION_COLUMNS, "paper_compensated_arcsec"), source="paper_table4.csv")
     prov = tomllib.loads(base.joinpath(PROVENANCE_NAME).read_text(encoding="utf-8"))
-    return Table4(data.torque_nm, data.reference_arcsec, data.encoder_arcsec, cols["paper_compensated_arcsec"], prov)
+    return Table4(cols["torque_nm"], cols["reference_arcsec"], cols["encoder_arcsec"], cols["paper_compensated_arcsec"],
+                  prov)
 
 
 def default_geometry_path() -> Path:
