@@ -354,11 +354,6 @@ class Compensator:
         self._table = table
         return table
 
-    def correction(self, angle_arcsec, torque_nm, time_s=None, *, exact: bool = True) -> np.ndarray:
-        """Σ term in arcsec (the error of the raw reading); θ_c = θ − correction."""
-        theta = np.asarray(angle_arcsec, dtype=float)
-        return theta - self.apply(theta, torque_nm, time_s, exact=exact)
-
     # ---- the forward direction (simulator) ----
     def encoder_reading(
         self, true_angle_arcsec, torque_nm, time_s=None, *, tolerance_arcsec: float = 1e-9, max_iter: int = 100
@@ -444,13 +439,6 @@ class Compensator:
         if "terms" in data or "compensator" in data:
             return cls.from_dict(data, source=str(path))
         raise ConfigError(f"{path}: neither a compensator ([[terms]]) nor a geometry file ([structure], [parts.N])")
-
-    def describe(self) -> str:
-        lines = [f"compensator ({self.meta.get('description', 'custom')}): theta_c = theta - sum(term)"]
-        for term, unc in zip(self.terms, self.uncertainties, strict=True):
-            params = ", ".join(f"{k} = {v:.6g}" for k, v in term.to_dict().items() if k != "type")
-            lines.append(f"  {term.label():<14} {params}" + (f"  (U, k=2: {unc})" if unc else ""))
-        return "\n".join(lines)
 
     def __repr__(self) -> str:
         return f"Compensator({[t.label() for t in self.terms]})"
