@@ -272,10 +272,6 @@ class CVScore:
         k = len(self.fold_n)
         return float(np.std(self.fold_mse, ddof=1) / math.sqrt(k)) if k > 1 else 0.0
 
-    @property
-    def se_rms(self) -> float:
-        return self.se_mse / (2.0 * self.rms) if self.rms > 0 else 0.0
-
 
 def make_folds(rows: np.ndarray, groups: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """Leave-one-group-out folds over ``rows`` (falls back to contiguous blocks for < 3 groups)."""

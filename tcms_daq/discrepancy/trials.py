@@ -114,10 +114,6 @@ def make_pair(effects_table: dict, seed: int, design: TrialDesign = TrialDesign(
     return measured, simulated, floor
 
 
-def truth_parameters(effects_table: dict) -> dict[str, dict[str, float]]:
-    return {k: dict(v) for k, v in effects_table.items()}
-
-
 @dataclass
 class TrialOutcome:
     case: str
