@@ -11,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
+from tcms_daq.units import ARCSEC_PER_RAD
 
 # ------------------------------------------------------------------------------------------------- reducers
 
@@ -90,16 +90,6 @@ class ReducerSpec(BaseModel):
         if self.kind != "harmonic":
             return None
         return (float(self.t1_nm), float(self.t2_nm))  # type: ignore[arg-type]
-
-    def nominal_rigidity_nm_per_arcmin(self, test_torque_nm: float | None = None,
-                                       interval: tuple[float, float] = (0.5, 1.0)) -> float:
-        """Catalogue rigidity; for a Harmonic Drive the secant of the K1/K2/K3 curve over the interval."""
-        if self.kind == "rv":
-            return float(self.rigidity_nm_per_arcmin)  # type: ignore[arg-type]
-        t = self.rated_torque_nm if test_torque_nm is None else test_torque_nm
-        lo, hi = interval[0] * t, interval[1] * t
-        d_arcsec = hd_twist_arcsec(hi, self) - hd_twist_arcsec(lo, self)
-        return (hi - lo) / d_arcsec * ARCSEC_PER_ARCMIN
 
     def limits(self) -> dict[str, float]:
         """Pass/fail limits (keyword arguments of ``tcms_daq.analysis.Limits``): maxima for backlash and lost
