@@ -6,7 +6,6 @@ twists the reducer output towards positive angle.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -106,16 +105,11 @@ class ReducerSpec(BaseModel):
 
 def hd_twist_arcsec(torque_nm: float, spec: ReducerSpec) -> float:
     """Harmonic Drive catalogue twist (one direction, from zero torque) in arcsec; odd in the torque."""
-    t = abs(float(torque_nm))
-    t1, t2 = float(spec.t1_nm), float(spec.t2_nm)  # type: ignore[arg-type]
-    k1, k2, k3 = float(spec.k1_nm_per_rad), float(spec.k2_nm_per_rad), float(spec.k3_nm_per_rad)  # type: ignore[arg-type]
-    if t <= t1:
-        phi = t / k1
-    elif t <= t2:
-        phi = t1 / k1 + (t - t1) / k2
-    else:
-        phi = t1 / k1 + (t2 - t1) / k2 + (t - t2) / k3
-    return math.copysign(phi * ARCSEC_PER_RAD, torque_nm)
+    # imported here: the analysis package pulls in scipy, which loading a config does not need
+    from tcms_daq.analysis.harmonic import hd_torsion_angle_rad
+
+    return hd_torsion_angle_rad(float(torque_nm), spec.t1_nm, spec.t2_nm, spec.k1_nm_per_rad, spec.k2_nm_per_rad,
+                                spec.k3_nm_per_rad) * ARCSEC_PER_RAD
 
 
 # ------------------------------------------------------------------------------------------------- profiles
