@@ -12,6 +12,7 @@ import json
 import math
 from pathlib import Path
 
+from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples, read_csv_columns, samples_from_columns
 
@@ -22,14 +23,7 @@ def read_pair_file(path: str | Path) -> tuple[Samples, bool]:
     return samples_from_columns(cols), "time_s" in cols
 
 
-def _clean(obj):
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    return obj
+_clean = jsonable  # the name tcms_daq.service.discrepancy_runs imports
 
 
 def write_outputs(result, measured: Samples, simulated: Samples, out_dir: str | Path, title: str) -> list[Path]:
@@ -97,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         write_outputs(result, measured, simulated, args.out, title)
     if args.json:
-        print(json.dumps(_clean(result.to_dict()), indent=1))
+        print(json.dumps(jsonable(result.to_dict()), indent=1))
     else:
         print(format_result(result))
         if args.out:

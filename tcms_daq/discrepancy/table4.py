@@ -52,7 +52,8 @@ def fixed_model_cv(names: list[str]) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from tcms_daq.cli.discrepancy import _clean, format_result, write_outputs
+    from tcms_daq.analysis.evaluation import jsonable
+    from tcms_daq.cli.discrepancy import format_result, write_outputs
 
     parser = argparse.ArgumentParser(prog="python -m tcms_daq.discrepancy.table4", description=__doc__.split("\n")[0])
     parser.add_argument("--json", action="store_true")
@@ -68,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         measured, simulated = table4_pair()
         write_outputs(result, measured, simulated, args.out, "Discrepancy report: the paper's Table 4")
     if args.json:
-        print(json.dumps(_clean({**result.to_dict(), "fixed_model_cv_rms_arcsec": compare,
+        print(json.dumps(jsonable({**result.to_dict(), "fixed_model_cv_rms_arcsec": compare,
                                  "raw_encoder_as_simulation": raw.to_dict()}), indent=1))
     else:
         print(format_result(result))
