@@ -162,8 +162,7 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
         raise err
     if in_process:
         physics = bench.loader.bench.physics
-        truth = physics.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
-        truth["physics"] = {k: v for k, v in physics.physics.to_dict().items() if k != "name"}
+        truth = _truth(physics, profile, reducer)
         used_seed = physics.seed
     else:
         # the simulators run the config's [sim] physics: its truth is known when the config has that table
@@ -171,12 +170,17 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
         if "sim" in cfg.model_fields_set:
             from sim.bench import SimulatedBench
 
-            reference = SimulatedBench.from_config(cfg, reducer)
-            truth = reference.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
-            truth["physics"] = {k: v for k, v in reference.physics.to_dict().items() if k != "name"}
+            truth = _truth(SimulatedBench.from_config(cfg, reducer), profile, reducer)
             truth["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
         used_seed = cfg.sim.seed
     return SimulatedRun(cfg, reducer, profile, used_seed, record, rec.evaluated_samples(), truth, compensation)
+
+
+def _truth(sim_bench, profile: Profile, reducer: ReducerSpec) -> dict[str, Any]:
+    """The simulated reducer's exact characteristics for this test, with the physics parameters behind them."""
+    truth = sim_bench.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
+    truth["physics"] = {k: v for k, v in sim_bench.physics.to_dict().items() if k != "name"}
+    return truth
 
 
 def evaluate_run(result: SimulatedRun):
