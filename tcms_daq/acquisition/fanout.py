@@ -101,12 +101,18 @@ class Subscription:
 
     def close(self, join_timeout_s: float = 2.0) -> None:
         """Stop receiving; a callback subscriber's thread first delivers what is queued (joined here)."""
+        self._shut()
+        self._join(join_timeout_s)
+
+    def _shut(self) -> None:
         self._fanout.unsubscribe(self)
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+
+    def _join(self, timeout_s: float) -> None:
         if self.thread is not None and self.thread is not threading.current_thread():
-            self.thread.join(join_timeout_s)
+            self.thread.join(timeout_s)
 
 
 class FanOut:
@@ -116,7 +122,6 @@ class FanOut:
         self._subs: list[Subscription] = []
         self._lock = threading.Lock()
         self._seq = 0
-        self._threads: list[threading.Thread] = []
         self.callback_errors: list[str] = []
 
     def subscribe(self, name: str, maxsize: int | None = 64) -> Subscription:
@@ -146,7 +151,6 @@ class FanOut:
         thread = threading.Thread(target=pump, name=f"tcms-sub-{sub.name}", daemon=True)
         thread.start()
         sub.thread = thread
-        self._threads.append(thread)
         return sub
 
     def unsubscribe(self, sub: Subscription) -> None:
@@ -179,8 +183,6 @@ class FanOut:
         with self._lock:
             subs = list(self._subs)
         for sub in subs:
-            with sub._cond:
-                sub._closed = True
-                sub._cond.notify_all()
-        for thread in self._threads:
-            thread.join(join_timeout_s)
+            sub._shut()
+        for sub in subs:  # all are closed first, so their threads drain side by side
+            sub._join(join_timeout_s)
