@@ -34,7 +34,7 @@ class Aligner:
         self._ang_v = np.empty(0)
         self._ang_x: dict[str, np.ndarray] | None = None  # extra columns held with the angle readings
 
-    def _hold_extra(self, n_new: int, extra: dict[str, np.ndarray] | None) -> None:
+    def _hold_extra(self, extra: dict[str, np.ndarray] | None) -> None:
         extra = extra or {}
         if self._ang_x is None:
             self._ang_x = {k: np.asarray(v, float) for k, v in extra.items()}
@@ -60,7 +60,7 @@ class Aligner:
         if len(angle_t):
             self._ang_t = np.concatenate([self._ang_t, np.asarray(angle_t, float)])
             self._ang_v = np.concatenate([self._ang_v, np.asarray(angle_v, float)])
-            self._hold_extra(len(angle_t), angle_extra)
+            self._hold_extra(angle_extra)
         self.released_extra: dict[str, np.ndarray] = {}
         if not len(self._ang_t) or not len(self._tq_t):
             return np.empty(0), np.empty(0), np.empty(0)
@@ -72,27 +72,27 @@ class Aligner:
         if not take.any():
             return np.empty(0), np.empty(0), np.empty(0)
         # release in order: everything up to the last releasable reading
-        n = int(np.flatnonzero(take)[-1]) + 1
-        t = self._ang_t[:n]
-        a = self._ang_v[:n]
-        tq = np.interp(t, self._tq_t, self._tq_v)
-        self.released_extra = self._release_extra(n)
-        self._ang_t = self._ang_t[n:]
-        self._ang_v = self._ang_v[n:]
+        t, tq, a = self._release(int(np.flatnonzero(take)[-1]) + 1)
         keep_from = np.searchsorted(self._tq_t, t[-1] - _KEEP_S)
         keep_from = min(int(keep_from), len(self._tq_t) - 2) if len(self._tq_t) >= 2 else 0
         self._tq_t = self._tq_t[max(keep_from, 0):]
         self._tq_v = self._tq_v[max(keep_from, 0):]
         return t, tq, a
 
+    def _release(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first ``n`` held angle readings with their interpolated torque; their extras go to
+        ``released_extra``."""
+        t, a = self._ang_t[:n], self._ang_v[:n]
+        tq = np.interp(t, self._tq_t, self._tq_v)
+        self.released_extra = self._release_extra(n)
+        self._ang_t, self._ang_v = self._ang_t[n:], self._ang_v[n:]
+        return t, tq, a
+
     def flush(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Release every held angle reading (end of run)."""
+        """Release every held angle reading (end of run); without any torque reading they are discarded."""
         self.released_extra = {}
         if not len(self._ang_t) or not len(self._tq_t):
             self._ang_t = self._ang_v = np.empty(0)
+            self._ang_x = None  # discarded with their angle readings
             return np.empty(0), np.empty(0), np.empty(0)
-        t, a = self._ang_t, self._ang_v
-        tq = np.interp(t, self._tq_t, self._tq_v)
-        self.released_extra = self._release_extra(len(t))
-        self._ang_t = self._ang_v = np.empty(0)
-        return t, tq, a
+        return self._release(len(self._ang_t))

@@ -150,9 +150,8 @@ def analysis_evaluator(rated_torque_nm: float, **options: Any) -> Evaluator:
     def evaluate(samples: Samples) -> dict[str, Any]:
         from tcms_daq.analysis import evaluate as analysis_evaluate
 
-        result = analysis_evaluate(samples.time_s, samples.torque_nm, samples.angle_arcsec,
-                                   rated_torque_nm=rated_torque_nm, **options)
-        return result.to_dict() if hasattr(result, "to_dict") else dict(result)
+        return analysis_evaluate(samples.time_s, samples.torque_nm, samples.angle_arcsec,
+                                 rated_torque_nm=rated_torque_nm, **options).to_dict()
 
     return evaluate
 
