@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from sim.drive import TorqueDrive
+from sim.effects import from_config as effects_from_config
 from sim.physics import LoopTruth, ReducerPhysics, TwistState, loop_truth, physics_from_spec, twist_arcsec
 from sim.sensors import EncoderModel, TorqueSensorModel
 from tcms_daq.config.loader import get_reducer, load_reducers_for, validate
@@ -272,17 +273,10 @@ def _measuring_chain_from_geometry(path: str) -> MeasuringChain:
 
 
 def _effects_from_config(table: dict[str, Any], *, seed: int, source: str | None) -> Effects | None:
-    """Build the hidden-effects hook from a [sim.effects] table via ``sim.effects.from_config`` (if present)."""
+    """The hidden-effects hook of a [sim.effects] table (``sim.effects.from_config``); errors name the file."""
     where = source or "<config>"
     try:
-        from sim import effects as effects_module  # optional module (hidden effects)
-    except ImportError:
-        raise ConfigError(f"{where}: sim.effects: effects configured but sim/effects.py is not available") from None
-    build = getattr(effects_module, "from_config", None)
-    if build is None:
-        raise ConfigError(f"{where}: sim.effects: sim/effects.py has no from_config(table, seed=...)")
-    try:
-        return build(table, seed=seed)
+        return effects_from_config(table, seed=seed)
     except ConfigError as exc:
         message = str(exc)
         raise ConfigError(message if message.startswith(where) else f"{where}: {message}") from None
