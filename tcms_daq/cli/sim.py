@@ -23,6 +23,7 @@ import signal
 import threading
 from typing import Any
 
+from sim.instruments.tcp import TcpServer
 from tcms_daq.errors import ConfigError, TcmsError
 
 
@@ -73,12 +74,6 @@ def _options(args: argparse.Namespace, cfg: Any):
         raise ConfigError(f"[simulators]: {exc}") from None
 
 
-def _physics(cfg: Any):
-    from drivers.virtual import default_physics_factory
-
-    return default_physics_factory(cfg)
-
-
 def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
     host = opts.host
     urls = {}
@@ -96,6 +91,7 @@ def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    from drivers.virtual import default_physics_factory
     from sim.instruments.physics import SharedPhysics
     from sim.instruments.serve import InstrumentSimulators
     from tcms_daq.config import load_bench_config
@@ -104,9 +100,10 @@ def _serve(args: argparse.Namespace) -> int:
         raise ConfigError(f"--speed must be > 0, got {args.speed}")
     cfg = load_bench_config(args.config)
     opts = _options(args, cfg)
-    physics = SharedPhysics(_physics(cfg))
+    physics = SharedPhysics(default_physics_factory(cfg))
     sims = InstrumentSimulators(physics, opts)
     stop = threading.Event()
+    control = None
     try:
         try:
             ports = sims.start()
@@ -124,43 +121,30 @@ def _serve(args: argparse.Namespace) -> int:
         }), flush=True)
         stop.wait(args.duration)
     finally:
+        if control is not None:
+            sims.loop.run(control.stop())
         physics.stop()
         sims.stop()
     return 0
 
 
-class ControlServer:
+class ControlServer(TcpServer):
     """Line-based JSON control channel (fault injection, restarts, status) on the simulators' event loop."""
 
+    name = "control channel"
+
     def __init__(self, sims, host: str = "127.0.0.1", port: int = 0):
+        super().__init__(host, port)
         self.sims = sims
-        self.host = host
-        self.port = port
-        self._server = None
 
-    async def start(self) -> int:
-        self._server = await asyncio.start_server(self._handle, self.host, self.port)
-        self.port = self._server.sockets[0].getsockname()[1]
-        return self.port
-
-    async def stop(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            self._server = None
-
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            while line := await reader.readline():
-                try:
-                    reply = await asyncio.to_thread(self.execute, json.loads(line))
-                except Exception as exc:  # noqa: BLE001 - every failure is answered, the channel stays up
-                    reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-                writer.write((json.dumps(reply) + "\n").encode())
-                await writer.drain()
-        except ConnectionError:
-            pass
-        finally:
-            writer.close()
+    async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        while line := await reader.readline():
+            try:
+                reply = await asyncio.to_thread(self.execute, json.loads(line))
+            except Exception as exc:  # noqa: BLE001 - every failure is answered, the channel stays up
+                reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            writer.write((json.dumps(reply) + "\n").encode())
+            await writer.drain()
 
     def execute(self, request: dict[str, Any]) -> dict[str, Any]:
         cmd = request.get("cmd")
