@@ -93,22 +93,12 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
 # Signals and columns
 
 
-def _segment_index(data: DesignData) -> list[np.ndarray]:
-    cached = getattr(data, "_segment_index", None)
-    if cached is None:
-        order = np.argsort(data.segments, kind="stable")
-        bounds = np.flatnonzero(np.diff(data.segments[order])) + 1
-        cached = np.split(order, bounds)
-        object.__setattr__(data, "_segment_index", cached)
-    return cached
-
-
 def skew_shift(data: DesignData, skew_s: float, rows: np.ndarray | None = None) -> np.ndarray:
     """θ_sim(t + τ) − θ_sim(t), interpolating the simulated angle in time within each continuous segment
     (at ``rows`` only, if given)."""
     if rows is None:
         out = np.zeros(len(data))
-        for idx in _segment_index(data):
+        for idx in data.segment_rows:
             if len(idx) < 2:
                 continue
             t = data.time_s[idx]
@@ -117,7 +107,7 @@ def skew_shift(data: DesignData, skew_s: float, rows: np.ndarray | None = None) 
         return out
     out = np.zeros(len(rows))
     seg = data.segments[rows]
-    for idx in _segment_index(data):
+    for idx in data.segment_rows:
         if len(idx) < 2:
             continue
         mine = np.flatnonzero(seg == data.segments[idx[0]])

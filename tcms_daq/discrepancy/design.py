@@ -10,6 +10,7 @@ at t + τ).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -180,6 +181,12 @@ class DesignData:
     @property
     def residual_arcsec(self) -> np.ndarray:
         return self.measured_angle_arcsec - self.sim_angle_arcsec
+
+    @cached_property
+    def segment_rows(self) -> list[np.ndarray]:
+        """Row indices of each time-continuous segment, in segment order (computed once)."""
+        order = np.argsort(self.segments, kind="stable")
+        return np.split(order, np.flatnonzero(np.diff(self.segments[order])) + 1)
 
     def __len__(self) -> int:
         return len(self.torque_nm)
