@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tcms_daq.discrepancy import catalogue as cat
-from tcms_daq.discrepancy.design import DesignData, block_groups
+from tcms_daq.discrepancy.design import MIN_GROUPS, DesignData, block_groups
 
 SCAN_ROWS = 3000
 SELECT_ROWS = 12000  # the selection runs on at most this many evenly strided rows
@@ -31,7 +31,6 @@ MAX_TERMS = 4
 MIN_STEP_GAIN = 0.01  # continue the path while a step cuts the CV RMS by ≥ 1 %
 MIN_GAIN = 0.03  # an accepted term must cut the CV RMS by ≥ 3 %
 ALIAS_CORR = 0.9
-MIN_GROUPS = 3
 
 
 class Columns:
