@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any, Self
+from typing import Any, Self, TypeVar
 
 import numpy as np
 import serial
@@ -26,6 +26,7 @@ from drivers.base import Batch, Clock, Disconnected, InstrumentTimeout, Malforme
 
 # A function that reads one reply from an open port (e.g. ``lambda port: port.read_until(b"\r\n", 64)``).
 ReplyReader = Callable[[serial.SerialBase], bytes]
+T = TypeVar("T")
 
 
 def open_serial_url(url: str, **settings: Any) -> serial.SerialBase:
@@ -105,18 +106,7 @@ class SerialLink:
 
     def exchange(self, request: bytes, reader: ReplyReader) -> bytes:
         """Send ``request`` and return the raw reply; empty reply -> InstrumentTimeout."""
-        if not self.is_open:
-            self._reopen("port not open")
-        try:
-            reply = self._exchange_once(request, reader)
-        except (serial.SerialException, OSError) as exc:
-            # Broken link (e.g. the simulator restarted): re-open, then retry this request exactly once.
-            self._reopen(exc)
-            try:
-                reply = self._exchange_once(request, reader)
-            except (serial.SerialException, OSError) as exc2:
-                self.close()
-                raise Disconnected(self.instrument, f"link to {self.url} broken again: {exc2}") from exc2
+        reply = self._once_more(lambda: self._exchange_once(request, reader))
         if not reply:
             raise InstrumentTimeout(
                 self.instrument, f"no reply to {request!r} within {self.timeout_s:g} s on {self.url}"
@@ -125,25 +115,34 @@ class SerialLink:
 
     def send(self, request: bytes) -> None:
         """Write without expecting a reply (e.g. the AED buffer-clearing ';')."""
+        self._once_more(lambda: self._write(request))
+
+    def _once_more(self, op: Callable[[], T]) -> T:
+        """Run ``op`` on an open port; on a broken link (e.g. the simulator restarted) re-open, then retry
+        exactly once."""
         if not self.is_open:
             self._reopen("port not open")
         try:
-            self._port.write(request)
-            self._port.flush()
+            return op()
         except (serial.SerialException, OSError) as exc:
             self._reopen(exc)
             try:
-                self._port.write(request)
+                return op()
             except (serial.SerialException, OSError) as exc2:
                 self.close()
                 raise Disconnected(self.instrument, f"link to {self.url} broken again: {exc2}") from exc2
+
+    def _write(self, request: bytes) -> None:
+        port = self._port
+        assert port is not None
+        port.write(request)
+        port.flush()
 
     def _exchange_once(self, request: bytes, reader: ReplyReader) -> bytes:
         port = self._port
         assert port is not None
         port.reset_input_buffer()  # drop late bytes of an earlier timed-out or malformed reply
-        port.write(request)
-        port.flush()
+        self._write(request)
         return reader(port)
 
 
