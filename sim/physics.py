@@ -46,7 +46,7 @@ import numpy as np
 
 from tcms_daq.config.models import ReducerSpec
 from tcms_daq.errors import ConfigError
-from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
+from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD, nm_per_arcmin_to_arcsec_per_nm
 
 # Chunk length of the hysteresis recurrence in units of T_z of travelled torque (keeps exp() finite).
 _CHUNK_DECAY = 600.0
@@ -63,7 +63,7 @@ class ReducerPhysics:
     """
 
     name: str = "reducer"
-    compliance_arcsec_per_nm: float | None = 60.0 / 294.0
+    compliance_arcsec_per_nm: float | None = nm_per_arcmin_to_arcsec_per_nm(294.0)
     hd_breakpoints_nm: tuple[float, float] | None = None
     hd_stiffness_nm_per_rad: tuple[float, float, float] | None = None
     lost_motion_zone_arcsec: float = 0.0
@@ -299,7 +299,7 @@ def physics_from_spec(spec: ReducerSpec, rigidity_interval: tuple[float, float] 
     unit = loop_truth(params, tr, tr, spec.lost_motion_pct, rigidity_interval)
     rise_total = (hi - lo) / (unit.rigidity_pos_nm_per_arcmin / ARCSEC_PER_ARCMIN)
     rise_non_elastic = rise_total - (hi - lo) * 1.0
-    target_compliance = ARCSEC_PER_ARCMIN / float(spec.rigidity_nm_per_arcmin)  # type: ignore[arg-type]
+    target_compliance = nm_per_arcmin_to_arcsec_per_nm(float(spec.rigidity_nm_per_arcmin))  # type: ignore[arg-type]
     compliance = target_compliance - rise_non_elastic / (hi - lo)
     if compliance <= 0.0:
         raise ConfigError(
