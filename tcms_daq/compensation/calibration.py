@@ -152,10 +152,6 @@ def design_matrix(terms: Sequence[Term], data: CalibrationData) -> tuple[np.ndar
     return np.hstack(cols), index
 
 
-def _lstsq(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return np.linalg.lstsq(x, y, rcond=None)[0]
-
-
 def calibrate(
     data: CalibrationData,
     terms: Sequence[Term | str] = DEFAULT_TERMS,
@@ -207,7 +203,7 @@ def calibrate(
         if np.linalg.matrix_rank(xs[train]) < p:
             blocked[a:b] = np.nan  # this fold cannot identify every term (e.g. a period not covered)
             continue
-        coef = _lstsq(x[train], y[train])
+        coef = np.linalg.lstsq(x[train], y[train], rcond=None)[0]
         blocked[a:b] = y[a:b] - x[a:b] @ coef
     blocked_ok = blocked[np.isfinite(blocked)]
 
