@@ -58,6 +58,10 @@ class MonotonicClock:
         if duration_s > 0:
             time.sleep(duration_s / self.speed)
 
+    def monotonic_at_zero_s(self) -> float:
+        """``time.monotonic()`` when this clock read 0 (``t_mono = this + now / speed``): 0."""
+        return 0.0
+
 
 class SimulatedClock:
     """Simulated time of a :class:`TimeSource`; ``sleep`` advances the simulation.
@@ -77,6 +81,13 @@ class SimulatedClock:
 
     def now(self) -> float:
         return self.source.now_s()
+
+    def monotonic_at_zero_s(self) -> float | None:
+        """``time.monotonic()`` at which this clock read 0 when paced (``t_mono = this + now / speed``);
+        None when unpaced (``speed = inf``)."""
+        if not math.isfinite(self.speed):
+            return None
+        return self._real_start - self._sim_start / self.speed
 
     def sleep(self, duration_s: float) -> None:
         if duration_s <= 0:

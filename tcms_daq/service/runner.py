@@ -187,7 +187,7 @@ class BenchRunner:
             trip = self.acq.trip.to_dict() if self.acq.trip is not None else None
         stats = self.acq.channel_stats() if self.acq is not None else {}
         instruments = {
-            kind: {**{k: v for k, v in dict(self.bench.description.get(kind, {})).items()},
+            kind: {**dict(self.bench.description.get(kind, {})),
                    **stats.get(kind, {}), **({"status": loader} if kind == "loader" else {})}
             for kind in ("angle", "torque", "loader")
         }
@@ -211,14 +211,8 @@ class BenchRunner:
         """``time.monotonic()`` (system-wide on Linux) at which the sample clock read 0, so a client can turn
         sample time stamps into its own monotonic time: ``t_mono = this + time_s / speed``. Real instruments
         stamp with ``time.monotonic`` itself (0); a paced simulated clock has a fixed offset; None when unpaced."""
-        clock = self.bench.clock
-        if not getattr(clock, "stepped", False):
-            return 0.0
-        real_start, sim_start = getattr(clock, "_real_start", None), getattr(clock, "_sim_start", None)
-        speed = getattr(clock, "speed", float("inf"))
-        if real_start is None or sim_start is None or not np.isfinite(speed):
-            return None
-        return float(real_start - sim_start / speed)
+        at_zero = getattr(self.bench.clock, "monotonic_at_zero_s", None)
+        return None if at_zero is None else at_zero()
 
     def config_snapshot(self) -> dict[str, Any]:
         dump = getattr(self.config, "model_dump", None)
