@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import threading
 import traceback
-from collections.abc import Mapping
 from typing import Any
-
-import numpy as np
 
 from tcms_daq.errors import TcmsError
 from tcms_daq.service.events import EventHub
@@ -103,16 +100,14 @@ class TestManager:
     def _execute(self, run_id: str, plan: Any, abort: threading.Event) -> None:
         recorder = Recorder(self.store, run_id, flush_interval_s=self.recorder_flush_s)
 
-        def record(columns: Mapping[str, np.ndarray]) -> None:
-            recorder.write(columns)
-
         def on_phase(phase: str, **detail: Any) -> None:
             self.events.publish("test_phase", id=run_id, phase=phase, **detail)
 
         self.store.set_status(run_id, "running")
         self.events.publish("test_state", id=run_id, status="running")
         try:
-            outcome = self.runner.execute(plan, run_id=run_id, record=record, on_phase=on_phase, abort=abort)
+            outcome = self.runner.execute(plan, run_id=run_id, record=recorder.write, on_phase=on_phase,
+                                         abort=abort)
         except TcmsError as exc:
             outcome = RunOutcome(status="failed", error=str(exc))
         except Exception as exc:  # an internal bug must still end the run visibly, not leave it 'running'
