@@ -11,7 +11,7 @@ torque in N·m, times in s.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -67,6 +67,15 @@ class Batch:
 
     def __len__(self) -> int:
         return len(self.time_s)
+
+
+def concat_common_columns(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The extra columns of consecutive batches joined: the columns every part has, each concatenated in order
+    (a column missing from one part cannot be lined up with the readings and is left out)."""
+    if not parts:
+        return {}
+    keys = set(parts[0]).intersection(*parts[1:])
+    return {k: np.concatenate([p[k] for p in parts]) for k in sorted(keys)}
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,14 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from drivers.base import Batch, CommandRejected, DeviceFault, Disconnected, LoaderStatus
+from drivers.base import (
+    Batch,
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    LoaderStatus,
+    concat_common_columns,
+)
 from drivers.registry import register
 from tcms_daq.errors import ConfigError
 
@@ -79,9 +86,8 @@ class _ChannelBuffer:
     def take(self) -> Batch:
         if not self._time:
             return Batch.empty()
-        keys = set(self._extra[0]).intersection(*self._extra[1:])
         out = ExtraBatch(np.concatenate(self._time), np.concatenate(self._value),
-                         {k: np.concatenate([x[k] for x in self._extra]) for k in sorted(keys)})
+                         concat_common_columns(self._extra))
         self._time.clear()
         self._value.clear()
         self._extra.clear()

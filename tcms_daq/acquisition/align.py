@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivers.base import concat_common_columns
+
 # torque history kept for interpolation (s); older readings are never needed once angles pass them
 _KEEP_S = 1.0
 
@@ -35,13 +37,9 @@ class Aligner:
         self._ang_x: dict[str, np.ndarray] | None = None  # extra columns held with the angle readings
 
     def _hold_extra(self, extra: dict[str, np.ndarray] | None) -> None:
-        extra = extra or {}
-        if self._ang_x is None:
-            self._ang_x = {k: np.asarray(v, float) for k, v in extra.items()}
-            return
-        # keep only the columns every batch has (a column missing in one batch cannot be aligned)
-        self._ang_x = {k: np.concatenate([v, np.asarray(extra[k], float)]) for k, v in self._ang_x.items()
-                       if k in extra}
+        extra = {k: np.asarray(v, float) for k, v in (extra or {}).items()}
+        # only the columns every batch has are kept (concat_common_columns)
+        self._ang_x = extra if self._ang_x is None else concat_common_columns([self._ang_x, extra])
 
     def _release_extra(self, n: int) -> dict[str, np.ndarray]:
         if not self._ang_x:

@@ -32,6 +32,7 @@ from drivers.base import (
     InstrumentError,
     InstrumentTimeout,
     LoaderStatus,
+    concat_common_columns,
 )
 from tcms_daq.acquisition.align import Aligner
 from tcms_daq.acquisition.bench import Bench
@@ -82,9 +83,7 @@ class _Channel:
             parts, self.pending = self.pending, []
         if not parts:
             return Batch.empty(), {}
-        extras = [getattr(p, "extra", None) or {} for p in parts]
-        keys = set(extras[0]).intersection(*extras[1:])
-        extra = {k: np.concatenate([x[k] for x in extras]) for k in sorted(keys)}
+        extra = concat_common_columns([getattr(p, "extra", None) or {} for p in parts])
         if len(parts) == 1:
             return parts[0], extra
         return Batch(np.concatenate([p.time_s for p in parts]), np.concatenate([p.value for p in parts])), extra
