@@ -110,10 +110,14 @@ class AED(SerialInstrument):
             raise CommandRejected(self.name, f"amplifier rejected {command.decode('ascii')!r}")
         raise MalformedReply(self.name, f"reply {reply!r} to {command.decode('ascii')!r} is neither '0' nor '?'")
 
-    def _query(self, command: bytes) -> bytes:
-        """A query on a configured link; re-configures and repeats once if the link was re-opened meanwhile."""
+    def _ensure_configured(self) -> None:
+        """Configure (again) when the link was opened or re-opened since the last configuration."""
         if self._configured_epoch != self.link.reconnects:
             self._configure()
+
+    def _query(self, command: bytes) -> bytes:
+        """A query on a configured link; re-configures and repeats once if the link was re-opened meanwhile."""
+        self._ensure_configured()
         epoch = self.link.reconnects
         reply = self.link.exchange(command, _read_line)
         if epoch != self.link.reconnects:
@@ -130,6 +134,5 @@ class AED(SerialInstrument):
         return time_s, value * self.nm_per_count
 
     def tare(self) -> None:
-        if self._configured_epoch != self.link.reconnects:
-            self._configure()
+        self._ensure_configured()
         self._setting(b"TAR;")
