@@ -9,6 +9,7 @@ reconnecting with ``since`` = the last sequence it saw (and ``GET /api/tests/{id
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
 import time
 from collections import deque
@@ -16,6 +17,19 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 CLOSE_TRY_AGAIN_LATER = 1013
+
+
+async def run_until_either(sender: Awaitable[Any], closer: Awaitable[Any]) -> None:
+    """Run a client's sender and its disconnect watcher until either ends; then cancel and await both."""
+    tasks = [asyncio.ensure_future(sender), asyncio.ensure_future(closer)]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):  # the task's end is all we wait for
+                await task
 
 
 class EventClient:
@@ -87,18 +101,7 @@ class EventHub:
                 for event in self.replay_after(since):
                     await send(event)
                     sent_upto = event["seq"]
-            sender = asyncio.ensure_future(self._run_filtered(client, sent_upto))
-            closer = asyncio.ensure_future(wait_closed)
-            try:
-                await asyncio.wait({sender, closer}, return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                for task in (sender, closer):
-                    task.cancel()
-                for task in (sender, closer):
-                    try:
-                        await task
-                    except BaseException:  # noqa: BLE001 - the task's end is all we wait for
-                        pass
+            await run_until_either(self._run_filtered(client, sent_upto), wait_closed)
         finally:
             self.clients.discard(client)
         return client

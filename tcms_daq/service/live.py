@@ -28,7 +28,6 @@ and exports are never decimated.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import struct
 import threading
 import time
@@ -37,6 +36,8 @@ from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+
+from tcms_daq.service.events import run_until_either
 
 FRAME_MAGIC = b"TCMS"
 FRAME_VERSION = 1
@@ -313,15 +314,8 @@ class LiveHub:
     async def serve(self, send: Callable[[bytes], Awaitable[None]], wait_closed: Awaitable[None]) -> LiveClient:
         """Register a client, run its sender until it is evicted or ``wait_closed`` finishes (disconnect)."""
         client = self.add_client(send)
-        sender = asyncio.ensure_future(client.run())
-        closer = asyncio.ensure_future(wait_closed)
         try:
-            await asyncio.wait({sender, closer}, return_when=asyncio.FIRST_COMPLETED)
+            await run_until_either(client.run(), wait_closed)
         finally:
             self.remove_client(client)
-            for task in (sender, closer):
-                task.cancel()
-            for task in (sender, closer):
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await task
         return client
