@@ -85,12 +85,7 @@ class Drive402Model:
         self.quick_stop_option = int(quick_stop_option)
         self.target_window_permille = int(target_window_permille)
         self.counts_per_rev = int(counts_per_rev)
-        self.state = State.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at power-on
-        self.controlword = 0
-        self.mode = 0
-        self.target_torque_permille = 0
-        self.error_code = 0
-        self.error_register = 0
+        self._power_on_state()
         self._emcy_listeners: list[EmcyListener] = []
         self._latest = physics.latest()
         physics.add_tick_hook(self._on_tick)
@@ -99,13 +94,16 @@ class Drive402Model:
     def power_cycle(self) -> None:
         """Restart the drive: SWITCH ON DISABLED, no mode, zero target, errors cleared, torque off."""
         with self.lock:
-            self.state = State.SWITCH_ON_DISABLED
-            self.controlword = 0
-            self.mode = 0
-            self.target_torque_permille = 0
-            self.error_code = 0
-            self.error_register = 0
+            self._power_on_state()
             self._apply()
+
+    def _power_on_state(self) -> None:
+        self.state = State.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at power-on
+        self.controlword = 0
+        self.mode = 0
+        self.target_torque_permille = 0
+        self.error_code = 0
+        self.error_register = 0
 
     def detach(self) -> None:
         self.physics.remove_tick_hook(self._on_tick)
