@@ -31,14 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _service_token(config_path: Path | None) -> str | None:
-    """``[service] api_token`` from the bench config, if present."""
-    if config_path is None:
-        return None
-    from tcms_daq.config.loader import read_toml
-
-    data = read_toml(config_path)
-    token = (data.get("service") or {}).get("api_token")
+def _service_token(config) -> str | None:
+    """``[service] api_token`` of the loaded bench config, if present."""
+    token = ((config.model_extra or {}).get("service") or {}).get("api_token")
     return str(token) if token else None
 
 
@@ -56,12 +51,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--port must be 0…65535, got {args.port}")
     data_dir = args.data_dir or Path(os.environ.get("TCMS_DATA_DIR", DEFAULT_DATA_DIR))
     _check_store(Path(data_dir) / STORE_FILENAME)
-    settings = ServiceSettings(
-        data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(args.config)
-    )
     # Compose the bench and reach its instruments before the server starts, so a bad config or an instrument
     # that does not answer is a one-line error, not a startup traceback after the URL was printed.
     runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed)
+    settings = ServiceSettings(
+        data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(runner.config)
+    )
     sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
@@ -120,7 +115,7 @@ def _print_banner(args: argparse.Namespace, app, runner, port: int, store_path: 
     base = f"http://{host}:{port}"
     token = app.state.api_token
     where = {"generated": "generated for this session", "environment": "from TCMS_API_TOKEN",
-             "config": f"from {args.config} [service] api_token"}[app.state.api_token_source]
+             "config": f"from {runner.config_path} [service] api_token"}[app.state.api_token_source]
     status = runner.status()
     clock = (f"simulated clock at {args.sim_speed:g}× real time" if status["clock"] == "simulated"
              else "real-time clock")
