@@ -112,22 +112,14 @@ def _as_dict(obj: Any) -> dict[str, Any]:
 
 
 def load_compensator(path: str | Path) -> Any:
-    """The compensator stored in a TOML file (``tcms_daq.compensation``); ConfigError when unusable."""
+    """The compensator of a compensator or geometry TOML (``tcms_daq.compensation.load_compensator``);
+    ConfigError when unusable."""
+    from tcms_daq.compensation import load_compensator as load
+
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"compensation model {path}: no such file")
-    try:
-        from tcms_daq.compensation import Compensator
-    except ImportError as exc:
-        raise ConfigError(f"compensation model {path}: tcms_daq.compensation unavailable ({exc})") from None
-    for loader_name in ("load", "from_toml_file", "read_toml", "from_file"):
-        loader = getattr(Compensator, loader_name, None)
-        if loader is not None:
-            return loader(path)
-    from_toml = getattr(Compensator, "from_toml", None)
-    if from_toml is not None:
-        return from_toml(path.read_text(encoding="utf-8"))
-    raise ConfigError(f"compensation model {path}: Compensator has no TOML loader")
+    return load(path)
 
 
 def _accepts(cls: Any, name: str) -> bool:
