@@ -29,6 +29,10 @@ class Clock(Protocol):
         """Let ``duration_s`` of this clock's time pass."""
         ...
 
+    def monotonic_at_zero_s(self) -> float | None:
+        """``time.monotonic()`` at which this clock read 0 (``t_mono = this + now / speed``), None if unpaced."""
+        ...
+
 
 @runtime_checkable
 class TimeSource(Protocol):

@@ -195,8 +195,8 @@ class BenchRunner:
             "name": self.bench.name,
             "config": str(self.config_path),
             "max_torque_nm": self.bench.max_torque_nm,
-            "clock": "simulated" if getattr(self.bench.clock, "stepped", False) else "monotonic",
-            "sim_speed": self.sim_speed if getattr(self.bench.clock, "stepped", False) else None,
+            "clock": "simulated" if self.bench.clock.stepped else "monotonic",
+            "sim_speed": self.sim_speed if self.bench.clock.stepped else None,
             "monotonic_at_clock_zero_s": self._monotonic_at_clock_zero(),
             "connected": bool(self.bench.connected),
             "compensation": self.bench.description.get("compensation"),
@@ -211,13 +211,10 @@ class BenchRunner:
         """``time.monotonic()`` (system-wide on Linux) at which the sample clock read 0, so a client can turn
         sample time stamps into its own monotonic time: ``t_mono = this + time_s / speed``. Real instruments
         stamp with ``time.monotonic`` itself (0); a paced simulated clock has a fixed offset; None when unpaced."""
-        at_zero = getattr(self.bench.clock, "monotonic_at_zero_s", None)
-        return None if at_zero is None else at_zero()
+        return self.bench.clock.monotonic_at_zero_s()
 
     def config_snapshot(self) -> dict[str, Any]:
-        dump = getattr(self.config, "model_dump", None)
-        data = dump(mode="json") if dump is not None else dict(self.config)
-        return {"source": str(self.config_path), "sim_speed": self.sim_speed, **data}
+        return {"source": str(self.config_path), "sim_speed": self.sim_speed, **self.config.model_dump(mode="json")}
 
     # -- compensation ----------------------------------------------------------------------------------------
     def compensator_toml(self) -> str:
