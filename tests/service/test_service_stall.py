@@ -11,12 +11,11 @@ from svc_helpers import ScriptedRunner, serve, wait_for
 from test_service_api import LiveReader
 
 
-def _rate(reader: LiveReader, seconds: float) -> tuple[float, list[int]]:
+def _received_during(reader: LiveReader, seconds: float) -> list[int]:
+    """Sequence numbers of the frames ``reader`` received over the next ``seconds``."""
     n0 = len(reader.frames)
-    t0 = time.monotonic()
     time.sleep(seconds)
-    frames = reader.frames[n0:]
-    return len(frames) / (time.monotonic() - t0), [f.sequence for f in frames]
+    return [f.sequence for f in reader.frames[n0:]]
 
 
 @contextmanager
@@ -38,26 +37,31 @@ def _stalled_client(srv) -> websocket.WebSocket:
 
 
 def test_stalled_client_does_not_slow_a_healthy_one(settings_factory):
+    """The frame header's sequence number counts the frames the hub produced, so a healthy client that receives
+    an unbroken run of sequence numbers and has nothing queued has the hub's full frame rate — judged by counts,
+    not by the wall clock, so CPU load on the test machine cannot fail it."""
     with _fast_service(settings_factory, live_queue_frames=20, live_stall_timeout_s=30.0) as (srv, c):
         healthy = LiveReader(f"{srv.ws_base}/ws/live")
         healthy.start()
-        time.sleep(0.5)
-        alone_rate, _ = _rate(healthy, 2.0)
+        alone = _received_during(healthy, 1.0)
 
         stalled = _stalled_client(srv)
         stats = wait_for(lambda: [s for s in c.get("/api/live/clients").json()["clients"] if s["dropped"] > 0],
                          timeout_s=30)
         first_dropped = stats[0]["dropped"]
-        shared_rate, seqs = _rate(healthy, 2.0)
-        later = [s for s in c.get("/api/live/clients").json()["clients"] if s["dropped"] > 0]
-        assert later and later[0]["dropped"] > first_dropped  # it keeps losing its own oldest frames
-        assert later[0]["queued"] <= 20  # bounded
+        shared = _received_during(healthy, 2.0)
+        clients = c.get("/api/live/clients").json()["clients"]
         healthy.close()
         stalled.close()
 
-    assert 20 <= alone_rate <= 30
-    assert shared_rate >= 0.9 * alone_rate, (alone_rate, shared_rate)
-    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # the healthy client lost nothing
+    later = [s for s in clients if s["dropped"] > 0]
+    assert len(later) == 1 and later[0]["dropped"] > first_dropped  # it keeps losing its own oldest frames
+    assert later[0]["queued"] <= 20  # bounded
+    current = [s for s in clients if s["dropped"] == 0]
+    assert len(current) == 1 and current[0]["queued"] <= 2  # the healthy client keeps up with the hub
+    for seqs in (alone, shared):
+        assert len(seqs) >= 5
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # every frame the hub produced, none lost
     assert all(f.dropped == 0 for f in healthy.frames)
 
 
