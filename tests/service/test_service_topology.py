@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import time
 import tomllib
 from pathlib import Path
 
@@ -55,12 +54,11 @@ def test_service_and_simulators_as_two_processes(tmp_path):
                                        "profile": "continuous", "rate_nm_per_s": 600})
         assert r.status_code == 202, r.text
         run_id = r.json()["id"]
-        t0 = time.monotonic()
         run = wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"]
                        in ("completed", "failed", "aborted") and t, timeout_s=90)
         assert run["status"] == "completed", run["error"]
         assert 200 < run["results"]["rigidity_nm_per_arcmin"] < 400
-        assert run["sample_count"] > 100 and time.monotonic() - t0 < 90
+        assert run["sample_count"] > 100
     finally:
         if service is not None:
             stop_process(service)
