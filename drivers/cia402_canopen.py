@@ -68,6 +68,14 @@ RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
 SETTING_OBJECTS = {"max_torque": 0x6072, "torque_slope": 0x6087, "mode": 0x6060}  # CiA402Loader settings
 
 
+#: python-can interfaces of real CAN adapters a loader URL may name (``pcan://PCAN_USBBUS1``); network-based
+#: software buses other than socketcand are refused: they are not confined to the bench's loopback or bus.
+HARDWARE_CAN_INTERFACES = frozenset({
+    "socketcan", "pcan", "kvaser", "ixxat", "vector", "slcan", "gs_usb", "nican", "nixnet", "canalystii",
+    "seeedstudio", "systec", "usb2can", "neovi", "etas", "cantact", "robotell", "serial",
+})
+
+
 def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
     """python-can bus options for a loader URL (see module doc)."""
     parsed = urlparse(url)
@@ -81,8 +89,9 @@ def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
         if not channel:
             raise ConfigError(f"CAN URL {url!r}: expected virtual://channel")
         return {"interface": "virtual", "channel": channel}
-    if parsed.scheme in ("udp_multicast",):
-        raise ConfigError(f"CAN URL {url!r}: udp_multicast leaves the loopback; use socketcand or virtual")
+    if parsed.scheme and parsed.scheme not in HARDWARE_CAN_INTERFACES:
+        raise ConfigError(f"CAN URL {url!r}: unsupported CAN interface {parsed.scheme!r} (use socketcand://, "
+                          f"virtual:// or a CAN adapter: {', '.join(sorted(HARDWARE_CAN_INTERFACES))})")
     if parsed.scheme and (parsed.netloc or parsed.path):
         options: dict[str, Any] = {"interface": parsed.scheme, "channel": (parsed.netloc + parsed.path).strip("/")}
         if bitrate:

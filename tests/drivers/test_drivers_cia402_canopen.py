@@ -42,8 +42,10 @@ def test_url_parsing():
     assert parse_can_url("socketcand://127.0.0.1:29536/can0") == {
         "interface": "socketcand", "host": "127.0.0.1", "port": 29536, "channel": "can0"}
     assert parse_can_url("virtual://bench-7") == {"interface": "virtual", "channel": "bench-7"}
-    with pytest.raises(ConfigError, match="multicast"):
-        parse_can_url("udp_multicast://x")
+    with pytest.raises(ConfigError, match="unsupported CAN interface 'multicast'"):
+        parse_can_url("multicast://x")
+    assert parse_can_url("pcan://PCAN_USBBUS1", bitrate=1_000_000) == {
+        "interface": "pcan", "channel": "PCAN_USBBUS1", "bitrate": 1_000_000}
     with pytest.raises(ConfigError):
         parse_can_url("socketcand://127.0.0.1/can0")
 
