@@ -31,6 +31,7 @@ recovers the truth (used by the simulated bench as its measuring chain).
 from __future__ import annotations
 
 import math
+import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -432,13 +433,24 @@ class Compensator:
     @classmethod
     def load(cls, path: str | Path) -> Compensator:
         """Load a compensator TOML ([compensator] + [[terms]]) or a geometry TOML ([structure] + [parts.N])."""
-        path = Path(path)
-        data = read_toml(path)
+        return cls._from_toml_data(read_toml(path), str(path))
+
+    @classmethod
+    def loads(cls, text: str, source: str = "<compensator>") -> Compensator:
+        """``load`` for TOML text (e.g. an uploaded body); ConfigError naming ``source`` if it does not parse."""
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{source}: invalid TOML: {exc}") from None
+        return cls._from_toml_data(data, source)
+
+    @classmethod
+    def _from_toml_data(cls, data: dict[str, Any], source: str) -> Compensator:
         if "structure" in data:
-            return cls.from_geometry(geometry_from_dict(data, source=str(path)))
+            return cls.from_geometry(geometry_from_dict(data, source=source))
         if "terms" in data or "compensator" in data:
-            return cls.from_dict(data, source=str(path))
-        raise ConfigError(f"{path}: neither a compensator ([[terms]]) nor a geometry file ([structure], [parts.N])")
+            return cls.from_dict(data, source=source)
+        raise ConfigError(f"{source}: neither a compensator ([[terms]]) nor a geometry file ([structure], [parts.N])")
 
     def __repr__(self) -> str:
         return f"Compensator({[t.label() for t in self.terms]})"

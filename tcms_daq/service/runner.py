@@ -227,22 +227,12 @@ class BenchRunner:
 
     def set_compensator_toml(self, text: str) -> None:
         """Replace the compensator (compensator TOML or geometry TOML). RequestRejected when it does not load."""
-        import tempfile
-        import tomllib
-
         from tcms_daq.compensation import Compensator
 
         try:
-            tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise RequestRejected(f"compensation: invalid TOML ({exc})") from None
-        with tempfile.TemporaryDirectory(prefix="tcms-comp-") as tmp:
-            path = Path(tmp) / "compensation.toml"
-            path.write_text(text, encoding="utf-8")
-            try:
-                compensator = Compensator.load(path)
-            except TcmsError as exc:
-                raise RequestRejected(f"compensation: {str(exc).replace(str(path), 'body')}") from None
+            compensator = Compensator.loads(text, source="body")
+        except TcmsError as exc:
+            raise RequestRejected(f"compensation: {exc}") from None
         self.bench.compensator = compensator  # one attribute swap: the next batch uses it
         self.bench.description["compensation"] = "uploaded (PUT /api/compensation)"
 

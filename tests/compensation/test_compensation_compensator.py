@@ -1,6 +1,7 @@
 """The compensator: convention θ_c = θ − Σ term, vectorised fast path, TOML round trip, forward chain."""
 
 import math
+import pathlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,3 +216,17 @@ def test_untilted_geometry_gives_the_eq2_eccentricity_term(paper_geometry_path):
 def test_empty_batch():
     out = full_compensator().apply(np.empty(0), np.empty(0))
     assert out.shape == (0,)
+
+
+def test_loads_parses_text_like_load(tmp_path):
+    from tcms_daq.compensation import Compensator
+    from tcms_daq.errors import ConfigError
+
+    comp = Compensator.from_geometry(pathlib.Path(__file__).resolve().parents[2] / "config" / "geometry-sim.toml")
+    path = tmp_path / "c.toml"
+    comp.save(path)
+    assert Compensator.loads(path.read_text(), source="body") == Compensator.load(path)
+    with pytest.raises(ConfigError, match=r"^body: invalid TOML"):
+        Compensator.loads("[[terms]\n", source="body")
+    with pytest.raises(ConfigError, match=r"^body: neither a compensator"):
+        Compensator.loads("x = 1\n", source="body")
