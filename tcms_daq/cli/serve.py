@@ -42,8 +42,9 @@ def run(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from tcms_daq.service.app import STORE_FILENAME, ServiceSettings, create_app
+    from tcms_daq.service.app import ServiceSettings, create_app
     from tcms_daq.service.runner import BenchRunner
+    from tcms_daq.store import STORE_FILENAME
 
     if not (args.sim_speed > 0 and math.isfinite(args.sim_speed)):
         raise ConfigError(f"--sim-speed must be a positive number, got {args.sim_speed}")

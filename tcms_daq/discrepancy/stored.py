@@ -97,8 +97,7 @@ def resimulate(measured: Samples, reducer_name: str) -> Samples:
 
 def stored_pair(run_id: str, data_dir: str | Path | None = None) -> tuple[Samples, Samples]:
     """(measured, simulated) of a stored run; raises DataFormatError for an unknown or empty run."""
-    from tcms_daq.service.app import STORE_FILENAME
-    from tcms_daq.store import RunStore
+    from tcms_daq.store import STORE_FILENAME, RunStore
 
     base = Path(data_dir or os.environ.get("TCMS_DATA_DIR", "data"))
     path = base / STORE_FILENAME

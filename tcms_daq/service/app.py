@@ -30,10 +30,9 @@ from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
 from tcms_daq.service.schemas import DiscrepancyRequest, Health, TestAccepted, TestRequest, TestSummary
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
-from tcms_daq.store import RunStore
+from tcms_daq.store import STORE_FILENAME, RunStore
 
 STATIC_DIR = Path(__file__).parent / "static"
-STORE_FILENAME = "tcms-runs.sqlite3"
 COMPENSATION_FILENAME = "compensation-active.toml"  # the last PUT /api/compensation, reloaded at start
 DISCREPANCY_DIRNAME = "discrepancy"  # one folder per POST /api/discrepancy analysis
 

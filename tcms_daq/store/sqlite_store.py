@@ -61,6 +61,10 @@ CREATE TABLE IF NOT EXISTS sample_batches (
 _LE_F64 = np.dtype("<f8")
 
 
+#: file name of the run store inside a data directory (``tcms serve --data-dir``)
+STORE_FILENAME = "tcms-runs.sqlite3"
+
+
 class StoreError(TcmsError):
     """The run store cannot do what was asked (unknown run, bad channel set, closed store)."""
 

@@ -107,8 +107,7 @@ def test_table4_raw_encoder_supports_the_scale_term():
 
 def test_cli_stored_run(tmp_path, capsys, pair_cache):
     """`tcms discrepancy --run ID`: a stored run against the bench model re-simulated on its torque trace."""
-    from tcms_daq.service.app import STORE_FILENAME
-    from tcms_daq.store import RunStore
+    from tcms_daq.store import STORE_FILENAME, RunStore
 
     measured, _, _ = pair_cache("backlash", 11)
     store = RunStore(tmp_path / STORE_FILENAME)

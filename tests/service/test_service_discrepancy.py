@@ -12,8 +12,7 @@ import tomli_w
 from svc_helpers import serve, wait_for
 
 from tcms_daq.cli import main
-from tcms_daq.service.app import STORE_FILENAME
-from tcms_daq.store import RunStore
+from tcms_daq.store import STORE_FILENAME, RunStore
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 500, "cycles": 1, "profile": "continuous", "rate_nm_per_s": 250}
 EXTRA_KEYS = {"id", "run_id", "created_at", "options", "report_url"}
