@@ -23,7 +23,6 @@ def read_pair_file(path: str | Path) -> tuple[Samples, bool]:
     return samples_from_columns(cols), "time_s" in cols
 
 
-_clean = jsonable  # the name tcms_daq.service.discrepancy_runs imports
 
 
 def write_outputs(result, measured: Samples, simulated: Samples, out_dir: str | Path, title: str) -> list[Path]:

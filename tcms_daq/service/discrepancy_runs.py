@@ -63,7 +63,8 @@ class DiscrepancyRuns:
             self._busy.release()
 
     def _analyse(self, request: DiscrepancyRequest) -> dict[str, Any]:
-        from tcms_daq.cli.discrepancy import _clean, write_outputs
+        from tcms_daq.analysis.evaluation import jsonable
+        from tcms_daq.cli.discrepancy import write_outputs
         from tcms_daq.discrepancy.stored import pair_from_store
         from tcms_daq.discrepancy.workflow import run_discrepancy
 
@@ -86,7 +87,7 @@ class DiscrepancyRuns:
             "created_at": datetime.fromtimestamp(time.time(), UTC).isoformat(timespec="milliseconds"),
             "options": request.model_dump(exclude={"run_id"}),
             "report_url": f"/api/discrepancy/{analysis_id}/report",
-            **_clean(result.to_dict()),
+            **jsonable(result.to_dict()),
         }
         tmp = out / (RESULT_FILENAME + ".tmp")
         tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
