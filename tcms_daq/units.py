@@ -9,6 +9,7 @@ import math
 
 ARCSEC_PER_RAD: float = 180.0 * 3600.0 / math.pi  # 206264.806…″
 ARCSEC_PER_DEG: float = 3600.0
+ARCSEC_PER_REV: float = 360.0 * ARCSEC_PER_DEG  # 1 296 000″
 ARCSEC_PER_ARCMIN: float = 60.0
 ARCMIN_PER_RAD: float = 10800.0 / math.pi  # 3437.747…
 

@@ -1,7 +1,9 @@
 """Encoder error model and compensation (DESIGN §3): the paper's DH chain and its consistent completion
-(``geometry``), the correction-term chain applied to batches (``Compensator``, ``terms``), calibration against a
-reference instrument (``calibration``) and the paper's Table 4 comparison (``table4``)."""
+(``geometry``), the correction-term chain applied to batches (``Compensator``, ``terms``; its compiled one-pass
+evaluation in ``kernel``), calibration against a reference instrument (``calibration``) and the paper's Table 4
+comparison (``table4``)."""
 
+from tcms_daq.compensation import kernel
 from tcms_daq.compensation.compensator import (
     Compensator,
     encoder_reading,
@@ -43,6 +45,7 @@ __all__ = [
     "Torsion",
     "UnknownTermError",
     "encoder_reading",
+    "kernel",
     "evaluate_geometry",
     "geometry_from_dict",
     "load_compensator",

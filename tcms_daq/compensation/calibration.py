@@ -140,7 +140,8 @@ def _resolve_terms(terms: Sequence[Term | str]) -> list[Term]:
 
 def design_matrix(terms: Sequence[Term], data: CalibrationData) -> tuple[np.ndarray, list[tuple[int, str]]]:
     """Columns of all linear parameters; the index list maps column → (term index, parameter name)."""
-    cols, index = [], []
+    cols: list[np.ndarray] = []
+    index: list[tuple[int, str]] = []
     for i, term in enumerate(terms):
         if term.time_dependent and data.time_s is None:
             raise DataFormatError(f"{data.source}: term {term.label()!r} needs a 'time_s' column")

@@ -1,31 +1,27 @@
 """The compensator: a chain of correction terms applied to numpy batches, and its inverse for the simulator.
 
-    θ_c = θ − Σ_i term_i(θ, T, t)        (θ raw encoder reading in arcsec, T torque in N·m, t time in s)
+    θ_c = θ − Σ_i term_i(θ, T, t)        θ raw encoder reading (arcsec), T torque (N·m), t time (s)
 
-``apply`` is vectorised; the fast path is shaped by memory traffic, not by arithmetic:
+A term is the encoder's error, positive when the encoder reads too much (``terms``), so it is subtracted.
+``apply`` evaluates the chain in one compiled pass over the batch (``kernel``), after sorting the terms once,
+when the compensator is built:
 
-* all terms that are linear (offset, scale, torsion) collapse into three numbers: θ_c = g·θ − c_T·T − c0
-  with g = 1 − s;
-* when there are non-linear terms that depend on θ alone (eccentricity, periodic, …), they are summed with the
-  offset into one lookup table on a grid of step h ≤ tolerance / max|d Σ/dθ| (a power of two), so the
-  nearest grid value differs from the exact sum by at most tolerance/2 (default tolerance 0.001″, far below
-  the encoder's 0.7″ resolution). The table is built lazily over the range the data visit and kept for later
-  batches; data it cannot cover (non-finite, too wide a range) are evaluated directly; ``exact=True``
-  evaluates every term directly;
-* the batch is processed in chunks of ``CHUNK`` samples with two preallocated scratch buffers, so θ and T are
-  read from memory once, every intermediate stays in the CPU's L2 cache, and the result is written once, by a
-  plain copy of the finished chunk (``np.copyto``: a streaming copy does not read the destination first, a
-  ufunc writing straight into it does). Per chunk, seven passes: index (2), table gather, c_T·T, add,
-  g·θ, subtract — then the copy;
-* the table's first and last cells hold a signalling NaN: any sample outside the tabulated range (and any NaN
-  or ±inf) lands on one of them (``np.take(mode="clip")``), and the first arithmetic on it raises the IEEE
-  invalid flag, which the chunk loop turns into FloatingPointError (``np.errstate(invalid="raise")``) and
-  answers by redoing that chunk the careful way (extend the table, or evaluate directly). So the common case
-  pays no range check;
-* anything else (time-dependent terms, terms registered later) is evaluated directly on the whole batch.
+* linear terms (offset, scale, torsion) fold into three numbers, θ_c = gain·θ − offset − c_T·T − …, with
+  gain = 1 − Σ scale coefficients and c_T = Σ torsion coefficients (″/N·m);
+* angle-only periodic terms whose period divides one revolution (the 72″ interpolation error and its harmonics,
+  eccentricity, errors that repeat over a revolution) are summed into at most two tables, each over its own
+  period: one for periods shorter than ``LONG_PERIOD_MIN_ARCSEC`` (looked up per sample) and one for longer
+  periods (folded into gain and offset per block of samples). Each table is within ``tolerance_arcsec``/4 of
+  its terms, so the result is within ``tolerance_arcsec``/2 of the exact evaluation at any angle;
+* every other term (time-dependent, non-linear in torque, not periodic, or one no table can hold) is evaluated
+  directly with numpy and subtracted.
+
+``apply(..., exact=True)`` evaluates every term directly: the reference the tests hold the fast path to.
+In both paths a reading that is not finite, or beyond ±``MAX_ABS_ANGLE_ARCSEC``, gives NaN for that sample; a
+non-finite torque gives a non-finite result where the chain uses torque; nothing raises or warns.
 
 ``encoder_reading`` is the forward direction: what the encoder reads for a true angle, so that ``apply``
-recovers the truth (used by the simulated bench as its measuring chain).
+recovers the truth (the simulated bench uses it as its measuring chain).
 """
 
 from __future__ import annotations
@@ -33,12 +29,15 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 import tomli_w
 
+from tcms_daq.compensation import kernel
 from tcms_daq.compensation.geometry import (
     GeometricModel,
     Geometry,
@@ -46,139 +45,173 @@ from tcms_daq.compensation.geometry import (
     geometry_from_dict,
     load_geometry,
 )
+from tcms_daq.compensation.kernel import MAX_ABS_ANGLE_ARCSEC, PeriodicTable
 from tcms_daq.compensation.terms import Eccentricity, Scale, Term, Torsion, term_from_dict
 from tcms_daq.config.loader import read_toml
 from tcms_daq.errors import ConfigError, DataFormatError
+from tcms_daq.units import ARCSEC_PER_REV
 
-CHUNK = 32768  # samples per chunk: θ, T and two scratch buffers (1 MiB) plus the table stay in L2
-MAX_TABLE_POINTS = 1 << 22
 DEFAULT_TOLERANCE_ARCSEC = 1e-3
-# a signalling NaN (quiet bit clear, payload 1): copying it (np.take) keeps it, arithmetic on it raises invalid
-_SIGNALLING_NAN_BITS = 0x7FF0000000000001
+LONG_PERIOD_MIN_ARCSEC = 3600.0  # periods of 1° and more go to the long-period table (folded per block)
+_COMMENSURATE_RTOL = 1e-9  # a period divides a revolution if revolution/period is this close to an integer
+
+__all__ = [
+    "DEFAULT_TOLERANCE_ARCSEC",
+    "LONG_PERIOD_MIN_ARCSEC",
+    "MAX_ABS_ANGLE_ARCSEC",
+    "Compensator",
+    "encoder_reading",
+    "load_compensator",
+    "measuring_chain_error",
+]
 
 
-class _AngleTable:
-    """offset + Σ angle-only terms on the grid x_j = (i0 + j)·h (small: it stays in cache).
+@dataclass(frozen=True)
+class FastPath:
+    """How ``apply`` evaluates a chain of terms: θ_c = gain·θ − offset − c_T·T − short(θ) − long(θ) − direct.
 
-    h is a power of two, so the index of the nearest grid point needs no multiplication: θ + K with
-    K = 1.5·2^52·h lands in a binade whose spacing is exactly h, so the result is K + round(θ/h)·h and its bit
-    pattern minus that of K is round(θ/h) (for |θ| < K/3). Positive doubles order like their bit patterns and
-    negative ones have the sign bit set, so every θ outside [lo, hi] (and NaN, ±inf) gives an index ≤ 0 or
-    ≥ size − 1: the two guard cells, which hold a signalling NaN.
+    gain: 1 − Σ scale coefficients; arcsec_per_nm: c_T, Σ torsion coefficients (″/N·m); offset_arcsec: Σ constant
+    errors; short_table, long_table: the tabulated periodic terms (or None); tabulated_terms: the terms in them;
+    direct_terms: the terms evaluated one by one with numpy.
     """
 
-    __slots__ = ("h", "add_const", "bits_offset", "i0", "values", "size", "lo", "hi", "k", "off", "take")
+    gain: float
+    arcsec_per_nm: float
+    offset_arcsec: float
+    short_table: PeriodicTable | None
+    long_table: PeriodicTable | None
+    tabulated_terms: tuple[Term, ...]
+    direct_terms: tuple[Term, ...]
 
-    def __init__(self, terms: Sequence[Term], offset: float, h: float, lo: float, hi: float):
-        self.h = h
-        self.i0 = math.floor(lo / h) - 2
-        self.add_const = 1.5 * 2.0**52 * h
-        self.bits_offset = int(np.float64(self.add_const).view(np.int64)) + self.i0
-        i1 = math.ceil(hi / h) + 2
-        x = (self.i0 + np.arange(i1 - self.i0 + 1, dtype=float)) * h
-        values = np.full_like(x, offset)
+    @classmethod
+    def plan(cls, terms: Sequence[Term], tolerance_arcsec: float) -> FastPath:
+        """Sort ``terms`` into the folded linear part, the two periodic tables (each within tolerance/4 of its
+        terms; none if tolerance is 0) and the directly evaluated rest."""
+        offset_arcsec, per_arcsec, arcsec_per_nm = _linear_sums(terms)
+        short_terms: list[tuple[Term, int]] = []
+        long_terms: list[tuple[Term, int]] = []
+        direct: list[Term] = []
         for term in terms:
-            values += term.evaluate(x, 0.0, None)
-        bits = values.view(np.uint64)
-        bits[0] = bits[-1] = _SIGNALLING_NAN_BITS
-        self.values = values
-        self.size = values.size
-        self.lo = (self.i0 + 1) * h
-        self.hi = (i1 - 1) * h
-        # the hot loop's arguments, ready-made: 0-d arrays skip the Python-scalar conversion of every ufunc
-        # call and the bound method skips np.take's wrapper (per chunk, not per sample, but it adds up)
-        self.k = np.array(self.add_const)
-        self.off = np.array(self.bits_offset, dtype=np.int64)
-        self.take = values.take
-
-    def lookup_checked(self, th: np.ndarray, u: np.ndarray, out: np.ndarray) -> bool:
-        """out ← table at the nearest grid point of each θ (u: scratch); False (out undefined) if any θ is
-        outside the table (explicit index check: the slow path must not rely on the guard cells)."""
-        idx = u.view(np.int64)
-        np.add(th, self.add_const, out=u)
-        np.subtract(idx, self.bits_offset, out=idx)
-        if idx.size and not (idx.min() >= 1 and idx.max() <= self.size - 2):
-            return False
-        np.take(self.values, idx, out=out, mode="clip")
-        return True
-
-
-class _Linear:
-    """The folded linear terms: θ_c = gain·θ − (z + c_T·T + const), z the tabulated angle-only sum."""
-
-    __slots__ = ("gain", "c_t", "const", "scaled", "has_const")
-
-    def __init__(self, gain: float, c_t: float, const: float):
-        self.scaled, self.has_const = gain != 1.0, const != 0.0
-        # 0-d arrays: no Python-scalar conversion in every ufunc call
-        self.gain, self.c_t, self.const = np.array(gain), np.array(c_t), np.array(const)
-
-    def finish(self, th, tq, z, u, o, have_z: bool) -> None:
-        """o ← gain·θ − (z + c_T·T + const) with u as scratch; z is consumed (undefined if not have_z).
-        o is written last, by a plain copy (o may alias θ)."""
-        if tq is not None:
-            if have_z:
-                np.multiply(tq, self.c_t, out=u)
-                np.add(z, u, out=z)
+            if term.linear_parts() is not None:
+                continue
+            cycles = _cycles_per_revolution(term) if tolerance_arcsec > 0 else None
+            if cycles is None:
+                direct.append(term)
+            elif ARCSEC_PER_REV / cycles < LONG_PERIOD_MIN_ARCSEC:
+                short_terms.append((term, cycles))
             else:
-                np.multiply(tq, self.c_t, out=z)
-                have_z = True
-        if self.has_const or not have_z:
-            if have_z:
-                np.add(z, self.const, out=z)
+                long_terms.append((term, cycles))
+        tables: list[PeriodicTable | None] = []
+        tabulated: list[Term] = []
+        for group in (short_terms, long_terms):
+            table = _tabulate(group, tolerance_arcsec / 4)
+            tables.append(table)
+            if table is None:
+                direct.extend(term for term, _ in group)
             else:
-                z.fill(self.const)
-        if self.scaled:
-            np.multiply(th, self.gain, out=u)
-            np.subtract(u, z, out=u)
-        else:
-            np.subtract(th, z, out=u)
-        np.copyto(o, u)
+                tabulated.extend(term for term, _ in group)
+        return cls(
+            gain=1.0 - per_arcsec,
+            arcsec_per_nm=arcsec_per_nm,
+            offset_arcsec=offset_arcsec,
+            short_table=tables[0],
+            long_table=tables[1],
+            tabulated_terms=tuple(tabulated),
+            direct_terms=tuple(direct),
+        )
+
+    def compile(self) -> None:
+        """Compile (or load from numba's cache) the kernel variant ``apply`` will call."""
+        kernel.compile_variant(self.short_table, self.long_table)
+
+
+def _linear_sums(terms: Sequence[Term]) -> tuple[float, float, float]:
+    """(offset_arcsec, per_arcsec, arcsec_per_nm): the sums of the linear terms' c0 + c1·θ + c2·T."""
+    offset_arcsec = per_arcsec = arcsec_per_nm = 0.0
+    for term in terms:
+        parts = term.linear_parts()
+        if parts is not None:
+            offset_arcsec += parts[0]
+            per_arcsec += parts[1]
+            arcsec_per_nm += parts[2]
+    return offset_arcsec, per_arcsec, arcsec_per_nm
+
+
+def _cycles_per_revolution(term: Term) -> int | None:
+    """How many times an angle-only term repeats per revolution, or None (not angle-only, not periodic, or a
+    period that does not divide a revolution)."""
+    period = term.angle_period_arcsec() if term.angle_only else None
+    if period is None or not period > 0:
+        return None
+    cycles = ARCSEC_PER_REV / period
+    whole = round(cycles)
+    if whole < 1 or abs(cycles - whole) > _COMMENSURATE_RTOL * cycles:
+        return None
+    return whole
+
+
+def _tabulate(group: list[tuple[Term, int]], max_error_arcsec: float) -> PeriodicTable | None:
+    """The sum of the group's terms tabulated over their common period (one revolution / gcd of their cycles)."""
+    if not group:
+        return None
+    terms = [term for term, _ in group]
+    period = ARCSEC_PER_REV / math.gcd(*(cycles for _, cycles in group))
+
+    def total(angle_arcsec: np.ndarray) -> np.ndarray:
+        return np.sum([term.evaluate(angle_arcsec, 0.0, None) for term in terms], axis=0)
+
+    return kernel.tabulate(total, period, max_error_arcsec)
 
 
 class Compensator:
-    """An immutable chain of correction terms (see the module docstring for the convention and units)."""
+    """An immutable chain of correction terms (see the module docstring for the convention and units).
+
+    terms: the chain; uncertainties: per term, its parameters' expanded uncertainties (or None);
+    meta: descriptive header of the TOML file; tolerance_arcsec: the fast path's error bound is half of it
+    (0: every term evaluated directly).
+    """
+
+    __slots__ = ("terms", "uncertainties", "meta", "tolerance_arcsec", "fast_path")
+
+    terms: tuple[Term, ...]
+    uncertainties: tuple[dict[str, float] | None, ...]
+    meta: MappingProxyType[str, Any]
+    tolerance_arcsec: float
+    fast_path: FastPath
 
     def __init__(
         self,
         terms: Sequence[Term] = (),
         *,
         uncertainties: Sequence[dict[str, float] | None] | None = None,
-        meta: dict[str, Any] | None = None,
+        meta: dict[str, Any] | MappingProxyType[str, Any] | None = None,
         tolerance_arcsec: float = DEFAULT_TOLERANCE_ARCSEC,
     ):
-        self.terms: tuple[Term, ...] = tuple(terms)
-        for t in self.terms:
-            if not isinstance(t, Term):
-                raise TypeError(f"not a Term: {t!r}")
-        unc = list(uncertainties) if uncertainties is not None else [None] * len(self.terms)
-        if len(unc) != len(self.terms):
+        chain = tuple(terms)
+        for term in chain:
+            if not isinstance(term, Term):
+                raise TypeError(f"not a Term: {term!r}")
+        unc = tuple(uncertainties) if uncertainties is not None else (None,) * len(chain)
+        if len(unc) != len(chain):
             raise ValueError("one uncertainty entry (or None) per term")
-        self.uncertainties: tuple[dict[str, float] | None, ...] = tuple(unc)
-        self.meta: dict[str, Any] = dict(meta or {})
-        if not tolerance_arcsec >= 0:
-            raise ConfigError("tolerance_arcsec must be >= 0")
-        self.tolerance_arcsec = float(tolerance_arcsec)
-        c0 = c1 = c2 = 0.0
-        tabulable: list[Term] = []
-        direct: list[Term] = []
-        for t in self.terms:
-            parts = t.linear_parts()
-            if parts is not None:
-                c0 += parts[0]
-                c1 += parts[1]
-                c2 += parts[2]
-            elif t.angle_only and math.isfinite(t.max_slope()):
-                tabulable.append(t)
-            else:
-                direct.append(t)
-        self._offset, self._per_arcsec, self._per_nm = c0, c1, c2
-        self._tabulable = tuple(tabulable)
-        self._direct = tuple(direct)
-        slope = sum(t.max_slope() for t in tabulable)
-        step = min(self.tolerance_arcsec / slope, 1.0) if slope > 0 else 1.0
-        self._table_h = 2.0 ** math.floor(math.log2(step)) if step > 0 else 1.0
-        self._table: _AngleTable | None = None
+        if not 0 <= tolerance_arcsec < math.inf:
+            raise ConfigError("tolerance_arcsec must be a finite number >= 0")
+        fast_path = FastPath.plan(chain, float(tolerance_arcsec))
+        fast_path.compile()
+        for name, value in (
+            ("terms", chain),
+            ("uncertainties", unc),
+            ("meta", MappingProxyType(dict(meta or {}))),
+            ("tolerance_arcsec", float(tolerance_arcsec)),
+            ("fast_path", fast_path),
+        ):
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"a Compensator is immutable (build a new one, e.g. with_terms), cannot set {name!r}")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (Compensator.from_dict, (self.to_dict(),))
 
     # ---- construction ----
     @classmethod
@@ -235,125 +268,46 @@ class Compensator:
         out: np.ndarray | None = None,
         exact: bool = False,
     ) -> np.ndarray:
-        """Compensated angle θ_c = θ − Σ term(θ, T, t) in arcsec for raw readings θ (arcsec), torque T (N·m,
-        array of θ's shape or scalar) and time t (s, needed only by time-dependent terms).
+        """Compensated angle θ_c = θ − Σ term(θ, T, t) in arcsec for raw readings θ (arcsec), torque T (N·m, an
+        array of θ's shape or a scalar) and time t (s, needed only by time-dependent terms).
 
-        ``out`` may be a preallocated float64 array of θ's shape (it may be θ itself). ``exact=True``
-        evaluates the angle-only terms directly instead of from the tabulated sum (≤ tolerance_arcsec/2).
+        ``out``: a preallocated float64 C-contiguous array of θ's shape (it may be θ itself). ``exact=True``
+        evaluates every term directly instead of from the tables (which are within tolerance_arcsec/2).
         """
-        theta = np.asarray(angle_arcsec, dtype=float)
-        shape = theta.shape
-        theta_f = np.ascontiguousarray(theta).reshape(-1)
-        n = theta_f.size
-        torque = np.asarray(torque_nm, dtype=float)
-        torque_const = 0.0
-        torque_f: np.ndarray | None = None
-        if torque.ndim == 0:
-            torque_const = float(torque)
-        else:
-            if torque.shape != shape:
-                try:
-                    torque = np.broadcast_to(torque, shape)
-                except ValueError:
-                    raise DataFormatError(
-                        f"torque shape {torque.shape} does not match angle shape {shape}"
-                    ) from None
-            torque_f = np.ascontiguousarray(torque).reshape(-1)
+        angle = np.ascontiguousarray(angle_arcsec, dtype=float)
+        shape = angle.shape
         if out is None:
             out = np.empty(shape)
-        elif out.shape != shape or out.dtype != np.float64:
-            raise ValueError("out must be a float64 array of the angle's shape")
-        if not out.flags.c_contiguous:
-            raise ValueError("out must be C-contiguous")
-        out_f = out.reshape(-1)
-        # direct terms first: ``out`` may be the input array itself
-        direct_corr = None
-        if self._direct:
-            time_f = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), shape).reshape(-1)
-            direct_corr = np.zeros(n)
-            for term in self._direct:
-                direct_corr += term.evaluate(theta_f, torque_f if torque_f is not None else torque_const, time_f)
-
-        c_t = self._per_nm
-        if c_t == 0.0:
-            torque_f = None
-        angle_terms = bool(self._tabulable)
-        # constants not in the table: the offset (when there is no table) and c_T·T for a scalar torque
-        const = c_t * torque_const + (0.0 if angle_terms else self._offset)
-        lin = _Linear(1.0 - self._per_arcsec, c_t, const)
-        use_table = angle_terms and not exact and self.tolerance_arcsec > 0
-        size = min(CHUNK, n) or 1
-        u = np.empty(size)
-        z = np.empty(size)
-        idx = u.view(np.int64)
-        if not use_table:  # linear terms only, or exact=True: no table, no guard cells
-            for s in range(0, n, CHUNK):
-                e = min(n, s + CHUNK)
-                th, uu, zz = theta_f[s:e], u[: e - s], z[: e - s]
-                if angle_terms:
-                    self._angle_sum(th, uu, zz, False)
-                lin.finish(th, None if torque_f is None else torque_f[s:e], zz, uu, out_f[s:e], angle_terms)
-        else:
-            add, sub, finish = np.add, np.subtract, lin.finish  # hot loop: no attribute lookups
-            caller_err = np.geterr()
-            with np.errstate(invalid="raise"):  # a guard cell picked up by np.take raises here
-                for s in range(0, n, CHUNK):
-                    e = min(n, s + CHUNK)
-                    m = e - s
-                    th = theta_f[s:e]
-                    tq = None if torque_f is None else torque_f[s:e]
-                    uu, zz = u[:m], z[:m]
-                    table = self._table
-                    if table is not None:
-                        ii = idx[:m]
-                        # round(θ/h) − i0 from the bit pattern of θ + K (see _AngleTable): one add, one subtract
-                        add(th, table.k, out=uu)
-                        sub(ii, table.off, out=ii)
-                        table.take(ii, None, zz, "clip")
-                        try:
-                            finish(th, tq, zz, uu, out_f[s:e], True)
-                            continue
-                        except FloatingPointError:  # a guard cell (or inf·0 and the like): redo the chunk
-                            pass
-                    with np.errstate(**caller_err):  # the careful way, under the caller's error handling
-                        self._angle_sum(th, uu, zz, True)
-                        lin.finish(th, tq, zz, uu, out_f[s:e], True)
-        if direct_corr is not None:
-            np.subtract(out_f, direct_corr, out=out_f)
+        elif out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
+            raise ValueError("out must be a C-contiguous float64 array of the angle's shape")
+        if np.may_share_memory(angle, out) and angle.ctypes.data != out.ctypes.data:
+            angle = angle.copy()  # out overlaps the input shifted: read from a copy
+        angle_flat, out_flat = angle.reshape(-1), out.reshape(-1)
+        torque = _torque_samples(torque_nm, shape)
+        time = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), shape).reshape(-1)
+        if exact:
+            correction = _sum_of_terms(self.terms, angle_flat, torque, time)
+            np.subtract(angle_flat, correction, out=out_flat)
+            out_flat[~(np.abs(angle_flat) <= MAX_ABS_ANGLE_ARCSEC)] = np.nan
+            return out
+        fast = self.fast_path
+        # the direct terms first: ``out`` may be the input array itself
+        direct = _sum_of_terms(fast.direct_terms, angle_flat, torque, time) if fast.direct_terms else None
+        torque_array, arcsec_per_nm, offset_arcsec = angle_flat, 0.0, fast.offset_arcsec
+        if isinstance(torque, np.ndarray):
+            if fast.arcsec_per_nm != 0.0:
+                torque_array, arcsec_per_nm = torque, fast.arcsec_per_nm
+        elif fast.arcsec_per_nm != 0.0:  # one torque for the whole batch: fold c_T·T into the offset
+            offset_arcsec += fast.arcsec_per_nm * torque
+        kernel.compensate(
+            angle_flat, torque_array, out_flat, fast.gain, arcsec_per_nm, offset_arcsec,
+            fast.short_table, fast.long_table,
+        )
+        if direct is not None:
+            np.subtract(out_flat, direct, out=out_flat)
         return out
 
     __call__ = apply
-
-    def _angle_sum(self, th: np.ndarray, u: np.ndarray, out: np.ndarray, use_table: bool) -> None:
-        """Slow path: out ← offset + Σ angle-only terms, from the table (extended over ``th`` if needed) when
-        allowed and possible, else evaluated directly (non-finite data, too wide a range, exact=True)."""
-        if use_table:
-            table = self._table
-            if table is not None and table.lookup_checked(th, u, out):
-                return
-            table = self._extend_table(th)
-            if table is not None and table.lookup_checked(th, u, out):
-                return
-        out.fill(self._offset)
-        for term in self._tabulable:
-            np.add(out, term.evaluate(th, 0.0, None), out=out)
-
-    def _extend_table(self, th: np.ndarray) -> _AngleTable | None:
-        lo = float(th.min())
-        hi = float(th.max())
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            return None
-        table = self._table
-        if table is not None:
-            lo, hi = min(lo, table.lo), max(hi, table.hi)
-        # grow geometrically so a sweep that widens its range rebuilds only a few times
-        margin = max(0.5 * (hi - lo), 256 * self._table_h)
-        lo, hi = lo - margin, hi + margin
-        if (hi - lo) / self._table_h > MAX_TABLE_POINTS:
-            return None
-        table = _AngleTable(self._tabulable, self._offset, self._table_h, lo, hi)
-        self._table = table
-        return table
 
     # ---- the forward direction (simulator) ----
     def encoder_reading(
@@ -364,11 +318,12 @@ class Compensator:
         true = np.asarray(true_angle_arcsec, dtype=float)
         torque = np.broadcast_to(np.asarray(torque_nm, dtype=float), true.shape)
         time = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), true.shape)
-        denom = 1.0 - self._per_arcsec
+        offset_arcsec, per_arcsec, arcsec_per_nm = _linear_sums(self.terms)
+        denom = 1.0 - per_arcsec
         if denom <= 0:
             raise ConfigError("scale coefficient >= 1: the measuring chain is not invertible")
-        base = true + self._offset + self._per_nm * torque
-        nonlinear = self._tabulable + self._direct
+        base = true + offset_arcsec + arcsec_per_nm * torque
+        nonlinear = [t for t in self.terms if t.linear_parts() is None]
         theta = base / denom
         if not nonlinear:
             return theta
@@ -426,8 +381,8 @@ class Compensator:
             uncs.append(dict(unc) if isinstance(unc, dict) else None)
         meta = {k: v for k, v in head.items() if k != "tolerance_arcsec"}
         tol = head.get("tolerance_arcsec", DEFAULT_TOLERANCE_ARCSEC)
-        if isinstance(tol, bool) or not isinstance(tol, int | float) or not tol >= 0:
-            raise ConfigError(f"{source}: tolerance_arcsec must be a number >= 0")
+        if isinstance(tol, bool) or not isinstance(tol, int | float) or not 0 <= tol < math.inf:
+            raise ConfigError(f"{source}: tolerance_arcsec must be a finite number >= 0")
         return cls(terms, uncertainties=uncs, meta=meta, tolerance_arcsec=float(tol))
 
     @classmethod
@@ -459,6 +414,28 @@ class Compensator:
         return isinstance(other, Compensator) and self.to_dict() == other.to_dict()
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _torque_samples(torque_nm, shape: tuple[int, ...]) -> np.ndarray | float:
+    """Torque (N·m) as a float (one value for the batch) or a flat float64 array of ``shape``'s size."""
+    torque = np.asarray(torque_nm, dtype=float)
+    if torque.ndim == 0:
+        return float(torque)
+    if torque.shape != shape:
+        try:
+            torque = np.broadcast_to(torque, shape)
+        except ValueError:
+            raise DataFormatError(f"torque shape {torque.shape} does not match angle shape {shape}") from None
+    return np.ascontiguousarray(torque).reshape(-1)
+
+
+def _sum_of_terms(terms: Sequence[Term], angle: np.ndarray, torque: np.ndarray | float, time: np.ndarray | None) -> np.ndarray:
+    """Σ term(θ, T, t) in arcsec, each term evaluated directly (non-finite inputs give NaN, without a warning)."""
+    total = np.zeros(angle.shape)
+    with np.errstate(invalid="ignore"):
+        for term in terms:
+            total += term.evaluate(angle, torque, time)
+    return total
 
 
 def load_compensator(path: str | Path) -> Compensator:

@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from tcms_daq.errors import ConfigError
-from tcms_daq.units import ARCSEC_PER_RAD
+from tcms_daq.units import ARCSEC_PER_RAD, ARCSEC_PER_REV
 
 TWO_PI = 2.0 * math.pi
 
@@ -46,19 +46,23 @@ class Term:
 
     Class attributes:
       type_name: the registry name (set by ``register_term``);
-      angle_only: the value depends on θ alone (the compensator may tabulate it);
+      angle_only: the value depends on θ alone (the compensator may tabulate it, see ``angle_period_arcsec``);
       time_dependent: needs ``time_s``;
       linear_params: parameter fields the value is linear in (fit by least squares); the remaining fields
         are fixed (e.g. a period) and part of the term's identity.
     """
 
+    __dataclass_fields__: ClassVar[dict[str, Any]]  # every subclass is a dataclass
     type_name: ClassVar[str] = ""
     angle_only: ClassVar[bool] = False
     time_dependent: ClassVar[bool] = False
     linear_params: ClassVar[tuple[str, ...]] = ()
 
-    def evaluate(self, angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray | None) -> np.ndarray:
-        """The error in arcsec for raw readings θ (arcsec), torque (N·m), time (s); same shape as θ."""
+    def evaluate(
+        self, angle_arcsec: np.ndarray, torque_nm: np.ndarray | float, time_s: np.ndarray | None
+    ) -> np.ndarray:
+        """The error in arcsec for raw readings θ (arcsec), torque (N·m: θ's shape or one value), time (s); same
+        shape as θ."""
         raise NotImplementedError
 
     def linear_parts(self) -> tuple[float, float, float] | None:
@@ -67,8 +71,13 @@ class Term:
         return None
 
     def max_slope(self) -> float:
-        """An upper bound of |d term/dθ| (dimensionless); used to tabulate angle-only terms within tolerance."""
+        """An upper bound of |d term/dθ| (dimensionless); the forward chain uses it to check it can invert."""
         return math.inf
+
+    def angle_period_arcsec(self) -> float | None:
+        """For an angle-only term that repeats in θ: its period in arcsec (the compensator tabulates such terms
+        over one period when the period divides a revolution); None for a term that does not repeat."""
+        return None
 
     # ---- calibration support: columns of the terms' linear parameters ----
     def design_columns(
@@ -232,6 +241,9 @@ class Eccentricity(Term):
         eps = abs(self.eccentricity_mm) / self.radius_mm
         return eps / (1.0 - eps)
 
+    def angle_period_arcsec(self) -> float:
+        return ARCSEC_PER_REV  # once per revolution
+
 
 @register_term("periodic")
 @dataclass(frozen=True)
@@ -260,6 +272,9 @@ class Periodic(Term):
 
     def max_slope(self) -> float:
         return math.hypot(self.sin_arcsec, self.cos_arcsec) * TWO_PI / self.period_arcsec
+
+    def angle_period_arcsec(self) -> float:
+        return self.period_arcsec
 
     def design_columns(self, angle_arcsec, torque_nm, time_s):
         x = np.asarray(angle_arcsec, dtype=float) * (TWO_PI / self.period_arcsec)

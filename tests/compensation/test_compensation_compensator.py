@@ -1,4 +1,4 @@
-"""The compensator: convention θ_c = θ − Σ term, vectorised fast path, TOML round trip, forward chain."""
+"""The compensator: convention θ_c = θ − Σ term, fast path vs exact path, TOML round trip, forward chain."""
 
 import math
 import pathlib
@@ -61,7 +61,7 @@ def test_identity_is_a_copy():
 
 
 def test_fast_path_matches_exact_evaluation(trace):
-    # the tabulated angle-only terms stay within tolerance/2 of the direct evaluation
+    # the tabulated periodic terms stay within tolerance/2 of the direct evaluation
     angle, torque = trace
     comp = full_compensator()
     fast = comp.apply(angle, torque)
@@ -85,14 +85,12 @@ def test_apply_in_place_and_2d(trace):
     np.testing.assert_allclose(comp.apply(angle[:10], 0.0), comp.apply(angle[:10], np.zeros(10)))
 
 
-def test_table_follows_a_widening_range():
+def test_any_span_stays_within_tolerance():
+    # the periodic terms are tabulated over their own periods: the span of the data does not matter
     comp = full_compensator()
-    for hi in (10.0, 1000.0, 1e5):
+    for hi in (10.0, 1000.0, 1e5, 1e7, 1e9):
         x = np.linspace(-hi, hi, 5000)
-        assert np.max(np.abs(comp.apply(x, 0.0) - comp.apply(x, 0.0, exact=True))) <= comp.tolerance_arcsec
-    # a range too wide to tabulate falls back to direct evaluation
-    x = np.array([-1e9, 1e9])
-    np.testing.assert_allclose(comp.apply(x, 0.0), comp.apply(x, 0.0, exact=True))
+        assert np.max(np.abs(comp.apply(x, 0.0) - comp.apply(x, 0.0, exact=True))) <= comp.tolerance_arcsec / 2
     assert np.isnan(comp.apply(np.array([np.nan, 1.0]), 0.0)[0])
 
 

@@ -1,14 +1,20 @@
-"""The chunked fast path of Compensator.apply: guard cells, slow-path fallback, chunk boundaries, errstate."""
+"""The compiled fast path of Compensator.apply against the exact (term-by-term) path: accuracy at any span,
+periodic tables, block folding, non-finite input, immutability, compilation at construction."""
+
+import pickle
 
 import numpy as np
 import pytest
 
-from tcms_daq.compensation import Compensator, Eccentricity, Offset, Periodic, Scale, Torsion
-from tcms_daq.compensation import compensator as compensator_module
-from tcms_daq.compensation.compensator import CHUNK, _AngleTable
+from tcms_daq.compensation import Compensator, Drift, Eccentricity, Offset, Periodic, Scale, Torsion, kernel
+from tcms_daq.compensation.compensator import LONG_PERIOD_MIN_ARCSEC
+from tcms_daq.compensation.kernel import BLOCK_SAMPLES, MAX_ABS_ANGLE_ARCSEC
+from tcms_daq.units import ARCSEC_PER_REV
+
+REVOLUTION = ARCSEC_PER_REV
 
 
-def full_compensator() -> Compensator:
+def full_compensator(**kwargs) -> Compensator:
     return Compensator(
         [
             Scale(-0.19),
@@ -17,117 +23,202 @@ def full_compensator() -> Compensator:
             Eccentricity(eccentricity_mm=0.005, radius_mm=30.0, phase_rad=0.7),
             Periodic(72.0, 0.35, -0.12),
             Periodic(36.0, 0.08, 0.05),
-        ]
+            Periodic(REVOLUTION / 3, 2.0, -1.0),  # a third-order error over the revolution
+        ],
+        **kwargs,
     )
 
 
-def _index(table: _AngleTable, theta: np.ndarray) -> np.ndarray:
-    """The fast path's table index (before np.take clips it)."""
-    u = np.asarray(theta, dtype=float) + table.add_const
-    return u.view(np.int64) - table.bits_offset
+SPANS = {
+    "hysteresis ±230″": (-230.0, 230.0),
+    "±1 revolution": (-REVOLUTION / 2, REVOLUTION / 2),
+    "0 … 1 revolution": (0.0, REVOLUTION),
+    "±2 revolutions": (-2 * REVOLUTION, 2 * REVOLUTION),
+    "±1000 revolutions": (-1000 * REVOLUTION, 1000 * REVOLUTION),
+}
 
 
-def test_every_angle_outside_the_table_lands_on_a_guard_cell():
+@pytest.mark.parametrize("span", SPANS.values(), ids=SPANS.keys())
+def test_random_samples_agree_with_the_exact_path(span):
+    comp = full_compensator().with_terms(Drift(0.02))  # one time-dependent term: evaluated directly
+    rng = np.random.default_rng(11)
+    n = 200_003
+    angle = rng.uniform(*span, n)
+    torque = rng.uniform(-1500, 1500, n)
+    time = rng.uniform(0, 600, n)
+    fast = comp.apply(angle, torque, time)
+    exact = comp.apply(angle, torque, time, exact=True)
+    assert np.max(np.abs(fast - exact)) <= comp.tolerance_arcsec / 2
+    assert comp.tolerance_arcsec / 2 <= 1e-3 / 2  # far below the encoder's 0.7″ resolution
+    # and the exact path is the sum of the terms evaluated one by one
+    by_hand = angle - sum(t.evaluate(angle, torque, time) for t in comp.terms)
+    np.testing.assert_allclose(exact, by_hand, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("span", SPANS.values(), ids=SPANS.keys())
+def test_sweeps_agree_with_the_exact_path(span):
+    # slowly moving readings: most blocks lie in one cell of the long-period table and are folded
     comp = full_compensator()
-    table = _AngleTable(comp._tabulable, 0.0, comp._table_h, -300.0, 250.0)
-    inside = np.linspace(table.lo, table.hi, 10_001)
-    idx = _index(table, inside)
-    assert idx.min() >= 1 and idx.max() <= table.size - 2
-    outside = np.array(
-        [table.lo - 2 * table.h, table.hi + 2 * table.h, -1e6, 1e6, -1e12, 1e12, -1e300, 1e300,
-         np.nan, -np.nan, np.inf, -np.inf]
-    )
-    with np.errstate(invalid="ignore"):
-        clipped = np.clip(_index(table, outside), 0, table.size - 1)
-    assert set(clipped.tolist()) <= {0, table.size - 1}
-    # the guard cells hold a signalling NaN (quiet bit clear), which np.take copies bit for bit
-    bits = table.values.view(np.uint64)
-    assert bits[0] == bits[-1] == 0x7FF0000000000001
-    assert np.isnan(table.values[[0, -1]]).all()
-    with np.errstate(invalid="raise"), pytest.raises(FloatingPointError):
-        np.add(np.take(table.values, [0, 5]), 1.0)
+    rng = np.random.default_rng(12)
+    n = 300_001
+    angle = np.linspace(*span, n) + rng.normal(0, 0.2, n)
+    torque = 1000 * np.sin(np.linspace(0, 20, n))
+    assert np.max(np.abs(comp.apply(angle, torque) - comp.apply(angle, torque, exact=True))) <= 5e-4
 
 
-def test_misses_mid_batch_are_redone_exactly():
-    # table built on a narrow range, then a multi-chunk batch that leaves it in the middle of a chunk and
-    # contains NaN and ±inf: every chunk matches the exact path (NaN where the exact path gives NaN)
+def _blocks_near_grid_points(step_arcsec: float, reach_in_steps: float, rng) -> np.ndarray:
+    """Blocks that each start on a grid point of the long-period table and spread ±reach steps around it."""
+    blocks = []
+    for grid_point in rng.integers(-1000, 1000, 60):
+        block = grid_point * step_arcsec + rng.uniform(-reach_in_steps, reach_in_steps, BLOCK_SAMPLES) * step_arcsec
+        block[0] = grid_point * step_arcsec
+        blocks.append(block)
+    return np.concatenate(blocks)
+
+
+@pytest.mark.parametrize("layout", ["sorted sweep", "blocks within one cell", "blocks across cell edges"])
+def test_folded_blocks_give_the_per_sample_result(layout):
+    # the same samples in order (blocks in one cell of the long-period table are folded) and shuffled (every
+    # block looked up per sample) agree to rounding: folding changes nothing but the cost
     comp = full_compensator()
-    comp.apply(np.linspace(-10, 10, 1000), 0.0)
-    first = comp._table
-    rng = np.random.default_rng(7)
-    n = 2 * CHUNK + CHUNK // 2 + 17
-    angle = rng.uniform(-5, 5, n)
-    angle[CHUNK + 123] = 4000.0  # outside the table: the chunk must be redone after extending it
-    angle[CHUNK + 124] = -4000.0
-    angle[2 * CHUNK + 5] = np.nan
-    angle[2 * CHUNK + 6] = np.inf
-    angle[2 * CHUNK + 7] = -np.inf
-    torque = rng.uniform(-1000, 1000, n)
-    with np.errstate(invalid="ignore"):
-        fast = comp.apply(angle, torque)
-        exact = comp.apply(angle, torque, exact=True)
-    assert comp._table is not first and comp._table.hi >= 4000.0
-    np.testing.assert_array_equal(np.isnan(fast), np.isnan(exact))
-    ok = ~np.isnan(exact)
-    assert np.max(np.abs(fast[ok] - exact[ok])) <= comp.tolerance_arcsec / 2 + 1e-9
-    assert np.isnan(exact[2 * CHUNK + 5 : 2 * CHUNK + 8]).all()
+    step = comp.fast_path.long_table.step_arcsec
+    rng = np.random.default_rng(13)
+    angle = {
+        "sorted sweep": np.sort(rng.uniform(-REVOLUTION, REVOLUTION, 100 * BLOCK_SAMPLES)),
+        "blocks within one cell": _blocks_near_grid_points(step, 0.45, rng),
+        "blocks across cell edges": _blocks_near_grid_points(step, 0.8, rng),
+    }[layout]
+    torque = rng.uniform(-1000, 1000, angle.size)
+    order = rng.permutation(angle.size)
+    in_order = comp.apply(angle, torque)
+    shuffled = np.empty_like(angle)
+    shuffled[order] = comp.apply(angle[order], torque[order])
+    np.testing.assert_allclose(in_order, shuffled, rtol=0, atol=1e-8)
 
 
-def test_table_is_kept_while_data_stay_in_range():
-    comp = full_compensator()
-    x = np.linspace(-200, 200, 3 * CHUNK)
-    comp.apply(x, 0.0)
-    table = comp._table
-    comp.apply(x[::-1] * 0.5, np.ones_like(x))
-    assert comp._table is table
+def test_terms_are_sorted_into_tables_by_period():
+    comp = full_compensator().with_terms(Periodic(70.0, 0.1, 0.0), Drift(0.01))
+    fast = comp.fast_path
+    assert fast.short_table is not None and fast.short_table.period_arcsec == pytest.approx(72.0)
+    assert fast.long_table is not None and fast.long_table.period_arcsec == pytest.approx(REVOLUTION)
+    # 70″ does not divide a revolution and drift depends on time: both evaluated directly
+    assert {t.label() for t in fast.direct_terms} == {"periodic:70", "drift"}
+    assert {t.label() for t in fast.tabulated_terms} == {
+        "eccentricity", "periodic:72", "periodic:36", f"periodic:{REVOLUTION / 3:g}"
+    }
+    assert fast.gain == pytest.approx(1.19) and fast.arcsec_per_nm == 0.004 and fast.offset_arcsec == 1.5
+    for table in (fast.short_table, fast.long_table):
+        assert table.size & (table.size - 1) == 0  # a power of two
+        assert table.max_error_arcsec <= comp.tolerance_arcsec / 4
+        assert not table.values_arcsec.flags.writeable and not table.steps_arcsec.flags.writeable
+    assert LONG_PERIOD_MIN_ARCSEC > 72.0
 
 
-def test_callers_errstate_is_respected_and_restored():
-    comp = full_compensator()
-    x = np.linspace(-100, 100, 5000)
-    before = np.geterr()
-    with np.errstate(all="raise"):
-        out = comp.apply(x, x)  # finite data: nothing to raise
-        with pytest.raises(FloatingPointError):
-            comp.apply(np.array([1.0, np.inf]), 0.0)  # sin(inf) in the direct evaluation: the caller asked to raise
-    assert np.geterr() == before
-    with np.errstate(invalid="ignore"):
-        res = comp.apply(np.array([1.0, np.inf]), 0.0)
-    assert np.isnan(res[1]) and np.isfinite(res[0])
-    assert np.max(np.abs(out - comp.apply(x, x, exact=True))) <= comp.tolerance_arcsec / 2 + 1e-9
+def test_zero_tolerance_evaluates_every_term_directly():
+    comp = full_compensator(tolerance_arcsec=0.0)
+    assert comp.fast_path.short_table is None and comp.fast_path.long_table is None
+    x = np.linspace(-5000, 5000, 1001)
+    np.testing.assert_allclose(comp.apply(x, x), comp.apply(x, x, exact=True), rtol=0, atol=1e-9)
+
+
+def test_tabulate_meets_its_error_bound_between_the_checked_points():
+    def wave(x):
+        return 0.5 * np.sin(2 * np.pi * x / 72.0) + 0.2 * np.cos(4 * np.pi * x / 72.0 + 0.3)
+
+    table = kernel.tabulate(wave, 72.0, 1e-4)
+    assert table is not None and table.size & (table.size - 1) == 0
+    assert kernel.tabulate(wave, 72.0, 1e-4, max_points=table.size // 2) is None
+    # the tangent lookup, evaluated by the kernel, against the function on random angles over many periods
+    rng = np.random.default_rng(14)
+    angle = rng.uniform(-1e6, 1e6, 100_000)
+    out = np.empty_like(angle)
+    kernel.compensate(angle, angle, out, 1.0, 0.0, 0.0, table, None)
+    assert np.max(np.abs((angle - out) - wave(angle))) <= 1e-4
+    with pytest.raises(ValueError, match="period"):
+        kernel.tabulate(wave, 0.0, 1e-4)
 
 
 @pytest.mark.parametrize(
     "terms",
     [
         [Scale(0.03), Torsion(0.004), Offset(2.0)],  # linear only: no table
-        [Torsion(0.004)],  # gain 1, no table, no offset
-        [Offset(-1.0), Periodic(72.0, 0.3, 0.1)],  # gain 1, no torque term
-        [Scale(-0.19), Eccentricity(eccentricity_mm=0.01, radius_mm=30.0)],
+        [Torsion(0.004)],  # gain 1, no offset
+        [Offset(-1.0), Periodic(72.0, 0.3, 0.1)],  # short-period table only, no torque term
+        [Scale(-0.19), Eccentricity(eccentricity_mm=0.01, radius_mm=30.0)],  # long-period table only
     ],
 )
 @pytest.mark.parametrize("scalar_torque", [False, True])
 def test_variants_match_the_terms_one_by_one(terms, scalar_torque):
     comp = Compensator(terms)
     rng = np.random.default_rng(1)
-    n = CHUNK + 999
-    angle = rng.uniform(-300, 300, n)
+    n = 3 * BLOCK_SAMPLES + 999
+    angle = rng.uniform(-REVOLUTION, REVOLUTION, n)
     torque = 750.0 if scalar_torque else rng.uniform(-1500, 1500, n)
     by_hand = angle - sum(t.evaluate(angle, torque, None) for t in terms)
-    tol = comp.tolerance_arcsec / 2 + 1e-9
-    assert np.max(np.abs(comp.apply(angle, torque) - by_hand)) <= tol
-    np.testing.assert_allclose(comp.apply(angle, torque, exact=True), by_hand, atol=1e-9)
-    # in place, across chunk boundaries
+    assert np.max(np.abs(comp.apply(angle, torque) - by_hand)) <= comp.tolerance_arcsec / 2
+    np.testing.assert_allclose(comp.apply(angle, torque, exact=True), by_hand, rtol=0, atol=1e-6)
+    # in place, across block boundaries
     buf = angle.copy()
     comp.apply(buf, torque, out=buf)
     np.testing.assert_array_equal(buf, comp.apply(angle, torque))
 
 
-def test_chunk_size_does_not_change_the_result(monkeypatch):
+def test_output_overlapping_the_input_shifted_reads_the_input_first():
     comp = full_compensator()
-    rng = np.random.default_rng(2)
-    angle = rng.uniform(-250, 250, 50_000)
-    torque = rng.uniform(-1000, 1000, 50_000)
-    ref = comp.apply(angle, torque)
-    monkeypatch.setattr(compensator_module, "CHUNK", 4096 + 3)
-    np.testing.assert_array_equal(comp.apply(angle, torque), ref)
+    data = np.linspace(-300, 300, 2 * BLOCK_SAMPLES + 1)
+    expected = comp.apply(data[1:], 0.0)
+    comp.apply(data[1:], 0.0, out=data[:-1])
+    np.testing.assert_array_equal(data[:-1], expected)
+
+
+def test_non_finite_samples_give_nan_there_and_nothing_else_changes():
+    comp = full_compensator()
+    rng = np.random.default_rng(15)
+    n = 4 * BLOCK_SAMPLES + 7
+    angle = rng.uniform(-REVOLUTION, REVOLUTION, n)
+    torque = rng.uniform(-1000, 1000, n)
+    bad_angle = angle.copy()
+    bad_at = {BLOCK_SAMPLES + 3: np.nan, 2 * BLOCK_SAMPLES: np.inf, 2 * BLOCK_SAMPLES + 1: -np.inf,
+              3 * BLOCK_SAMPLES + 5: 2.0 * MAX_ABS_ANGLE_ARCSEC, 7: -1e300}
+    for i, value in bad_at.items():
+        bad_angle[i] = value
+    bad_torque = torque.copy()
+    bad_torque[100] = np.nan
+    clean = comp.apply(angle, torque)
+    with np.errstate(all="raise"):  # nothing may raise, whatever the caller's error handling
+        before = np.geterr()
+        fast = comp.apply(bad_angle, bad_torque)
+        exact = comp.apply(bad_angle, bad_torque, exact=True)
+        assert np.geterr() == before
+    expected_nan = sorted([*bad_at, 100])
+    assert np.flatnonzero(np.isnan(fast)).tolist() == expected_nan
+    assert np.flatnonzero(np.isnan(exact)).tolist() == expected_nan
+    ok = ~np.isnan(fast)
+    np.testing.assert_array_equal(fast[ok], clean[ok])
+
+
+def test_torque_is_ignored_when_no_term_uses_it():
+    comp = Compensator([Scale(0.01), Periodic(72.0, 0.3, 0.0)])
+    angle = np.linspace(-100, 100, 1000)
+    torque = np.full_like(angle, np.nan)
+    np.testing.assert_array_equal(comp.apply(angle, torque), comp.apply(angle, 0.0))
+
+
+def test_the_kernel_is_compiled_when_the_compensator_is_built():
+    comp = full_compensator()
+    compiled = len(kernel.compensate.signatures)
+    comp.apply(np.linspace(-1, 1, 10), np.zeros(10))
+    comp.apply(np.linspace(-1, 1, 10), 5.0)
+    assert len(kernel.compensate.signatures) == compiled
+
+
+def test_a_compensator_is_immutable_and_pickles():
+    comp = full_compensator(meta={"description": "test"})
+    with pytest.raises(AttributeError, match="immutable"):
+        comp.terms = ()  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        comp.meta["description"] = "changed"  # type: ignore[index]
+    again = pickle.loads(pickle.dumps(comp))
+    assert again == comp
+    x = np.linspace(-1000, 1000, 777)
+    np.testing.assert_array_equal(again.apply(x, x), comp.apply(x, x))
