@@ -153,10 +153,10 @@ def _all_in_domain(angle) -> bool:
 
 @_KERNEL
 def _common_grid_point(angle, table) -> tuple[bool, float]:
-    """(True, j) if every sample of the block rounds to the same grid point j of ``table`` (|θ/step − j| ≤ ½),
-    else (False, 0). NaN or ±inf in the block gives False."""
+    """(True, j) if every sample of the block rounds to the same grid point j of ``table`` (|θ/step − j| ≤ ½;
+    then every |θ| is also below MAX_ABS_ANGLE_ARCSEC), else (False, 0). NaN or ±inf in the block gives False."""
     centre = np.rint(angle[0] * table.points_per_arcsec)
-    inside = abs(centre) < 2.0**51
+    inside = abs(centre) <= MAX_ABS_ANGLE_ARCSEC * table.points_per_arcsec - 1.0
     for i in range(angle.size):
         inside &= abs(angle[i] * table.points_per_arcsec - centre) <= 0.5
     return inside, centre if inside else 0.0
@@ -173,26 +173,23 @@ def compensate(angle, torque, out, gain, arcsec_per_nm, offset_arcsec, short_tab
     for start in range(0, angle.size, BLOCK_SAMPLES):
         stop = min(start + BLOCK_SAMPLES, angle.size)
         block, block_torque, block_out = angle[start:stop], torque[start:stop], out[start:stop]
-        in_domain = _all_in_domain(block)
-        if long_table is None:
-            _compensate_block(
-                block, block_torque, block_out, gain, arcsec_per_nm, offset_arcsec, short_table, None, in_domain
-            )
-            continue
-        one_cell, centre = _common_grid_point(block, long_table)
-        if one_cell:
-            # tangent at grid point j: value_j + slope_j·(θ·points_per_arcsec − j), linear in θ: fold it
-            index = np.uint64(np.int64(centre)) & long_table.index_mask
-            slope_per_step = long_table.steps_arcsec[index]
-            block_gain = gain - slope_per_step * long_table.points_per_arcsec
-            block_offset = offset_arcsec + long_table.values_arcsec[index] - slope_per_step * centre
-            _compensate_block(
-                block, block_torque, block_out, block_gain, arcsec_per_nm, block_offset, short_table, None, in_domain
-            )
-        else:
-            _compensate_block(
-                block, block_torque, block_out, gain, arcsec_per_nm, offset_arcsec, short_table, long_table, in_domain
-            )
+        if long_table is not None:
+            one_cell, centre = _common_grid_point(block, long_table)
+            if one_cell:
+                # the tangent at grid point j, value_j + slope_j·(θ·points_per_arcsec − j), is linear in θ:
+                # fold it into the block's gain and offset
+                index = np.uint64(np.int64(centre)) & long_table.index_mask
+                slope_per_step = long_table.steps_arcsec[index]
+                block_gain = gain - slope_per_step * long_table.points_per_arcsec
+                block_offset = offset_arcsec + long_table.values_arcsec[index] - slope_per_step * centre
+                _compensate_block(
+                    block, block_torque, block_out, block_gain, arcsec_per_nm, block_offset, short_table, None, True
+                )
+                continue
+        _compensate_block(
+            block, block_torque, block_out, gain, arcsec_per_nm, offset_arcsec, short_table, long_table,
+            _all_in_domain(block),
+        )
 
 
 def compile_variant(short_table: PeriodicTable | None, long_table: PeriodicTable | None) -> None:
