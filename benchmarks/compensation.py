@@ -158,7 +158,7 @@ def run(quick: bool = False) -> dict:
     }
     targets: dict[str, dict] = {}
     for name, (angle, torque) in spans(n).items():
-        fns = {
+        fns: dict[str, Callable[[], object]] = {
             "copy": lambda a=angle: np.copyto(out, a),
             "floor": lambda a=angle, t=torque: np.add(a, t, out=out),
             "compensate": lambda a=angle, t=torque: comp.apply(a, t, out=out),
@@ -168,8 +168,8 @@ def run(quick: bool = False) -> dict:
         ratio = np.array([r["compensate"] / r["copy"] for r in per_run])
         to_floor = np.array([r["compensate"] / r["floor"] for r in per_run])
         floor = np.array([r["floor"] / r["copy"] for r in per_run])
-        fast = comp.apply(angle, torque)
-        exact_s = _cpu_seconds(lambda a=angle, t=torque: comp.apply(a, t, out=out, exact=True))
+        fast_result = comp.apply(angle, torque)
+        exact_s = _cpu_seconds(lambda: comp.apply(angle, torque, out=out, exact=True))  # noqa: B023 (called here)
         metrics |= {
             f"{name}_span_arcsec": f"{angle.min():.0f} … {angle.max():.0f}",
             f"{name}_copy_ms_median": 1e3 * float(np.median([r["copy"] for r in per_run])),
@@ -181,7 +181,7 @@ def run(quick: bool = False) -> dict:
             f"{name}_ratio_to_np_add_median": float(np.median(to_floor)),
             f"{name}_samples_per_s": n / float(np.median([r["compensate"] for r in per_run])),
             f"{name}_exact_ratio_to_copy": exact_s / float(np.median([r["copy"] for r in per_run])),
-            f"{name}_max_abs_fast_vs_exact_arcsec": float(np.max(np.abs(fast - out))),
+            f"{name}_max_abs_fast_vs_exact_arcsec": float(np.max(np.abs(fast_result - out))),
         }
         targets[f"{name}_ratio_to_copy_median"] = {
             "limit": TARGET_RATIO_MEDIAN, "met": bool(np.median(ratio) <= TARGET_RATIO_MEDIAN)
@@ -200,7 +200,7 @@ def run(quick: bool = False) -> dict:
     metrics["speedup_vs_python_loop"] = loop_s / float(metrics["hysteresis_compensate_ms_median"]) * 1e3  # type: ignore[arg-type]
     metrics |= {f"compile_{k}": v for k, v in compile_seconds().items()}
     metrics["load_average_1min_after"] = os.getloadavg()[0]
-    fast = comp.fast_path
+    plan = comp.fast_path
     return {
         "name": "compensation",
         "metrics": metrics,
@@ -210,9 +210,9 @@ def run(quick: bool = False) -> dict:
             + f"{RUNS} runs of {rounds} interleaved rounds (copy, np.add floor, compensator; rotating order; same "
             "arrays) per span; a run's time is the median CPU time of the calling thread (time.thread_time); "
             "ratio_to_copy_min/median/max over the runs. One compiled pass (tcms_daq/compensation/kernel.py): "
-            f"gain {fast.gain:.6f}, c_T {fast.arcsec_per_nm:.3g} ″/N·m and the offset folded; the 72″ and 36″ terms "
-            f"in one {fast.short_table.size if fast.short_table else 0}-point table over 72″ (tangent lookup per "
-            f"sample), the eccentricity in a {fast.long_table.size if fast.long_table else 0}-point table over one "
+            f"gain {plan.gain:.6f}, c_T {plan.arcsec_per_nm:.3g} ″/N·m and the offset folded; the 72″ and 36″ terms "
+            f"in one {plan.short_table.size if plan.short_table else 0}-point table over 72″ (tangent lookup per "
+            f"sample), the eccentricity in a {plan.long_table.size if plan.long_table else 0}-point table over one "
             "revolution (folded into gain and offset for every 512-sample block inside one cell). Compile times: "
             "a fresh process building the compensator with an empty numba cache (compiles the kernel) and with "
             "the cache it left (loads it). The Python loop timed on "
