@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -159,9 +160,9 @@ def run(quick: bool = False) -> dict:
     targets: dict[str, dict] = {}
     for name, (angle, torque) in spans(n).items():
         fns: dict[str, Callable[[], object]] = {
-            "copy": lambda a=angle: np.copyto(out, a),
-            "floor": lambda a=angle, t=torque: np.add(a, t, out=out),
-            "compensate": lambda a=angle, t=torque: comp.apply(a, t, out=out),
+            "copy": partial(np.copyto, out, angle),
+            "floor": partial(np.add, angle, torque, out=out),
+            "compensate": partial(comp.apply, angle, torque, out=out),
         }
         fns["compensate"]()  # touch ``out`` and the tables
         per_run = [_one_run(fns, rounds) for _ in range(RUNS)]
