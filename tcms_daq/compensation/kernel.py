@@ -44,6 +44,7 @@ MAX_ABS_ANGLE_ARCSEC = 2.0**40
 MIN_TABLE_POINTS = 16
 MAX_TABLE_POINTS = 1 << 20
 _ROUNDING_SHIFT = 1.5 * 2.0**52  # x + this = 1.5·2^52 + round(x), exactly, for |x| < 2^51
+_MAX_POINTS_PER_ARCSEC = 2.0**51 / MAX_ABS_ANGLE_ARCSEC  # so that |θ/step| < 2^51 for every θ in the domain
 _VERIFY_POINTS_PER_CELL = 9  # the tangent's error is measured at 9 points across each cell, both edges included
 
 # compiled once per machine and argument types, then loaded from numba's cache; no GIL held while it runs; no
@@ -90,14 +91,14 @@ def tabulate(
     """The smallest power-of-two table of ``function`` (arcsec → arcsec, periodic in ``period_arcsec``) whose
     tangent lookup stays within ``max_error_arcsec`` of the function, measured at 9 points across every cell
     (the error of a tangent peaks at the cell edges, which are among them). None if ``max_points`` are not
-    enough (the caller evaluates the function directly instead)."""
+    enough, or the step would be below 1/2048″ (the caller evaluates the function directly instead)."""
     if not (period_arcsec > 0 and math.isfinite(period_arcsec)):
         raise ValueError(f"period must be a positive number of arcsec, got {period_arcsec!r}")
     if not max_error_arcsec > 0:
         raise ValueError("max_error_arcsec must be > 0")
     offsets_in_steps = np.linspace(-0.5, 0.5, _VERIFY_POINTS_PER_CELL)
     size = MIN_TABLE_POINTS
-    while size <= max_points:
+    while size <= max_points and size / period_arcsec <= _MAX_POINTS_PER_ARCSEC:
         step = period_arcsec / size
         grid = np.arange(size) * step
         values = np.asarray(function(grid), dtype=float)
