@@ -11,7 +11,8 @@ For every sample the kernel computes, in arcsec,
 * **Table lookup.** A :class:`PeriodicTable` holds, at the grid points x_j = j·step over one period, the value
   f(x_j) and the change of f over one step around x_j. A lookup returns the tangent at the nearest grid point,
   f(x_j) + slope_j·(θ − x_j); the grid is fine enough that this is within a stated error of f everywhere
-  (measured when the table is built). Tables stay small (a few KiB): in the CPU's L1 cache beside the streams.
+  (measured when the table is built). For the usual terms the tables are a few KiB: they stay in the CPU's L1
+  cache beside the data streams.
 * **Periodic index without a branch.** Adding 1.5·2^52 to x = θ/step rounds x to the nearest integer and leaves
   that integer in the low bits of the sum's bit pattern; masking them with n − 1 (n, the table size, is a power
   of two) gives the grid index modulo the period. Every input — negative, huge, NaN, ±inf — gives an index
