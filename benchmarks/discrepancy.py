@@ -16,9 +16,9 @@ CASE = "time_skew+interpolation_error"
 
 
 def run(quick: bool = False) -> dict:
+    from sim.trials import CASES, TrialDesign, make_pair
     from tcms_daq.discrepancy import catalogue as cat
     from tcms_daq.discrepancy.design import build_design
-    from tcms_daq.discrepancy.trials import CASES, TrialDesign, make_pair
     from tcms_daq.discrepancy.workflow import run_discrepancy
 
     target_samples = 20_000 if quick else 100_000

@@ -45,7 +45,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from tcms_daq.config.models import ReducerSpec
-from tcms_daq.errors import ConfigError
+from tcms_daq.errors import ConfigError, DataFormatError
 from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD, nm_per_arcmin_to_arcsec_per_nm
 
 # Chunk length of the hysteresis recurrence in units of T_z of travelled torque (keeps exp() finite).
@@ -307,3 +307,32 @@ def physics_from_spec(spec: ReducerSpec, rigidity_interval: tuple[float, float] 
             f"{spec.rigidity_nm_per_arcmin} N·m/arcmin (no positive elastic compliance fits)"
         )
     return replace(params, compliance_arcsec_per_nm=compliance)
+
+
+# ------------------------------------------------------------------------------------------ forward model
+
+
+@dataclass(frozen=True)
+class ReducerTwistModel:
+    """A reducer's forward model over a torque trace: what the discrepancy core takes as its model
+    (``tcms_daq.discrepancy.stored.ForwardModel``). Angles in arcsec, torques in N·m."""
+
+    params: ReducerPhysics
+
+    @property
+    def hysteresis_half_width_arcsec(self) -> float:
+        return self.params.hysteresis_half_width_arcsec
+
+    def twist_arcsec(self, torque_nm: np.ndarray, initial_hysteresis_arcsec: float = 0.0) -> np.ndarray:
+        """Output twist along the trace from zero torque with hysteresis state ``initial_hysteresis_arcsec``."""
+        return twist_arcsec(torque_nm, self.params, TwistState(0.0, float(initial_hysteresis_arcsec)))[0]
+
+
+def catalogue_model(reducer_name: str) -> ReducerTwistModel:
+    """The forward model of a reducer of the packaged catalogue; DataFormatError names an unknown reducer."""
+    from tcms_daq.config import load_reducer_catalogue
+
+    catalogue = load_reducer_catalogue()
+    if reducer_name not in catalogue:
+        raise DataFormatError(f"reducer {reducer_name!r} is not in the reducer catalogue")
+    return ReducerTwistModel(physics_from_spec(catalogue[reducer_name]))

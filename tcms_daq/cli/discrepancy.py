@@ -12,9 +12,9 @@ import json
 import math
 from pathlib import Path
 
-from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples, read_csv_columns, samples_from_columns
+from tcms_daq.settings import read_settings
 
 
 def read_pair_file(path: str | Path) -> tuple[Samples, bool]:
@@ -23,56 +23,18 @@ def read_pair_file(path: str | Path) -> tuple[Samples, bool]:
     return samples_from_columns(cols), "time_s" in cols
 
 
-
-
-def write_outputs(result, measured: Samples, simulated: Samples, out_dir: str | Path, title: str) -> list[Path]:
-    from tcms_daq.discrepancy.model_file import model_from_result, resimulated_samples
-    from tcms_daq.discrepancy.report import render_html
-    from tcms_daq.samples import write_csv
-
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataFormatError(f"{out}: cannot create the output directory ({exc})") from None
-    paths = [out / "report.html", out / "model.toml", out / "resimulated.csv"]
-    paths[0].write_text(render_html(result, title=title), encoding="utf-8")
-    model_from_result(result).save(paths[1])
-    write_csv(paths[2], resimulated_samples(result, simulated, measured))
-    return paths
-
-
-def format_result(result) -> str:
-    lines = []
-    if result.effects:
-        for e in result.effects:
-            params = ", ".join(f"{k}={v:.4g}" for k, v in e.parameters.items())
-            lines.append(f"named: {e.name} ({params}); held-out RMS {e.cv_rms_before_arcsec:.3f}″ → "
-                         f"{e.cv_rms_after_arcsec:.3f}″")
-    else:
-        lines.append("named: nothing (no catalogue effect improves the held-out error reliably)")
-    for a in result.aliases:
-        kept = ""
-        if a.in_model:
-            params = ", ".join(f"{k}={v:.4g}" for k, v in a.parameters.items())
-            kept = f" (in the model as {a.representative}: {params})"
-        lines.append(f"aliases: {', '.join(a.names)} cannot be told apart here{kept} — {a.separating_experiment}")
-    for r in result.rejected:
-        lines.append(f"rejected: {r['name']}: {r['reason']}")
-    lines.append(f"RMS {result.rms_before_arcsec:.3f}″ → {result.rms_after_arcsec:.3f}″, max "
-                 f"{result.max_before_arcsec:.3f}″ → {result.max_after_arcsec:.3f}″, held-out RMS "
-                 f"{result.cv_rms_before_arcsec:.3f}″ → {result.cv_rms_after_arcsec:.3f}″ (nested CV over "
-                 f"{result.groups['count']} {result.groups['kind']})")
-    return "\n".join(lines)
-
-
 def run(args: argparse.Namespace) -> int:
+    # imported here: the workflow, scipy and matplotlib would slow every `tcms` command's start by a second
+    from sim.physics import catalogue_model
+    from tcms_daq.analysis.evaluation import jsonable
+    from tcms_daq.discrepancy.report import format_text
     from tcms_daq.discrepancy.workflow import run_discrepancy
+    from tcms_daq.store.discrepancy import stored_pair, write_outputs
 
+    if args.table4:
+        return run_table4_report(args)
     if args.run is not None:
-        from tcms_daq.discrepancy.stored import stored_pair
-
-        measured, simulated = stored_pair(args.run, args.data_dir)
+        measured, simulated = stored_pair(args.run, args.data_dir or read_settings().data_dir, catalogue_model)
         has_time = True
         title = f"Discrepancy report: stored run {args.run}"
     else:
@@ -92,9 +54,44 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(jsonable(result.to_dict()), indent=1))
     else:
-        print(format_result(result))
+        print(format_text(result))
         if args.out:
             print(f"wrote {Path(args.out) / 'report.html'}, model.toml, resimulated.csv")
+    return 0
+
+
+# Fixed effect sets compared with the workflow's choice on Table 4 (docs/discrepancy.md).
+TABLE4_FIXED_MODELS: tuple[list[str], ...] = (
+    [], ["scale_error"], ["torsion_offset"], ["scale_error", "torsion_offset"], ["interpolation_error"],
+    ["scale_error", "interpolation_error"], ["periodic_error"], ["scale_error", "periodic_error"],
+    ["bending_deformation"])
+
+
+def run_table4_report(args: argparse.Namespace) -> int:
+    """``tcms discrepancy --table4``: the paper's Table 4 through the workflow, with fixed models beside it."""
+    from tcms_daq.analysis.evaluation import jsonable
+    from tcms_daq.discrepancy.report import format_text
+    from tcms_daq.discrepancy.table4 import fixed_model_cv, run_table4, table4_pair
+    from tcms_daq.store.discrepancy import write_outputs
+
+    result = run_table4()
+    raw = run_table4(simulated_column="encoder_arcsec")
+    compare = {"+".join(n) or "offset only": fixed_model_cv(n) for n in TABLE4_FIXED_MODELS}
+    if args.out:
+        measured, simulated = table4_pair()
+        write_outputs(result, measured, simulated, args.out, "Discrepancy report: the paper's Table 4")
+    if args.json:
+        print(json.dumps(jsonable({**result.to_dict(), "fixed_model_cv_rms_arcsec": compare,
+                                   "raw_encoder_as_simulation": raw.to_dict()}), indent=1))
+        return 0
+    print(format_text(result))
+    print("blocked-CV RMS of fixed models (single level, for comparison):")
+    for k, v in compare.items():
+        print(f"  {k:40s} {v:.3f}″")
+    print(f"selected in outer folds: {result.groups['nested_selections']}")
+    print("\nthe raw (uncompensated) encoder as the simulation:")
+    print(format_text(raw))
+    print(f"selected in outer folds: {raw.groups['nested_selections']}")
     return 0
 
 
@@ -112,4 +109,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("--run", metavar="ID", help="a stored run against the bench model re-simulated on its torque")
     p.add_argument("--data-dir", metavar="DIR", help="data directory of the run store (with --run)")
+    p.add_argument("--table4", action="store_true",
+                   help="the paper's Table 4: autocollimator as measured, the paper's compensated encoder as "
+                   "simulated (docs/discrepancy.md)")
     p.set_defaults(func=run)

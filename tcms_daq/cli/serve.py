@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from pathlib import Path
 
 from tcms_daq.errors import ConfigError
-
-DEFAULT_DATA_DIR = "data"
+from tcms_daq.settings import DEFAULT_DATA_DIR, read_settings
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -50,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--sim-speed must be a positive number, got {args.sim_speed}")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port must be 0…65535, got {args.port}")
-    data_dir = args.data_dir or Path(os.environ.get("TCMS_DATA_DIR", DEFAULT_DATA_DIR))
+    data_dir = args.data_dir or read_settings().data_dir
     _check_store(Path(data_dir) / STORE_FILENAME)
     # Compose the bench and reach its instruments before the server starts, so a bad config or an instrument
     # that does not answer is a one-line error, not a startup traceback after the URL was printed.

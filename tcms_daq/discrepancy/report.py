@@ -173,3 +173,28 @@ turn); the error after the workflow repeats the whole selection inside every out
 <h2>Plots</h2>{figs}
 </body></html>
 """
+
+
+def format_text(result) -> str:
+    """The result as plain text lines: named effects, aliases, rejected candidates, RMS before → after."""
+    lines = []
+    if result.effects:
+        for e in result.effects:
+            params = ", ".join(f"{k}={v:.4g}" for k, v in e.parameters.items())
+            lines.append(f"named: {e.name} ({params}); held-out RMS {e.cv_rms_before_arcsec:.3f}″ → "
+                         f"{e.cv_rms_after_arcsec:.3f}″")
+    else:
+        lines.append("named: nothing (no catalogue effect improves the held-out error reliably)")
+    for a in result.aliases:
+        kept = ""
+        if a.in_model:
+            params = ", ".join(f"{k}={v:.4g}" for k, v in a.parameters.items())
+            kept = f" (in the model as {a.representative}: {params})"
+        lines.append(f"aliases: {', '.join(a.names)} cannot be told apart here{kept} — {a.separating_experiment}")
+    for r in result.rejected:
+        lines.append(f"rejected: {r['name']}: {r['reason']}")
+    lines.append(f"RMS {result.rms_before_arcsec:.3f}″ → {result.rms_after_arcsec:.3f}″, max "
+                 f"{result.max_before_arcsec:.3f}″ → {result.max_after_arcsec:.3f}″, held-out RMS "
+                 f"{result.cv_rms_before_arcsec:.3f}″ → {result.cv_rms_after_arcsec:.3f}″ (nested CV over "
+                 f"{result.groups['count']} {result.groups['kind']})")
+    return "\n".join(lines)

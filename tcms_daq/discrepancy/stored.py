@@ -1,28 +1,17 @@
-"""A stored run against the bench model re-simulated on its own torque trace (``tcms discrepancy --run ID``)."""
+"""A measured run against a reducer model re-simulated on its own torque trace (``tcms discrepancy --run ID``).
+
+Pure: the model is injected (:class:`ForwardModel`); reading the run from the store is the shell's
+(``tcms_daq.store.discrepancy``).
+"""
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from scipy.signal import savgol_filter
 
-from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples
-
-
-def _reducer_name(record) -> str | None:
-    req = record.request or {}
-    for key in ("reducer", "reducer_name"):
-        if isinstance(req.get(key), str):
-            return req[key]
-    snap = record.config_snapshot or {}
-    sim = snap.get("sim") if isinstance(snap, dict) else None
-    if isinstance(sim, dict) and isinstance(sim.get("reducer"), str):
-        return sim["reducer"]
-    return None
-
 
 TORQUE_SMOOTHING_S = 0.05
 
@@ -64,27 +53,35 @@ def _play(x: np.ndarray, half_width: float) -> np.ndarray:
     return out
 
 
-def resimulate(measured: Samples, reducer_name: str) -> Samples:
-    """The catalogue reducer's forward model (``sim.physics.twist_arcsec``) on the measured torque trace.
+class ForwardModel(Protocol):
+    """A reducer's forward model, injected by the composition root (e.g. ``sim.physics.catalogue_model``)."""
+
+    @property
+    def hysteresis_half_width_arcsec(self) -> float:
+        """The friction hysteresis half-width h (arcsec): the range of the unknown initial state."""
+        ...
+
+    def twist_arcsec(self, torque_nm: np.ndarray, initial_hysteresis_arcsec: float = 0.0) -> np.ndarray:
+        """Output twist (arcsec) along a torque trace (N·m) from zero torque and the given hysteresis state;
+        linear in that state."""
+        ...
+
+
+def resimulate(measured: Samples, model: ForwardModel) -> Samples:
+    """The reducer's forward model on the measured torque trace: the "simulated" side of a stored run.
 
     The torque is smoothed (:func:`applied_torque_estimate`). The reducer's friction (hysteresis) state at the
     start of a stored run is unknown: it depends on the tests run before it, and after a larger test it takes
-    several loops to settle (a model started virgin is off by arcseconds for the whole run). The model's angle is linear in that state, so the state is fitted by least squares (one number within the
-    physical ±hysteresis half-width; its influence decays over the first load reversals). The returned torque
-    column is the measured one.
+    several loops to settle (a model started virgin is off by arcseconds for the whole run). The model's angle is
+    linear in that state, so the state is fitted by least squares (one number within the physical ±hysteresis
+    half-width; its influence decays over the first load reversals). The returned torque column is the measured
+    one.
     """
-    from sim.physics import TwistState, physics_from_spec, twist_arcsec
-    from tcms_daq.config import load_reducer_catalogue
-
-    catalogue = load_reducer_catalogue()
-    if reducer_name not in catalogue:
-        raise DataFormatError(f"reducer {reducer_name!r} is not in the reducer catalogue")
-    params = physics_from_spec(catalogue[reducer_name])
     torque = applied_torque_estimate(measured.time_s, measured.torque_nm)
-    virgin, _ = twist_arcsec(torque, params)
+    virgin = model.twist_arcsec(torque)
     # response to a unit initial hysteresis state (the model is linear in it)
-    unit = twist_arcsec(torque, params, TwistState(0.0, 1.0))[0] - virgin
-    half_width = params.hysteresis_half_width_arcsec
+    unit = model.twist_arcsec(torque, 1.0) - virgin
+    half_width = model.hysteresis_half_width_arcsec
     angle = virgin
     if half_width > 0 and np.any(unit):
         # with a linear time term beside it, so a thermal drift is not taken for the settling state
@@ -93,36 +90,3 @@ def resimulate(measured: Samples, reducer_name: str) -> Samples:
         (z0, _, _), *_ = np.linalg.lstsq(design, measured.angle_arcsec - virgin, rcond=None)
         angle = virgin + float(np.clip(z0, -half_width, half_width)) * unit
     return Samples(measured.time_s, measured.torque_nm, angle)
-
-
-def stored_pair(run_id: str, data_dir: str | Path | None = None) -> tuple[Samples, Samples]:
-    """(measured, simulated) of a stored run; raises DataFormatError for an unknown or empty run."""
-    from tcms_daq.store import STORE_FILENAME, RunStore
-
-    base = Path(data_dir or os.environ.get("TCMS_DATA_DIR", "data"))
-    path = base / STORE_FILENAME
-    if not path.exists():
-        raise DataFormatError(f"no run store at {path} (give --data-dir)")
-    store = RunStore(path, recover=False)  # a service may be running a test in this store right now
-    try:
-        return pair_from_store(store, run_id, where=f" in {path}")
-    finally:
-        store.close()
-
-
-def pair_from_store(store, run_id: str, where: str = "") -> tuple[Samples, Samples]:
-    """(measured, simulated) of run ``run_id`` of an open :class:`~tcms_daq.store.RunStore` (CLI and API).
-
-    Raises DataFormatError (one line) for an unknown run, too few samples or no recorded reducer.
-    """
-    record = store.get_run(run_id)
-    if record is None:
-        raise DataFormatError(f"unknown run {run_id!r}{where}")
-    measured = store.read_samples(run_id)
-    if len(measured) < 12:
-        raise DataFormatError(f"run {run_id!r} has {len(measured)} samples: too few to compare")
-    name = _reducer_name(record)
-    if name is None:
-        raise DataFormatError(f"run {run_id!r} does not record its reducer: cannot re-simulate it")
-    measured = Samples(measured.time_s, measured.torque_nm, measured.angle_arcsec)
-    return measured, resimulate(measured, name)

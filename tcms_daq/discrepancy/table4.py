@@ -4,14 +4,10 @@ measured = the autocollimator column, simulated = the encoder compensated by the
 Compensation" column). 35 torque steps 0…1700 N·m, loading only, no time stamps: the groups are contiguous
 blocks, time-dependent and direction-odd effects are not candidates.
 
-    python -m tcms_daq.discrepancy.table4 [--json] [--out DIR]
+    tcms discrepancy --table4 [--json] [--out DIR]
 """
 
 from __future__ import annotations
-
-import argparse
-import json
-import sys
 
 import numpy as np
 
@@ -49,39 +45,3 @@ def fixed_model_cv(names: list[str]) -> float:
     cols = Columns(data)
     rows = np.arange(len(data))
     return cv_score(cols, data.residual_arcsec, make_folds(rows, data.groups), names).rms
-
-
-def main(argv: list[str] | None = None) -> int:
-    from tcms_daq.analysis.evaluation import jsonable
-    from tcms_daq.cli.discrepancy import format_result, write_outputs
-
-    parser = argparse.ArgumentParser(prog="python -m tcms_daq.discrepancy.table4", description=__doc__.split("\n")[0])
-    parser.add_argument("--json", action="store_true")
-    parser.add_argument("--out", metavar="DIR")
-    args = parser.parse_args(argv)
-    result = run_table4()
-    raw = run_table4(simulated_column="encoder_arcsec")
-    compare = {"+".join(n) or "offset only": fixed_model_cv(n) for n in (
-        [], ["scale_error"], ["torsion_offset"], ["scale_error", "torsion_offset"], ["interpolation_error"],
-        ["scale_error", "interpolation_error"], ["periodic_error"], ["scale_error", "periodic_error"],
-        ["bending_deformation"])}
-    if args.out:
-        measured, simulated = table4_pair()
-        write_outputs(result, measured, simulated, args.out, "Discrepancy report: the paper's Table 4")
-    if args.json:
-        print(json.dumps(jsonable({**result.to_dict(), "fixed_model_cv_rms_arcsec": compare,
-                                 "raw_encoder_as_simulation": raw.to_dict()}), indent=1))
-    else:
-        print(format_result(result))
-        print("blocked-CV RMS of fixed models (single level, for comparison):")
-        for k, v in compare.items():
-            print(f"  {k:40s} {v:.3f}″")
-        print(f"selected in outer folds: {result.groups['nested_selections']}")
-        print("\nthe raw (uncompensated) encoder as the simulation:")
-        print(format_result(raw))
-        print(f"selected in outer folds: {raw.groups['nested_selections']}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

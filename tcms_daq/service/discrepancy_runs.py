@@ -1,7 +1,7 @@
 """Discrepancy analyses of stored runs for the API (``POST /api/discrepancy``, DESIGN §7–§8).
 
 The same work as ``tcms discrepancy --run ID``: the stored run's measured angle against the bench model
-re-simulated on its own torque trace (:func:`tcms_daq.discrepancy.stored.pair_from_store`), through
+re-simulated on its own torque trace (:func:`tcms_daq.store.discrepancy.pair_from_store`), through
 :func:`tcms_daq.discrepancy.workflow.run_discrepancy`. Each analysis is kept under
 ``<data dir>/discrepancy/<id>/`` with the files of ``tcms discrepancy --out`` (``report.html``, ``model.toml``,
 ``resimulated.csv``) and ``result.json`` (the ``--json`` object plus ``id``, ``run_id``, ``created_at`` and
@@ -63,14 +63,14 @@ class DiscrepancyRuns:
             self._busy.release()
 
     def _analyse(self, request: DiscrepancyRequest) -> dict[str, Any]:
+        from sim.physics import catalogue_model
         from tcms_daq.analysis.evaluation import jsonable
-        from tcms_daq.cli.discrepancy import write_outputs
-        from tcms_daq.discrepancy.stored import pair_from_store
         from tcms_daq.discrepancy.workflow import run_discrepancy
+        from tcms_daq.store.discrepancy import pair_from_store, write_outputs
 
         run_id = request.run_id
         try:
-            measured, simulated = pair_from_store(self.store, run_id)
+            measured, simulated = pair_from_store(self.store, run_id, catalogue_model)
         except TcmsError as exc:
             raise RequestRejected(str(exc)) from None
         try:

@@ -122,7 +122,6 @@ def test_drivers_never_import_the_simulator():
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.xfail(strict=True, reason="discrepancy/stored.py, trials.py, table4.py: being moved to the shell (issue 13)")
 def test_core_imports_nothing_of_the_shell():
     bad: list[str] = []
     for path, module in _sources():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tcms_daq.discrepancy.trials import CASES, make_pair
+from sim.trials import CASES, make_pair
 
 
 @pytest.fixture(scope="session")

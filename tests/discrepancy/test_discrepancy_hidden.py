@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from tcms_daq.discrepancy.trials import CASES, PRIMARY
+from sim.trials import CASES, PRIMARY
 from tcms_daq.discrepancy.workflow import run_discrepancy
 
 EFFECT_CASES = [c for c in CASES if c != "null"]

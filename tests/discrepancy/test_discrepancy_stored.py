@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.bench import SimulatedBench
-from sim.physics import TwistState, physics_from_spec, twist_arcsec
+from sim.physics import TwistState, catalogue_model, physics_from_spec, twist_arcsec
 from tcms_daq.config import load_bench_config, load_reducer_catalogue
 from tcms_daq.discrepancy.stored import applied_torque_estimate, resimulate
 from tcms_daq.samples import Samples
@@ -33,7 +33,7 @@ def test_resimulation_follows_the_true_twist_despite_sensor_noise():
     true = run.extra["true_angle_arcsec"]
     params = physics_from_spec(load_reducer_catalogue()["RV-110E"])
     naive = twist_arcsec(run.torque_nm, params)[0]  # the raw sensor reading walks the model along minor loops
-    model = resimulate(Samples(run.time_s, run.torque_nm, true), "RV-110E").angle_arcsec
+    model = resimulate(Samples(run.time_s, run.torque_nm, true), catalogue_model("RV-110E")).angle_arcsec
     assert _rms(true - naive) > 0.4  # 0.51″ (seeds 1–3)
     assert _rms(true - model) < 0.1  # 0.055″
 
@@ -57,6 +57,6 @@ def test_resimulation_fits_the_friction_state_the_run_started_in():
     # the reducer came from a larger test: its hysteresis state at the start is not the virgin one
     start = TwistState(0.0, 0.8 * params.hysteresis_half_width_arcsec)
     true = twist_arcsec(torque, params, start)[0] + 0.03 * t  # plus a thermal drift the fit must not absorb
-    model = resimulate(Samples(t, torque, true), "RV-110E").angle_arcsec
+    model = resimulate(Samples(t, torque, true), catalogue_model("RV-110E")).angle_arcsec
     assert _rms(true - twist_arcsec(torque, params)[0] - 0.03 * t) > 1.0  # a virgin start is off by arcseconds
     assert _rms(true - model - 0.03 * t) < 0.03  # what is left is the smoothing of the torque

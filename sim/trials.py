@@ -8,7 +8,7 @@ A case passes when the named effects are exactly the hidden ones, each primary p
 the held-out (nested CV) RMS after the workflow is within 30 % of the noise floor. The null case must name
 nothing.
 
-    python -m tcms_daq.discrepancy.trials [--seeds 5] [--json]
+    python -m sim.trials [--seeds 5] [--json]
 
 prints the naming accuracy (cases named exactly right), the false-naming rate (null runs that name
 anything) and the parameter errors.
@@ -203,7 +203,7 @@ def summarise(outcomes: list[TrialOutcome]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m tcms_daq.discrepancy.trials", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m sim.trials", description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument("--first-seed", type=int, default=100)
     parser.add_argument("--case", action="append", choices=sorted(CASES), help="only these cases")
