@@ -5,8 +5,7 @@ FROM python:3.11-slim
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
     PIP_NO_CACHE_DIR=1 \
-    TCMS_DATA_DIR=/data \
-    TCMS_CONFIG_DIR=/app/config
+    TCMS_DATA_DIR=/data
 
 WORKDIR /app
 COPY pyproject.toml README.md ./
@@ -14,7 +13,7 @@ COPY tcms_daq ./tcms_daq
 COPY drivers ./drivers
 COPY sim ./sim
 COPY benchmarks ./benchmarks
-COPY config ./config
+# the default configs are package data (tcms_daq/defaults): `--config bench-compose.toml` finds them by name
 RUN pip install --no-compile . \
     && useradd --create-home --uid 1000 tcms \
     && mkdir -p /data \

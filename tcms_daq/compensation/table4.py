@@ -18,7 +18,6 @@ import numpy as np
 
 from tcms_daq.compensation.calibration import CALIBRATION_COLUMNS, CalibrationData, calibrate
 from tcms_daq.compensation.geometry import evaluate_geometry, load_geometry
-from tcms_daq.errors import ConfigError
 from tcms_daq.samples import parse_csv_text
 
 DATA_PACKAGE = "tcms_daq.compensation"
@@ -54,14 +53,8 @@ def load_table4() -> Table4:
 
 
 def default_geometry_path() -> Path:
-    """config/geometry-paper.toml of the source tree (or of the working directory)."""
-    for candidate in (
-        Path(__file__).resolve().parents[2] / "config" / "geometry-paper.toml",
-        Path.cwd() / "config" / "geometry-paper.toml",
-    ):
-        if candidate.is_file():
-            return candidate
-    raise ConfigError("config/geometry-paper.toml not found; pass --geometry PATH")
+    """The paper's geometry (Tables 2 and 3), packaged as ``geometry-paper.toml``."""
+    return Path(str(resources.files("tcms_daq.defaults").joinpath("geometry-paper.toml")))
 
 
 def error_stats(angle_arcsec: np.ndarray, reference_arcsec: np.ndarray) -> dict[str, float]:

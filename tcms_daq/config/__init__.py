@@ -4,9 +4,8 @@ Invalid configuration raises :class:`tcms_daq.errors.ConfigError` with one line 
 """
 
 from tcms_daq.config.loader import (
-    CONFIG_DIR_ENV,
+    apply_overrides,
     default_bench_config_path,
-    default_config_dir,
     default_reducer_catalogue_path,
     format_validation_error,
     get_reducer,
@@ -14,7 +13,9 @@ from tcms_daq.config.loader import (
     load_reducer_catalogue,
     load_reducers_for,
     load_test_profile,
+    packaged_config_dir,
     read_toml,
+    resolve_config_path,
 )
 from tcms_daq.config.models import (
     BenchConfig,
@@ -29,7 +30,7 @@ from tcms_daq.config.models import (
 )
 
 __all__ = [
-    "CONFIG_DIR_ENV",
+    "apply_overrides",
     "BenchConfig",
     "BenchSection",
     "InstrumentConfig",
@@ -39,7 +40,6 @@ __all__ = [
     "SimConfig",
     "TestProfile",
     "default_bench_config_path",
-    "default_config_dir",
     "default_reducer_catalogue_path",
     "format_validation_error",
     "get_reducer",
@@ -48,5 +48,7 @@ __all__ = [
     "load_reducer_catalogue",
     "load_reducers_for",
     "load_test_profile",
+    "packaged_config_dir",
     "read_toml",
+    "resolve_config_path",
 ]

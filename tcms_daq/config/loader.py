@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import os
 import tomllib
+from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -14,23 +14,58 @@ from tcms_daq.errors import ConfigError
 
 M = TypeVar("M", bound=BaseModel)
 
-#: Environment variable that points at a config directory (default: ``config/`` of the source tree).
-CONFIG_DIR_ENV = "TCMS_CONFIG_DIR"
 
-
-def default_config_dir() -> Path:
-    env = os.environ.get(CONFIG_DIR_ENV)
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[2] / "config"
+def packaged_config_dir() -> Path:
+    """The packaged default configuration (``tcms_daq/defaults``; ``config/`` in the source tree links to it)."""
+    return Path(str(resources.files("tcms_daq.defaults")))
 
 
 def default_bench_config_path() -> Path:
-    return default_config_dir() / "bench-sim.toml"
+    return packaged_config_dir() / "bench-sim.toml"
 
 
 def default_reducer_catalogue_path() -> Path:
-    return default_config_dir() / "reducers.toml"
+    return packaged_config_dir() / "reducers.toml"
+
+
+def resolve_config_path(path: str | Path) -> Path:
+    """A config file as given; a bare file name that is not in the working directory names a packaged default
+    (``--config bench-loopback.toml`` works from any directory). A missing file is a ConfigError that lists the
+    packaged configs."""
+    given = Path(path)
+    if given.exists():
+        return given
+    if given.parent == Path(".") and (packaged_config_dir() / given.name).is_file():
+        return packaged_config_dir() / given.name
+    names = ", ".join(sorted(p.name for p in packaged_config_dir().glob("*.toml")))
+    raise ConfigError(f"{given}: no such file (packaged configs, usable by name: {names})")
+
+
+def apply_overrides(data: dict[str, Any], assignments: list[str] | tuple[str, ...], source: str = "--set"
+                    ) -> dict[str, Any]:
+    """A copy of a parsed TOML document with ``dotted.key=VALUE`` assignments applied (VALUE in TOML syntax;
+    a bare word is taken as a string): ``instruments.angle.url=socket://127.0.0.1:5001``. Tables on the way
+    are created; assigning into a non-table is a ConfigError."""
+    import copy
+
+    out = copy.deepcopy(data)
+    for item in assignments:
+        key, sep, raw = item.partition("=")
+        parts = [p.strip() for p in key.strip().split(".")]
+        if not sep or not all(parts):
+            raise ConfigError(f"{source} {item!r}: expected dotted.key=VALUE")
+        try:
+            value = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw.strip()
+        node = out
+        for i, part in enumerate(parts[:-1]):
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{source} {item!r}: {'.'.join(parts[:i + 1])} is not a table")
+            node = child
+        node[parts[-1]] = value
+    return out
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
@@ -86,7 +121,7 @@ def validate(model: type[M], data: Any, path: str | Path, prefix: str = "") -> M
 
 
 def load_reducer_catalogue(path: str | Path | None = None) -> dict[str, ReducerSpec]:
-    """Read the reducer catalogue (``config/reducers.toml`` by default): ``[reducers.<NAME>]`` tables."""
+    """Read the reducer catalogue (the packaged ``reducers.toml`` by default): ``[reducers.<NAME>]`` tables."""
     path = Path(path) if path is not None else default_reducer_catalogue_path()
     data = read_toml(path)
     table = data.get("reducers")
@@ -111,10 +146,11 @@ def get_reducer(catalogue: dict[str, ReducerSpec], name: str, path: str | Path |
     raise ConfigError(f"{where}unknown reducer {name!r} (known: {', '.join(sorted(catalogue))})")
 
 
-def load_bench_config(path: str | Path | None = None) -> BenchConfig:
-    """Read a bench configuration (``config/bench-sim.toml`` by default)."""
-    path = Path(path) if path is not None else default_bench_config_path()
-    data = read_toml(path)
+def load_bench_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> BenchConfig:
+    """Read a bench configuration (the packaged ``bench-sim.toml`` by default; a bare name may name another
+    packaged one), with ``dotted.key=VALUE`` overrides (:func:`apply_overrides`) applied before validation."""
+    path = resolve_config_path(path) if path is not None else default_bench_config_path()
+    data = apply_overrides(read_toml(path), overrides)
     cfg = validate(BenchConfig, data, path)
     cfg.source_path = str(path)
     return cfg

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tcms_daq.config import default_config_dir, load_bench_config, load_reducer_catalogue
+from tcms_daq.config import load_bench_config, load_reducer_catalogue, packaged_config_dir
 
 
 @pytest.fixture(scope="session")
@@ -21,12 +21,12 @@ def bench_config():
 
 @pytest.fixture
 def reducers_text() -> str:
-    return (default_config_dir() / "reducers.toml").read_text(encoding="utf-8")
+    return (packaged_config_dir() / "reducers.toml").read_text(encoding="utf-8")
 
 
 @pytest.fixture
 def bench_text() -> str:
-    return (default_config_dir() / "bench-sim.toml").read_text(encoding="utf-8")
+    return (packaged_config_dir() / "bench-sim.toml").read_text(encoding="utf-8")
 
 
 @pytest.fixture

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from tcms_daq.config import (
     BenchConfig,
+    apply_overrides,
     get_reducer,
     hd_twist_arcsec,
     load_bench_config,
     load_reducer_catalogue,
     load_test_profile,
+    packaged_config_dir,
 )
 from tcms_daq.errors import ConfigError
 from tcms_daq.units import ARCSEC_PER_RAD
@@ -43,7 +47,7 @@ def test_default_bench_config(bench_config):
     assert bench_config.instruments.angle.driver == "virtual"
     assert bench_config.sim.reducer == "RV-110E"
     assert bench_config.sim.effects == {}
-    assert bench_config.resolve("geometry-sim.toml").endswith("config/geometry-sim.toml")
+    assert bench_config.resolve("geometry-sim.toml") == str(packaged_config_dir() / "geometry-sim.toml")
 
 
 def _error(exc_info) -> str:
@@ -141,3 +145,29 @@ def test_test_profile_validation():
     assert load_test_profile({"kind": "stepped", "step_nm": 25}).step_nm == 25
     with pytest.raises(ConfigError, match=r"<api>: cycles: .*greater than or equal to 1"):
         load_test_profile({"cycles": 0}, source="<api>")
+
+
+def test_packaged_configs_are_found_by_name_from_any_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cfg = load_bench_config("bench-loopback.toml")
+    assert Path(cfg.source_path) == packaged_config_dir() / "bench-loopback.toml"
+    (tmp_path / "bench-loopback.toml").write_text((packaged_config_dir() / "bench-sim.toml").read_text())
+    assert Path(load_bench_config("bench-loopback.toml").source_path) == Path("bench-loopback.toml")  # local first
+    with pytest.raises(ConfigError, match=r"nope\.toml: no such file \(packaged configs, usable by name: .*bench-sim"):
+        load_bench_config("nope.toml")
+    with pytest.raises(ConfigError, match="no such file"):
+        load_bench_config("sub/bench-sim.toml")  # a path with a folder is never taken for a packaged name
+
+
+def test_overrides_change_a_copy_before_validation():
+    cfg = load_bench_config("bench-loopback.toml", overrides=[
+        "instruments.angle.url=socket://127.0.0.1:5001", "bench.max_torque_nm=900", 'bench.name="port 5001"'])
+    assert cfg.instruments.angle.url == "socket://127.0.0.1:5001"
+    assert cfg.bench.max_torque_nm == 900.0 and cfg.bench.name == "port 5001"
+    assert load_bench_config("bench-loopback.toml").instruments.angle.url != "socket://127.0.0.1:5001"
+    with pytest.raises(ConfigError, match="bench.max_torque_nm: .*-5"):
+        load_bench_config("bench-loopback.toml", overrides=["bench.max_torque_nm=-5"])
+    with pytest.raises(ConfigError, match="expected dotted.key=VALUE"):
+        apply_overrides({}, ["no-equals-sign"])
+    with pytest.raises(ConfigError, match="bench.name is not a table"):
+        apply_overrides({"bench": {"name": "x"}}, ["bench.name.deeper=1"])

@@ -12,7 +12,7 @@ from urllib.parse import urlparse
 import yaml
 
 from tcms_daq.cli import build_parser
-from tcms_daq.config import load_bench_config
+from tcms_daq.config import load_bench_config, packaged_config_dir, resolve_config_path
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -43,7 +43,8 @@ def test_compose_services_commands_ports_and_healthchecks():
     assert sim["command"][sim["command"].index("--host") + 1] == "0.0.0.0"
     assert tcms["command"][:2] == ["tcms", "serve"]
     cmd = tcms["command"]
-    assert cmd[cmd.index("--config") + 1] == "config/bench-compose.toml"
+    assert cmd[cmd.index("--config") + 1] == "bench-compose.toml"  # a packaged config, found by name
+    assert resolve_config_path("bench-compose.toml") == packaged_config_dir() / "bench-compose.toml"
     assert cmd[cmd.index("--host") + 1] == "0.0.0.0"
     port = int(cmd[cmd.index("--port") + 1])
     assert _published(tcms)[port] == port
@@ -85,9 +86,9 @@ def test_dockerfile_installs_the_package_and_runs_the_service():
     text = (REPO / "Dockerfile").read_text(encoding="utf-8")
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")]
     assert lines[0].startswith("FROM python:3.11")
-    for src in ("tcms_daq", "drivers", "sim", "config", "pyproject.toml"):
+    for src in ("tcms_daq", "drivers", "sim", "pyproject.toml"):
         assert any(ln.startswith("COPY") and src in ln for ln in lines), src
     assert any("pip install" in ln for ln in lines)
-    assert "TCMS_CONFIG_DIR=/app/config" in text
+    assert "TCMS_DATA_DIR=/data" in text
     assert any(ln.startswith("EXPOSE 8000") for ln in lines)
     assert lines[-1].startswith('CMD ["tcms", "serve"')
