@@ -30,10 +30,10 @@ from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, Inst
 from drivers.cia402 import CiA402Loader
 from drivers.modbus_rtu import RtuSerialClient
 from drivers.registry import register
-from tcms_daq.config.loader import read_toml
+from tcms_daq.config.loader import packaged_config_dir, read_toml
 from tcms_daq.errors import ConfigError
 
-DEFAULT_MAP_PATH = Path(__file__).resolve().parent.parent / "config" / "modbus-drive.toml"
+DEFAULT_MAP_PATH = packaged_config_dir() / "modbus-drive.toml"
 REQUIRED_REGISTERS = (
     "controlword", "statusword", "error_code", "mode", "mode_display", "position_actual",
     "target_torque", "max_torque", "torque_actual", "torque_slope", "rated_torque",

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tcms_daq.cli.options import add_bench_config_options
 from tcms_daq.config import (
     BenchConfig,
     ReducerSpec,
@@ -74,8 +75,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "simulated bench and print the evaluation (rigidity, lost motion, backlash) next to the simulated "
         "reducer's true values.",
     )
-    p.add_argument("--config", type=Path, default=None, metavar="FILE",
-                   help="bench config (default: config/bench-sim.toml)")
+    add_bench_config_options(p)
     p.add_argument("--reducer", default=None, metavar="NAME", help="catalogue reducer (default: [sim] reducer)")
     p.add_argument("--max-torque", type=_positive, default=None, metavar="NM",
                    help="test torque T in N·m (default: the reducer's rated torque)")
@@ -235,7 +235,7 @@ def _write_samples(path: Path, samples: Samples) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.parent.is_dir():  # fail before the test, not after it
         raise TcmsError(f"{args.out}: cannot write (no directory {args.out.parent})")
-    cfg = load_bench_config(args.config)
+    cfg = load_bench_config(args.config, args.overrides)
     catalogue = load_reducers_for(cfg)
     reducer = get_reducer(catalogue, args.reducer or cfg.sim.reducer, cfg.resolve(cfg.bench.reducers))
     profile = _profile_from_args(cfg, reducer, args)

@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from tcms_daq.cli.options import add_bench_config_options
 from tcms_daq.errors import ConfigError
 from tcms_daq.settings import DEFAULT_DATA_DIR, read_settings
 
@@ -18,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "run store in the data directory. Mutating endpoints need 'Authorization: Bearer <token>'; the token "
         "comes from the config ([service] api_token), TCMS_API_TOKEN, or is generated and printed.",
     )
-    p.add_argument("--config", type=Path, default=None, help="bench config TOML (default: config/bench-sim.toml)")
+    add_bench_config_options(p)
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 = any free port)")
     p.add_argument("--data-dir", type=Path, default=None,
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     _check_store(Path(data_dir) / STORE_FILENAME)
     # Compose the bench and reach its instruments before the server starts, so a bad config or an instrument
     # that does not answer is a one-line error, not a startup traceback after the URL was printed.
-    runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed)
+    runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed, overrides=args.overrides)
     settings = ServiceSettings(
         data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(runner.config)
     )

@@ -24,6 +24,7 @@ import threading
 from typing import Any
 
 from sim.instruments.tcp import TcpServer
+from tcms_daq.cli.options import add_bench_config_options
 from tcms_daq.errors import ConfigError, TcmsError
 
 
@@ -35,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run the ND 287, AED, Modbus and CANopen (socketcand) simulators on one shared physics",
         description=__doc__.split("\n\n")[1],
     )
-    serve.add_argument("--config", help="bench config (default config/bench-sim.toml)")
+    add_bench_config_options(serve)
     serve.add_argument("--host", default=None, help="address to bind (default 127.0.0.1)")
     serve.add_argument("--speed", type=float, default=1.0, help="simulated seconds per real second (default 1)")
     serve.add_argument("--nd287-port", type=int, help="ND 287 TCP port (default 4001; 0 = any free port)")
@@ -98,7 +99,7 @@ def _serve(args: argparse.Namespace) -> int:
 
     if not args.speed > 0:
         raise ConfigError(f"--speed must be > 0, got {args.speed}")
-    cfg = load_bench_config(args.config)
+    cfg = load_bench_config(args.config, args.overrides)
     opts = _options(args, cfg)
     physics = SharedPhysics(default_physics_factory(cfg))
     sims = InstrumentSimulators(physics, opts)

@@ -35,7 +35,9 @@ def resolve_config_path(path: str | Path) -> Path:
     given = Path(path)
     if given.exists():
         return given
-    if given.parent == Path(".") and (packaged_config_dir() / given.name).is_file():
+    if given.parent != Path("."):
+        raise ConfigError(f"{given}: no such file")
+    if (packaged_config_dir() / given.name).is_file():
         return packaged_config_dir() / given.name
     names = ", ".join(sorted(p.name for p in packaged_config_dir().glob("*.toml")))
     raise ConfigError(f"{given}: no such file (packaged configs, usable by name: {names})")

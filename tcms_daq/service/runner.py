@@ -117,15 +117,17 @@ class BenchRunner:
         self._live_sub: Any = None
 
     @classmethod
-    def from_config(cls, config_path: Path | None = None, sim_speed: float = 1.0, **bench_kwargs: Any) -> BenchRunner:
-        """Compose the bench of a config file (default ``config/bench-sim.toml``); ``bench_kwargs`` go to
-        :func:`~tcms_daq.acquisition.compose_bench` (e.g. ``compensator``, ``physics_factory``)."""
+    def from_config(cls, config_path: Path | str | None = None, sim_speed: float = 1.0,
+                    overrides: list[str] | tuple[str, ...] = (), **bench_kwargs: Any) -> BenchRunner:
+        """Compose the bench of a config file (default: the packaged ``bench-sim.toml``; ``overrides`` as
+        ``tcms serve --set``); ``bench_kwargs`` go to :func:`~tcms_daq.acquisition.compose_bench` (e.g.
+        ``compensator``, ``physics_factory``)."""
         from tcms_daq.acquisition import compose_bench
         from tcms_daq.config import load_bench_config, load_reducers_for
         from tcms_daq.config.loader import default_bench_config_path
 
-        path = Path(config_path) if config_path is not None else default_bench_config_path()
-        config = load_bench_config(path)
+        config = load_bench_config(config_path, overrides)
+        path = Path(config.source_path or default_bench_config_path())
         reducers = load_reducers_for(config)
         bench = compose_bench(config, config_dir=path.parent, speed=sim_speed, **bench_kwargs)
         return cls(config, path, bench, reducers, sim_speed=sim_speed)

@@ -1,0 +1,152 @@
+"""Build a wheel, install it into a fresh virtual environment outside the source tree, and run the product from
+another directory: ``tcms run`` (the in-process simulated bench), ``tcms serve`` with one test through the REST
+API, and ``tcms sim serve`` + ``tcms run --config bench-loopback.toml --set …`` over the real protocols.
+
+    .venv/bin/python scripts/wheel_smoke.py [--keep DIR]
+
+Exits non-zero with the failing step's output. Used by .ci/run; needs the package index pip is configured for.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+TOKEN = "wheel-smoke-token"
+
+
+def step(title: str, cmd: list[str], cwd: Path, timeout_s: float = 600.0, env: dict | None = None) -> str:
+    print(f"wheel-smoke: {title}", flush=True)
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout_s, env=env)
+    if proc.returncode != 0:
+        sys.exit(f"wheel-smoke: FAILED: {title}\n$ {' '.join(cmd)}\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}")
+    return proc.stdout
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def http(method: str, url: str, body: dict | None = None) -> dict:
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, method=method, headers={
+        "Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"})
+    with urllib.request.urlopen(req, timeout=10) as resp:
+        return json.loads(resp.read())
+
+
+def wait_for(condition, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    last_error: Exception | None = None
+    while time.monotonic() < deadline:
+        try:
+            value = condition()
+            if value:
+                return value
+        except Exception as exc:  # not up yet
+            last_error = exc
+        time.sleep(0.2)
+    sys.exit(f"wheel-smoke: FAILED: {what} within {timeout_s:.0f} s (last error: {last_error})")
+
+
+def serve_one_test(tcms: Path, cwd: Path, env: dict) -> None:
+    """`tcms serve` from another directory; one short test through the API completes with an evaluation."""
+    port = free_port()
+    proc = subprocess.Popen([str(tcms), "serve", "--port", str(port), "--data-dir", str(cwd / "data"),
+                             "--sim-speed", "50"], cwd=cwd, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        wait_for(lambda: http("GET", f"{base}/api/health"), 60, "tcms serve answering /api/health")
+        run = http("POST", f"{base}/api/tests", {"reducer": "RV-110E", "max_torque_nm": 200, "cycles": 1,
+                                                 "rate_nm_per_s": 200})
+        done = wait_for(lambda: (r := http("GET", f"{base}/api/tests/{run['id']}"))["status"]
+                        in ("completed", "failed", "aborted") and r, 120, "the test to end")
+        if done["status"] != "completed":
+            sys.exit(f"wheel-smoke: FAILED: the served test ended {done['status']}: {json.dumps(done)[:2000]}")
+        print(f"wheel-smoke: tcms serve: test {run['id']} completed", flush=True)
+    finally:
+        proc.terminate()
+        try:
+            out, _ = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, _ = proc.communicate()
+        if proc.returncode not in (0, -15):
+            print(out[-4000:])
+
+
+def loopback_run(tcms: Path, cwd: Path, env: dict) -> None:
+    """`tcms sim serve` on free ports and `tcms run` against it with port overrides, no edited TOML copy."""
+    sim = subprocess.Popen([str(tcms), "sim", "serve", "--nd287-port", "0", "--aed-port", "0", "--modbus-port",
+                            "0", "--socketcand-port", "0", "--control-port", "0"], cwd=cwd, env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert sim.stdout is not None
+        info = json.loads(sim.stdout.readline() or "{}")
+        if "urls" not in info:
+            sys.exit(f"wheel-smoke: FAILED: tcms sim serve did not report its ports: {sim.stderr.read()[-2000:]}")
+        urls = info["urls"]
+        out = step("tcms run --config bench-loopback.toml --set … (real protocols)", [
+            str(tcms), "run", "--config", "bench-loopback.toml", "--max-torque", "200", "--cycles", "1",
+            "--conditioning", "1", "--rate", "400", "--json",
+            "--set", f"instruments.angle.url={urls['angle']}", "--set", f"instruments.torque.url={urls['torque']}",
+            "--set", f"instruments.loader.url={urls['loader_canopen']}"], cwd, timeout_s=300, env=env)
+        result = json.loads(out)
+        print(f"wheel-smoke: loopback run rigidity {result['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
+    finally:
+        sim.terminate()
+        try:
+            sim.wait(15)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--keep", metavar="DIR", help="work in DIR and keep it (default: a temporary directory)")
+    args = parser.parse_args()
+    work = Path(args.keep or tempfile.mkdtemp(prefix="tcms-wheel-"))
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        step("build the wheel", [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(work / "dist"),
+                                 str(REPO)], work)
+        wheel = next((work / "dist").glob("tcms_daq-*.whl"))
+        step("create a fresh venv", [sys.executable, "-m", "venv", str(work / "venv")], work)
+        vpy = work / "venv" / "bin" / "python"
+        step("install the wheel (with its dependencies)", [str(vpy), "-m", "pip", "install", "-q", str(wheel)], work)
+        elsewhere = work / "elsewhere"
+        elsewhere.mkdir(exist_ok=True)
+        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+        env["TCMS_API_TOKEN"] = TOKEN
+        where = step("the installed package is used", [str(vpy), "-c", "import tcms_daq; print(tcms_daq.__file__)"],
+                     elsewhere, env=env)
+        if str(REPO) in where:
+            sys.exit(f"wheel-smoke: FAILED: imported from the source tree: {where}")
+        tcms = work / "venv" / "bin" / "tcms"
+        out = step("tcms run (in-process simulated bench)", [str(tcms), "run", "--max-torque", "300", "--cycles",
+                                                              "1", "--conditioning", "1", "--json"], elsewhere, env=env)
+        print(f"wheel-smoke: tcms run rigidity {json.loads(out)['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
+        serve_one_test(tcms, elsewhere, env)
+        loopback_run(tcms, elsewhere, env)
+        print("wheel-smoke: ok", flush=True)
+        return 0
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
