@@ -1,4 +1,4 @@
-"""The geometric error model against the numbers of ../shared/reference/dh_model.md (Table 2/3 inputs)."""
+"""The geometric error model against hand-derived numbers for the paper's Table 2/3 inputs."""
 
 import json
 import math
