@@ -6,6 +6,7 @@ import argparse
 import json
 
 from tcms_daq.compensation.geometry import evaluate_geometry, load_geometry
+from tcms_daq.config import resolve_config_path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -15,13 +16,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Evaluate the paper's DH chain (Eqs. 1-14) and its consistent completion (scale k, axial "
         "shift dL, torsion slope) for a geometry TOML (Table 2 in [structure], Table 3 in [parts.N]).",
     )
-    p.add_argument("geometry", help="geometry TOML, e.g. config/geometry-paper.toml")
+    p.add_argument("geometry", help="geometry TOML: a path, or a packaged one by name (geometry-paper.toml, geometry-sim.toml)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    model = evaluate_geometry(load_geometry(args.geometry))
+    model = evaluate_geometry(load_geometry(resolve_config_path(args.geometry)))
     d = model.to_dict()
     if args.json:
         print(json.dumps(d, indent=2))
