@@ -22,6 +22,7 @@ import numpy as np
 
 from tcms_daq.compensation.compensator import Compensator
 from tcms_daq.compensation.terms import Term, parse_term_spec
+from tcms_daq.crossval import contiguous_blocks, leave_one_group_out
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.samples import read_csv_columns
 
@@ -196,16 +197,13 @@ def calibrate(
     loo = resid / np.clip(1.0 - hat, 1e-12, None)
 
     k = max(2, min(int(blocks), n // max(p + 1, 2)))
-    edges = np.linspace(0, n, k + 1).round().astype(int)
     blocked = np.empty(n)
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        train = np.ones(n, dtype=bool)
-        train[a:b] = False
+    for train, test in leave_one_group_out(np.arange(n), contiguous_blocks(n, k)):
         if np.linalg.matrix_rank(xs[train]) < p:
-            blocked[a:b] = np.nan  # this fold cannot identify every term (e.g. a period not covered)
+            blocked[test] = np.nan  # this fold cannot identify every term (e.g. a period not covered)
             continue
         coef = np.linalg.lstsq(x[train], y[train], rcond=None)[0]
-        blocked[a:b] = y[a:b] - x[a:b] @ coef
+        blocked[test] = y[test] - x[test] @ coef
     blocked_ok = blocked[np.isfinite(blocked)]
 
     fits, fitted_terms, uncs = [], [], []

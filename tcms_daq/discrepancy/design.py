@@ -14,6 +14,7 @@ from functools import cached_property
 
 import numpy as np
 
+from tcms_daq.crossval import contiguous_blocks
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples
 
@@ -158,8 +159,8 @@ def loop_groups(direction: np.ndarray, segments: np.ndarray) -> np.ndarray:
 
 
 def block_groups(n: int, n_blocks: int = N_BLOCKS) -> np.ndarray:
-    n_blocks = max(2, min(n_blocks, n // 3 if n >= 6 else 2))
-    return (np.arange(n) * n_blocks // max(n, 1)).astype(int)
+    """Contiguous blocks for data without loops or runs: ``n_blocks``, but at least 3 rows a block (≥ 2 blocks)."""
+    return contiguous_blocks(n, max(2, min(n_blocks, n // 3 if n >= 6 else 2)))
 
 
 @dataclass

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tcms_daq.crossval import leave_one_group_out
 from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import MIN_GROUPS, DesignData, block_groups
 
@@ -274,12 +275,9 @@ class CVScore:
 
 def make_folds(rows: np.ndarray, groups: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     """Leave-one-group-out folds over ``rows`` (falls back to contiguous blocks for < 3 groups)."""
-    g = groups[rows]
-    labels = np.unique(g)
-    if len(labels) < MIN_GROUPS:
-        g = block_groups(len(rows))
-        labels = np.unique(g)
-    return [(rows[g != lab], rows[g == lab]) for lab in labels]
+    if len(np.unique(groups[rows])) >= MIN_GROUPS:
+        return leave_one_group_out(rows, groups[rows])
+    return leave_one_group_out(rows, block_groups(len(rows)))
 
 
 def cv_score(cols: Columns, y: np.ndarray, folds: list[tuple[np.ndarray, np.ndarray]], names: list[str],

@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("tcms_daq", "drivers", "sim")
-CORE = {"tcms_daq.units", "tcms_daq.errors", "tcms_daq.samples", "tcms_daq.analysis", "tcms_daq.compensation",
+CORE = {"tcms_daq.units", "tcms_daq.errors", "tcms_daq.samples", "tcms_daq.crossval", "tcms_daq.analysis", "tcms_daq.compensation",
         "tcms_daq.discrepancy", "tcms_daq.procedure"}
 SHELL = {"drivers", "sim", "tcms_daq.acquisition", "tcms_daq.store", "tcms_daq.service", "tcms_daq.cli",
          "tcms_daq.settings"}
