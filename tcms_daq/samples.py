@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -160,21 +159,26 @@ def samples_from_columns(cols: Mapping[str, np.ndarray]) -> Samples:
     return Samples(cols.get("time_s", zeros), cols.get("torque_nm", zeros), cols.get("angle_arcsec", zeros), extra)
 
 
-def _fmt(x: float) -> str:
-    return "nan" if math.isnan(x) else repr(float(x))
+def csv_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
+    """Canonical CSV of equally long float columns, in the given order: a header row, then the shortest text
+    that reads back to the same float (``nan``, ``inf``), so a round trip is exact. The one CSV writer of the
+    project (files, exports); Arrow's C++ writer, not a Python loop per row."""
+    import pyarrow as pa
+    import pyarrow.csv as pa_csv
+
+    cols = {name: np.asarray(values, dtype=float) for name, values in columns.items()}
+    buf = io.BytesIO()
+    buf.write((",".join(cols) + "\n").encode())
+    if cols and len(next(iter(cols.values()))):
+        pa_csv.write_csv(pa.table(cols), buf, pa_csv.WriteOptions(include_header=False, quoting_style="none"))
+    return buf.getvalue()
 
 
 def to_csv_text(samples: Samples, columns: Iterable[str] | None = None) -> str:
-    """Canonical CSV text (header + rows); full float precision so a round trip is exact."""
+    """Canonical CSV text of ``samples`` (all columns, or the named ones in that order); see :func:`csv_bytes`."""
     cols = samples.columns()
     names = list(columns) if columns is not None else list(cols)
-    buf = io.StringIO()
-    buf.write(",".join(names) + "\n")
-    data = np.column_stack([cols[n] for n in names]) if len(samples) else np.empty((0, len(names)))
-    for row in data:
-        buf.write(",".join(_fmt(v) for v in row))
-        buf.write("\n")
-    return buf.getvalue()
+    return csv_bytes({n: cols[n] for n in names}).decode("ascii")
 
 
 def write_csv(path: str | Path, samples: Samples, columns: Iterable[str] | None = None) -> None:
