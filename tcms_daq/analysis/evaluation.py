@@ -185,20 +185,70 @@ def _validated(time_s, torque_nm, angle_arcsec) -> tuple[np.ndarray, np.ndarray,
     return t, cols["torque_nm"], cols["angle_arcsec"]
 
 
-def _check_parameters(rated_torque_nm, test_torque_nm, lost_motion_pct, rigidity_interval, skip_loops):
-    if not (rated_torque_nm is not None and math.isfinite(rated_torque_nm) and rated_torque_nm > 0):
-        raise EvaluationError(f"rated torque must be a positive number of N·m, got {rated_torque_nm!r}")
-    if test_torque_nm is not None and not (math.isfinite(test_torque_nm) and test_torque_nm > 0):
-        raise EvaluationError(f"test torque must be a positive number of N·m, got {test_torque_nm!r}")
-    if not (0.0 < lost_motion_pct < 50.0):
-        raise EvaluationError(f"lost-motion torque level must be between 0 and 50 % of rated, got {lost_motion_pct}")
-    lo, hi = rigidity_interval
-    if not (0.0 <= lo < hi <= 1.0):
-        raise EvaluationError(
-            f"rigidity interval must be fractions of the test torque with 0 <= lo < hi <= 1, got {lo}…{hi}"
-        )
-    if skip_loops < 0:
-        raise EvaluationError(f"skip_loops must be >= 0, got {skip_loops}")
+@dataclass(frozen=True)
+class EvaluationSettings:
+    """What an evaluation is asked for (DESIGN §2). Torques in N·m; ``rigidity_interval`` as fractions of the
+    test torque on each side; ``test_torque_nm`` None = the torque reached (snapped to rated within 2 %)."""
+
+    rated_torque_nm: float
+    test_torque_nm: float | None = None
+    lost_motion_pct: float = 3.0
+    rigidity_interval: tuple[float, float] = (0.5, 1.0)
+    hd_breakpoints_nm: tuple[float, float] | None = None
+    skip_loops: int = 0
+
+    def __post_init__(self) -> None:
+        rated, test = self.rated_torque_nm, self.test_torque_nm
+        if not (rated is not None and math.isfinite(rated) and rated > 0):
+            raise EvaluationError(f"rated torque must be a positive number of N·m, got {rated!r}")
+        if test is not None and not (math.isfinite(test) and test > 0):
+            raise EvaluationError(f"test torque must be a positive number of N·m, got {test!r}")
+        if not (0.0 < self.lost_motion_pct < 50.0):
+            raise EvaluationError(
+                f"lost-motion torque level must be between 0 and 50 % of rated, got {self.lost_motion_pct}")
+        lo, hi = self.rigidity_interval
+        if not (0.0 <= lo < hi <= 1.0):
+            raise EvaluationError(
+                f"rigidity interval must be fractions of the test torque with 0 <= lo < hi <= 1, got {lo}…{hi}")
+        if self.skip_loops < 0:
+            raise EvaluationError(f"skip_loops must be >= 0, got {self.skip_loops}")
+
+    @property
+    def lost_motion_torque_nm(self) -> float:
+        return self.lost_motion_pct / 100.0 * self.rated_torque_nm
+
+
+@dataclass(frozen=True)
+class Conditioning:
+    """The record prepared for the loop evaluation: torque scale and noise, the fit window and the smoothed
+    torque that locates crossings and turning points."""
+
+    scale_nm: float  # the 99.5th percentile of |T|
+    torque_noise_nm: float
+    angle_noise_arcsec: float
+    window: int  # samples per local fit
+    max_span_nm: float  # no fit or smoothing spans more torque than this
+    torque_smooth_nm: np.ndarray
+
+
+@dataclass(frozen=True)
+class LoopContext:
+    """Everything one loop's evaluation reads: the record, its conditioning and the evaluation levels."""
+
+    time_s: np.ndarray
+    torque_nm: np.ndarray
+    angle_arcsec: np.ndarray
+    cond: Conditioning
+    test_torque_nm: float
+    settings: EvaluationSettings
+
+    @property
+    def lo_nm(self) -> float:
+        return self.settings.rigidity_interval[0] * self.test_torque_nm
+
+    @property
+    def hi_nm(self) -> float:
+        return self.settings.rigidity_interval[1] * self.test_torque_nm
 
 
 def _trapezoid(y: np.ndarray, x: np.ndarray) -> float:
@@ -244,9 +294,58 @@ def evaluate(
     contain an evaluable loop.
     """
     t, torque, angle = _validated(time_s, torque_nm, angle_arcsec)
-    _check_parameters(rated_torque_nm, test_torque_nm, lost_motion_pct, rigidity_interval, skip_loops)
-    lo_frac, hi_frac = (float(x) for x in rigidity_interval)
+    settings = EvaluationSettings(
+        rated_torque_nm, test_torque_nm, lost_motion_pct, tuple(float(x) for x in rigidity_interval),  # type: ignore[arg-type]
+        hd_breakpoints_nm, skip_loops)
+    cond = _condition(torque, angle)
+    _, loops = segment_loops(cond.torque_smooth_nm, cond.scale_nm)
+    if skip_loops >= len(loops):
+        raise EvaluationError(
+            f"no full loop left to evaluate: the record has {len(loops)} full loop(s) and {skip_loops} are skipped"
+        )
+    ctx = LoopContext(t, torque, angle, cond, _test_torque(loops[skip_loops:], settings), settings)
+    warnings: list[str] = []
+    loop_results: list[LoopResult] = []
+    for k, loop in enumerate(loops):
+        try:
+            loop_results.append(_evaluate_loop(k, k >= skip_loops, loop, ctx, warnings))
+        except EvaluationError as exc:
+            if k >= skip_loops:
+                raise
+            warnings.append(f"skipped loop {k} not reported: {exc}")
+    used = [r for r in loop_results if r.evaluated]
+    means, stds, hd = _loop_statistics(used, with_hd=hd_breakpoints_nm is not None)
+    rates = [r.loading_rate_nm_per_s for r in used if math.isfinite(r.loading_rate_nm_per_s)]
+    return Evaluation(
+        rigidity_nm_per_arcmin=means["rigidity_nm_per_arcmin"],
+        lost_motion_arcsec=means["lost_motion_arcsec"],
+        backlash_arcsec=means["backlash_arcsec"],
+        loop_energy_j=means["loop_energy_j"],
+        std=stds,
+        per_direction=_mean_per_direction(used),
+        loops=loop_results,
+        n_loops=len(used),
+        skipped_loops=skip_loops,
+        loading_rate_nm_per_s=float(np.median(rates)) if rates else float("nan"),
+        test_torque_nm=ctx.test_torque_nm,
+        rated_torque_nm=float(rated_torque_nm),
+        lost_motion_pct=float(lost_motion_pct),
+        lost_motion_torque_nm=settings.lost_motion_torque_nm,
+        rigidity_interval=settings.rigidity_interval,
+        hd_breakpoints_nm=tuple(float(x) for x in hd_breakpoints_nm) if hd_breakpoints_nm else None,  # type: ignore[arg-type]
+        verdict=limits.judge(means) if limits is not None else None,
+        n_samples=int(t.size),
+        duration_s=float(t[-1] - t[0]),
+        noise={"torque_nm": cond.torque_noise_nm, "angle_arcsec": cond.angle_noise_arcsec},
+        fit_window_samples=cond.window,
+        warnings=sorted(set(warnings)),
+        **hd,
+    )
 
+
+def _condition(torque: np.ndarray, angle: np.ndarray) -> Conditioning:
+    """Torque scale and noise; a pilot segmentation on the raw torque sizes the fit window from the overall
+    compliance; the smoothing never spans more than the fit's torque span."""
     scale = float(np.percentile(np.abs(torque), SCALE_PERCENTILE))
     if scale <= 0.0:
         raise EvaluationError("torque is zero throughout the record: no hysteresis loop")
@@ -256,8 +355,6 @@ def evaluate(
         raise EvaluationError(
             f"no hysteresis loop: torque stays within its noise (|T| ≤ {scale:.3g} Nm, noise {torque_noise:.3g} Nm)"
         )
-
-    # Pilot pass on the raw torque: the overall compliance sizes the fitting window.
     pilot_branches, _ = segment_loops(torque, scale)
     tips = [(b.start, b.start_torque_nm) for b in pilot_branches] + [
         (pilot_branches[-1].stop, pilot_branches[-1].stop_torque_nm)
@@ -268,123 +365,123 @@ def evaluate(
         (angle[pos].mean() - angle[neg].mean()) / (torque[pos].mean() - torque[neg].mean())
     ) if pos and neg else 0.0
     window = fit_window(angle_noise, torque_noise, compliance)
-    # Smoothing (for locating crossings and turning points) never spans more than the fit's torque span.
     samples_per_nm = float(
         np.median([(b.stop - b.start) / max(abs(b.stop_torque_nm - b.start_torque_nm), 1e-9) for b in pilot_branches])
     )
     max_span_nm = MAX_SPAN_FRACTION * scale
     torque_smooth = _smooth(torque, min(window, max(1, int(max_span_nm * samples_per_nm))))
+    return Conditioning(scale, torque_noise, angle_noise, window, max_span_nm, torque_smooth)
 
-    _, loops = segment_loops(torque_smooth, scale)
-    if skip_loops >= len(loops):
-        raise EvaluationError(
-            f"no full loop left to evaluate: the record has {len(loops)} full loop(s) and {skip_loops} are skipped"
-        )
-    evaluated = loops[skip_loops:]
 
-    warnings: list[str] = []
-    if test_torque_nm is None:
-        reached = float(np.median([lp.reached_torque_nm(s) for lp in evaluated for _, s in SIDES]))
-        if abs(reached - rated_torque_nm) <= SNAP_TO_RATED * rated_torque_nm:
-            test_torque_nm = float(rated_torque_nm)
-        else:
-            test_torque_nm = round(reached, 1)
-    test_torque_nm = float(test_torque_nm)
-    lm_torque = lost_motion_pct / 100.0 * rated_torque_nm
+def _test_torque(evaluated: list[Loop], settings: EvaluationSettings) -> float:
+    """The requested test torque, else the median torque reached at the turning points (N·m), taken as the rated
+    torque when within 2 % of it."""
+    if settings.test_torque_nm is not None:
+        return float(settings.test_torque_nm)
+    reached = float(np.median([lp.reached_torque_nm(s) for lp in evaluated for _, s in SIDES]))
+    if abs(reached - settings.rated_torque_nm) <= SNAP_TO_RATED * settings.rated_torque_nm:
+        return float(settings.rated_torque_nm)
+    return float(round(reached, 1))
 
-    loop_results: list[LoopResult] = []
-    for k, loop in enumerate(loops):
-        try:
-            loop_results.append(_evaluate_loop(
-                k, k >= skip_loops, loop, t, torque, angle, torque_smooth, window, max_span_nm,
-                test_torque_nm, lm_torque, lo_frac, hi_frac, hd_breakpoints_nm, warnings,
-            ))
-        except EvaluationError as exc:
-            if k >= skip_loops:
-                raise
-            warnings.append(f"skipped loop {k} not reported: {exc}")
-    used = [r for r in loop_results if r.evaluated]
 
-    def mean(values):
-        vals = [v for v in values if v is not None]
-        return float(np.mean(vals)) if len(vals) == len(values) and vals else None
+def _mean_or_none(values: list[float | None]) -> float | None:
+    """Mean, or None when any value is missing."""
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if len(vals) == len(values) and vals else None
 
-    def std(values):
-        vals = [v for v in values if v is not None]
-        return float(np.std(vals, ddof=1)) if len(vals) == len(values) and len(vals) >= 2 else None
 
-    per_direction: dict[str, DirectionResult] = {}
+def _std_or_none(values: list[float | None]) -> float | None:
+    """Sample standard deviation, or None when any value is missing or there are fewer than two."""
+    vals = [v for v in values if v is not None]
+    return float(np.std(vals, ddof=1)) if len(vals) == len(values) and len(vals) >= 2 else None
+
+
+def _mean_per_direction(used: list[LoopResult]) -> dict[str, DirectionResult]:
+    """Each side's results averaged over the evaluated loops."""
+    out: dict[str, DirectionResult] = {}
     for name, _ in SIDES:
         ds = [r.per_direction[name] for r in used]
-        per_direction[name] = DirectionResult(
-            rigidity_nm_per_arcmin=mean([d.rigidity_nm_per_arcmin for d in ds]),
+        out[name] = DirectionResult(
+            rigidity_nm_per_arcmin=_mean_or_none([d.rigidity_nm_per_arcmin for d in ds]),  # type: ignore[arg-type]
             interval_nm=(
-                mean([d.interval_nm[0] for d in ds]),
-                mean([d.interval_nm[1] for d in ds]),
-            ),
-            torsion_angle_arcsec=mean([d.torsion_angle_arcsec for d in ds]),
-            half_lost_motion_arcsec=mean([d.half_lost_motion_arcsec for d in ds]),
-            k1_nm_per_rad=mean([d.k1_nm_per_rad for d in ds]),
-            k2_nm_per_rad=mean([d.k2_nm_per_rad for d in ds]),
-            k3_nm_per_rad=mean([d.k3_nm_per_rad for d in ds]),
+                _mean_or_none([d.interval_nm[0] for d in ds]),
+                _mean_or_none([d.interval_nm[1] for d in ds]),
+            ),  # type: ignore[arg-type]
+            torsion_angle_arcsec=_mean_or_none([d.torsion_angle_arcsec for d in ds]),  # type: ignore[arg-type]
+            half_lost_motion_arcsec=_mean_or_none([d.half_lost_motion_arcsec for d in ds]),  # type: ignore[arg-type]
+            k1_nm_per_rad=_mean_or_none([d.k1_nm_per_rad for d in ds]),
+            k2_nm_per_rad=_mean_or_none([d.k2_nm_per_rad for d in ds]),
+            k3_nm_per_rad=_mean_or_none([d.k3_nm_per_rad for d in ds]),
         )
-    quantities = ("rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec", "loop_energy_j")
-    means = {q: mean([getattr(r, q) for r in used]) for q in quantities}
-    stds: dict[str, float | None] = {q: std([getattr(r, q) for r in used]) for q in quantities}
-    for name, _ in SIDES:
-        stds[f"{name}_rigidity_nm_per_arcmin"] = std([r.per_direction[name].rigidity_nm_per_arcmin for r in used])
-    hd = {}
-    if hd_breakpoints_nm is not None:
-        for q in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"):
-            hd[q] = mean([getattr(r, q) for r in used])
-            stds[q] = std([getattr(r, q) for r in used])
-    rates = [r.loading_rate_nm_per_s for r in used if math.isfinite(r.loading_rate_nm_per_s)]
+    return out
 
-    return Evaluation(
-        rigidity_nm_per_arcmin=means["rigidity_nm_per_arcmin"],
-        lost_motion_arcsec=means["lost_motion_arcsec"],
-        backlash_arcsec=means["backlash_arcsec"],
-        loop_energy_j=means["loop_energy_j"],
-        std=stds,
+
+def _loop_statistics(used: list[LoopResult], with_hd: bool
+                     ) -> tuple[dict[str, Any], dict[str, float | None], dict[str, float | None]]:
+    """(means, standard deviations, Harmonic Drive K means) over the evaluated loops."""
+    quantities = ("rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec", "loop_energy_j")
+    means = {q: _mean_or_none([getattr(r, q) for r in used]) for q in quantities}
+    stds: dict[str, float | None] = {q: _std_or_none([getattr(r, q) for r in used]) for q in quantities}
+    for name, _ in SIDES:
+        stds[f"{name}_rigidity_nm_per_arcmin"] = _std_or_none(
+            [r.per_direction[name].rigidity_nm_per_arcmin for r in used])
+    hd: dict[str, float | None] = {}
+    if with_hd:
+        for q in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"):
+            hd[q] = _mean_or_none([getattr(r, q) for r in used])
+            stds[q] = _std_or_none([getattr(r, q) for r in used])
+    return means, stds, hd
+
+
+def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext, warnings: list[str]) -> LoopResult:
+    """One full loop: both branches interpolated at the evaluation torque levels, then per side and per loop."""
+    his = _upper_ends(index, loop, ctx, warnings)
+    levels = _EvaluationLevels.build(loop, ctx, his)
+    cond = ctx.cond
+
+    def branch_angles(branch: Branch) -> np.ndarray:
+        sl = branch.slice
+        return angle_at_torque(ctx.time_s[sl], ctx.torque_nm[sl], ctx.angle_arcsec[sl], cond.torque_smooth_nm[sl],
+                               branch.direction, levels.torque_nm, cond.window, cond.max_span_nm)
+
+    up = branch_angles(loop.up)
+    down = branch_angles(loop.down)
+    if np.isnan(up).any() or np.isnan(down).any():
+        raise EvaluationError(f"loop {index}: a branch does not cover the evaluation torque levels")
+    mid = 0.5 * (up + down)
+    per_direction = {name: _direction_result(index, name, sign, mid, levels, ctx.lo_nm, his[sign])
+                     for name, sign in SIDES}
+
+    def both(q: str) -> float | None:
+        a, b = (getattr(per_direction[name], q) for name, _ in SIDES)
+        return None if a is None or b is None else 0.5 * (a + b)
+
+    t = ctx.time_s
+    rates = [_branch_rate(t, cond.torque_smooth_nm, b, ctx.test_torque_nm) for b in (loop.first, loop.second)]
+    energy = levels.energy
+    return LoopResult(
+        index=index,
+        evaluated=is_evaluated,
+        order=loop.order,
+        start_time_s=float(t[loop.first.start]),
+        end_time_s=float(t[loop.second.stop]),
+        rigidity_nm_per_arcmin=both("rigidity_nm_per_arcmin"),  # type: ignore[arg-type]
+        backlash_arcsec=float(abs(down[0] - up[0])),
+        loop_energy_j=_trapezoid(down[energy] - up[energy], levels.torque_nm[energy]) / ARCSEC_PER_RAD,
+        lost_motion_arcsec=float(mid[_EvaluationLevels.LM_POS] - mid[_EvaluationLevels.LM_NEG]),
+        loading_rate_nm_per_s=float(np.nanmean(rates)) if not all(map(math.isnan, rates)) else float("nan"),
         per_direction=per_direction,
-        loops=loop_results,
-        n_loops=len(used),
-        skipped_loops=skip_loops,
-        loading_rate_nm_per_s=float(np.median(rates)) if rates else float("nan"),
-        test_torque_nm=test_torque_nm,
-        rated_torque_nm=float(rated_torque_nm),
-        lost_motion_pct=float(lost_motion_pct),
-        lost_motion_torque_nm=lm_torque,
-        rigidity_interval=(lo_frac, hi_frac),
-        hd_breakpoints_nm=tuple(float(x) for x in hd_breakpoints_nm) if hd_breakpoints_nm else None,
-        verdict=limits.judge(means) if limits is not None else None,
-        n_samples=int(t.size),
-        duration_s=float(t[-1] - t[0]),
-        noise={"torque_nm": torque_noise, "angle_arcsec": angle_noise},
-        fit_window_samples=window,
-        warnings=sorted(set(warnings)),
-        **hd,
+        k1_nm_per_rad=both("k1_nm_per_rad"),
+        k2_nm_per_rad=both("k2_nm_per_rad"),
+        k3_nm_per_rad=both("k3_nm_per_rad"),
     )
 
 
-def _evaluate_loop(
-    index: int,
-    is_evaluated: bool,
-    loop: Loop,
-    t: np.ndarray,
-    torque: np.ndarray,
-    angle: np.ndarray,
-    torque_smooth: np.ndarray,
-    window: int,
-    max_span_nm: float,
-    test_torque_nm: float,
-    lm_torque: float,
-    lo_frac: float,
-    hi_frac: float,
-    hd_breakpoints_nm: tuple[float, float] | None,
-    warnings: list[str],
-) -> LoopResult:
-    lo = lo_frac * test_torque_nm
+def _upper_ends(index: int, loop: Loop, ctx: LoopContext, warnings: list[str]) -> dict[int, float]:
+    """The upper end of the rigidity interval per side (sign → |T| in N·m): the asked one, or the torque the loop
+    reached when it stops short (a warning when more than 2 % short). A loop that does not pass the lower end or
+    the lost-motion level is not evaluable."""
+    lo, lm_torque = ctx.lo_nm, ctx.settings.lost_motion_torque_nm
     his: dict[int, float] = {}
     for name, sign in SIDES:
         reached = loop.reached_torque_nm(sign)
@@ -394,84 +491,72 @@ def _evaluate_loop(
                 f"torque never reaches the evaluation interval: loop {index} reaches {sign * reached:+.4g} Nm on "
                 f"the {name} side, the evaluation needs beyond {sign * need:+.4g} Nm"
             )
-        hi = min(hi_frac * test_torque_nm, reached)
-        if hi < hi_frac * test_torque_nm * (1.0 - CLIP_WARNING):
+        hi = min(ctx.hi_nm, reached)
+        if hi < ctx.hi_nm * (1.0 - CLIP_WARNING):
             warnings.append(
                 f"rigidity interval clipped on the {name} side: torque reached {reached:.4g} Nm, "
-                f"interval asks for {hi_frac * test_torque_nm:.4g} Nm"
+                f"interval asks for {ctx.hi_nm:.4g} Nm"
             )
         his[sign] = hi
+    return his
 
-    # Torque levels evaluated on both branches: 0, ±lost-motion level, rigidity interval ends, HD grids.
-    levels = [0.0, lm_torque, -lm_torque, lo, his[1], -lo, -his[-1]]
-    hd_slices: dict[tuple[int, int], slice] = {}
-    if hd_breakpoints_nm is not None:
-        for _, sign in SIDES:
-            for r, region in enumerate(harmonic.hd_regions(hd_breakpoints_nm, his[sign])):
-                if region is not None:
-                    grid = sign * harmonic.region_grid(region)
-                    hd_slices[(sign, r)] = slice(len(levels), len(levels) + grid.size)
-                    levels.extend(grid.tolist())
-    # Loop area: the loop width integrated over the torque range both branches cover.
-    energy_grid = np.linspace(-loop.reached_torque_nm(-1), loop.reached_torque_nm(1), ENERGY_GRID_POINTS)
-    energy_slice = slice(len(levels), len(levels) + energy_grid.size)
-    levels.extend(energy_grid.tolist())
-    levels_arr = np.asarray(levels)
 
-    def branch_angles(branch: Branch) -> np.ndarray:
-        sl = branch.slice
-        return angle_at_torque(t[sl], torque[sl], angle[sl], torque_smooth[sl], branch.direction, levels_arr,
-                               window, max_span_nm)
+@dataclass(frozen=True)
+class _EvaluationLevels:
+    """The torque levels (N·m) both branches are interpolated at, in one array: first the fixed ones (indices
+    below), then the Harmonic Drive region grids (``hd[(sign, region)]``), then the loop-area grid (``energy``)."""
 
-    up = branch_angles(loop.up)
-    down = branch_angles(loop.down)
-    if np.isnan(up).any() or np.isnan(down).any():
-        raise EvaluationError(f"loop {index}: a branch does not cover the evaluation torque levels")
-    mid = 0.5 * (up + down)
-    m0, m_lm_pos, m_lm_neg, m_lo_pos, m_hi_pos, m_lo_neg, m_hi_neg = mid[:7]
+    ZERO, LM_POS, LM_NEG, LO_POS, HI_POS, LO_NEG, HI_NEG = range(7)
 
-    per_direction: dict[str, DirectionResult] = {}
-    for name, sign in SIDES:
-        m_lo, m_hi = (m_lo_pos, m_hi_pos) if sign > 0 else (m_lo_neg, m_hi_neg)
-        twist_arcsec = sign * (m_hi - m_lo)
-        if twist_arcsec <= 0.0:
-            raise EvaluationError(
-                f"loop {index}: angle does not increase with torque on the {name} side "
-                f"(midline {m_lo:.4g}″ at {sign * lo:+.4g} Nm, {m_hi:.4g}″ at {sign * his[sign]:+.4g} Nm)"
-            )
-        ks: list[float | None] = [None, None, None]
-        for r in range(3):
-            sl = hd_slices.get((sign, r))
-            if sl is not None:
-                ks[r] = harmonic.stiffness_nm_per_rad(levels_arr[sl], mid[sl])
-        per_direction[name] = DirectionResult(
-            rigidity_nm_per_arcmin=(his[sign] - lo) / twist_arcsec * ARCSEC_PER_ARCMIN,
-            interval_nm=(lo, his[sign]),
-            torsion_angle_arcsec=abs(m_hi - m0),
-            half_lost_motion_arcsec=abs((m_lm_pos if sign > 0 else m_lm_neg) - m0),
-            k1_nm_per_rad=ks[0],
-            k2_nm_per_rad=ks[1],
-            k3_nm_per_rad=ks[2],
+    torque_nm: np.ndarray
+    hd: dict[tuple[int, int], slice]
+    energy: slice
+
+    @classmethod
+    def build(cls, loop: Loop, ctx: LoopContext, his: dict[int, float]) -> _EvaluationLevels:
+        lm, lo = ctx.settings.lost_motion_torque_nm, ctx.lo_nm
+        levels = [0.0, lm, -lm, lo, his[1], -lo, -his[-1]]
+        hd: dict[tuple[int, int], slice] = {}
+        breakpoints = ctx.settings.hd_breakpoints_nm
+        if breakpoints is not None:
+            for _, sign in SIDES:
+                for r, region in enumerate(harmonic.hd_regions(breakpoints, his[sign])):
+                    if region is not None:
+                        grid = sign * harmonic.region_grid(region)
+                        hd[(sign, r)] = slice(len(levels), len(levels) + grid.size)
+                        levels.extend(grid.tolist())
+        # the loop area: the loop width integrated over the torque range both branches cover
+        energy_grid = np.linspace(-loop.reached_torque_nm(-1), loop.reached_torque_nm(1), ENERGY_GRID_POINTS)
+        energy = slice(len(levels), len(levels) + energy_grid.size)
+        levels.extend(energy_grid.tolist())
+        return cls(np.asarray(levels), hd, energy)
+
+
+def _direction_result(index: int, name: str, sign: int, mid: np.ndarray, levels: _EvaluationLevels, lo: float,
+                      hi: float) -> DirectionResult:
+    """One side of one loop from the midline angles ``mid`` (arcsec) at ``levels``: the secant rigidity over
+    [lo, hi] N·m, the twist from zero torque, half the lost motion and the Harmonic Drive K per region."""
+    L = _EvaluationLevels
+    m0 = mid[L.ZERO]
+    m_lo, m_hi, m_lm = ((mid[L.LO_POS], mid[L.HI_POS], mid[L.LM_POS]) if sign > 0
+                        else (mid[L.LO_NEG], mid[L.HI_NEG], mid[L.LM_NEG]))
+    twist_arcsec = sign * (m_hi - m_lo)
+    if twist_arcsec <= 0.0:
+        raise EvaluationError(
+            f"loop {index}: angle does not increase with torque on the {name} side "
+            f"(midline {m_lo:.4g}″ at {sign * lo:+.4g} Nm, {m_hi:.4g}″ at {sign * hi:+.4g} Nm)"
         )
-
-    def both(q: str) -> float | None:
-        a, b = (getattr(per_direction[name], q) for name, _ in SIDES)
-        return None if a is None or b is None else 0.5 * (a + b)
-
-    rates = [_branch_rate(t, torque_smooth, b, test_torque_nm) for b in (loop.first, loop.second)]
-    return LoopResult(
-        index=index,
-        evaluated=is_evaluated,
-        order=loop.order,
-        start_time_s=float(t[loop.first.start]),
-        end_time_s=float(t[loop.second.stop]),
-        rigidity_nm_per_arcmin=both("rigidity_nm_per_arcmin"),
-        backlash_arcsec=float(abs(down[0] - up[0])),
-        loop_energy_j=_trapezoid(down[energy_slice] - up[energy_slice], energy_grid) / ARCSEC_PER_RAD,
-        lost_motion_arcsec=float(m_lm_pos - m_lm_neg),
-        loading_rate_nm_per_s=float(np.nanmean(rates)) if not all(map(math.isnan, rates)) else float("nan"),
-        per_direction=per_direction,
-        k1_nm_per_rad=both("k1_nm_per_rad"),
-        k2_nm_per_rad=both("k2_nm_per_rad"),
-        k3_nm_per_rad=both("k3_nm_per_rad"),
+    ks: list[float | None] = [None, None, None]
+    for r in range(3):
+        sl = levels.hd.get((sign, r))
+        if sl is not None:
+            ks[r] = harmonic.stiffness_nm_per_rad(levels.torque_nm[sl], mid[sl])
+    return DirectionResult(
+        rigidity_nm_per_arcmin=(hi - lo) / twist_arcsec * ARCSEC_PER_ARCMIN,
+        interval_nm=(lo, hi),
+        torsion_angle_arcsec=abs(m_hi - m0),
+        half_lost_motion_arcsec=abs(m_lm - m0),
+        k1_nm_per_rad=ks[0],
+        k2_nm_per_rad=ks[1],
+        k3_nm_per_rad=ks[2],
     )
