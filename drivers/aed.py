@@ -15,20 +15,13 @@ power-cycled) the driver re-sends its configuration before the next measurement.
 
 from __future__ import annotations
 
-import re
 import time
 
 import serial
 
 from drivers.base import Clock, CommandRejected, DeviceFault, MalformedReply
-from drivers.registry import register
 from drivers.transport import SerialInstrument, open_serial_url, require_terminated
-
-MSV_RE = re.compile(rb"^([+-]\d{7})\r\n$")
-MSV_REPLY_LENGTH = 10
-OVERFLOW_VALUE = 9_999_999
-FACTORY_NOMINAL_OUTPUT = 1_000_000
-MAX_NOV = 999_999  # NOV is a 6-digit setting; 0 selects the factory scaling
+from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, MAX_NOV, MSV_RE, OVERFLOW_VALUE
 
 
 def _read_line(port: serial.SerialBase) -> bytes:
@@ -48,7 +41,6 @@ def parse_msv(reply: bytes, instrument: str = "AED") -> int:
     return value
 
 
-@register("aed")
 class AED(SerialInstrument):
     """TorqueSource over the AED ASCII command set. ``read()`` returns one reading (N·m) per call."""
 

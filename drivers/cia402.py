@@ -13,47 +13,18 @@ from collections.abc import Callable
 from typing import Any, Self
 
 from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, LoaderStatus
-
-MODE_PROFILE_TORQUE = 4
-
-# controlword commands (bits 7,3,2,1,0)
-CW_DISABLE_VOLTAGE = 0x0000
-CW_QUICK_STOP = 0x000B  # quick stop with the enable bits kept (0x0002 works too)
-CW_SHUTDOWN = 0x0006
-CW_SWITCH_ON = 0x0007
-CW_ENABLE_OPERATION = 0x000F
-CW_FAULT_RESET = 0x0080
-
-# (mask, value, name), most specific first
-_STATES = (
-    (0x4F, 0x00, "NOT READY TO SWITCH ON"),
-    (0x4F, 0x40, "SWITCH ON DISABLED"),
-    (0x6F, 0x21, "READY TO SWITCH ON"),
-    (0x6F, 0x23, "SWITCHED ON"),
-    (0x6F, 0x27, "OPERATION ENABLED"),
-    (0x6F, 0x07, "QUICK STOP ACTIVE"),
-    (0x4F, 0x0F, "FAULT REACTION ACTIVE"),
-    (0x4F, 0x08, "FAULT"),
+from tcms_daq.protocols.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    CW_ENABLE_OPERATION,
+    CW_FAULT_RESET,
+    CW_QUICK_STOP,
+    CW_SHUTDOWN,
+    CW_SWITCH_ON,
+    MODE_PROFILE_TORQUE,
+    STATE_PATTERN,
+    is_fault,
+    state_from_statusword,
 )
-
-# statusword mask/value that each target state is recognised by
-STATE_PATTERN = {name: (mask, value) for mask, value, name in _STATES}
-
-
-def state_from_statusword(statusword: int) -> str:
-    for mask, value, name in _STATES:
-        if statusword & mask == value:
-            return name
-    return f"UNKNOWN (0x{statusword:04X})"
-
-
-def is_fault(statusword: int) -> bool:
-    return bool(statusword & 0x08)
-
-
-def to_int16(value: int) -> int:
-    value &= 0xFFFF
-    return value - 0x10000 if value & 0x8000 else value
 
 
 class TorqueScaling:

@@ -43,9 +43,9 @@ from can.broadcastmanager import ThreadBasedCyclicSendTask
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from drivers.base import Clock, CommandRejected, Disconnected, InstrumentTimeout, MalformedReply
-from drivers.cia402 import CW_DISABLE_VOLTAGE, CiA402Loader, to_int16
-from drivers.registry import register
+from drivers.cia402 import CiA402Loader
 from tcms_daq.errors import ConfigError
+from tcms_daq.protocols.cia402 import CW_DISABLE_VOLTAGE, drive_eds_path, to_int16
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,6 @@ class _QuietStreamSplits(logging.Filter):
 
 logging.getLogger("can.interfaces.socketcand.socketcand").addFilter(_QuietStreamSplits())
 
-DEFAULT_EDS = Path(__file__).resolve().parent / "drive402.eds"
 DEVICE_TYPE_402 = 0x0192  # low word of 0x1000
 TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
 TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
@@ -100,7 +99,6 @@ def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
     raise ConfigError(f"CAN URL {url!r}: expected socketcand://host:port/channel or virtual://channel")
 
 
-@register("cia402-canopen")
 class CiA402Canopen(CiA402Loader):
     """Loader: a CiA 402 drive in profile torque mode over CANopen (SDO configuration, PDO process data)."""
 
@@ -134,7 +132,7 @@ class CiA402Canopen(CiA402Loader):
         self.bus_options = parse_can_url(url, bitrate)
         self.node_id = node_id
         self.master_node_id = master_node_id
-        self.eds = str(eds or DEFAULT_EDS)
+        self.eds = str(eds or drive_eds_path())
         self.sdo_timeout_s = float(sdo_timeout_s)
         self.heartbeat_ms = int(heartbeat_ms)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s or max(3.5 * heartbeat_ms / 1000.0, 0.2))

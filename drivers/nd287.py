@@ -1,6 +1,6 @@
 """Heidenhain ND 287 position display (RS-232): angle source.
 
-Protocol (protocols.md §1.3): the host sends STX (Ctrl-B, 0x02); the display latches the value at reception and
+Protocol (``tcms_daq.protocols.nd287``): the host sends STX (Ctrl-B, 0x02); the display latches the value at reception and
 answers one 17-byte frame::
 
     sign  value(10 chars, leading blanks)  ' '  unit  sorting  series  CR LF
@@ -17,31 +17,13 @@ the value when it receives STX; its delay t1 ≤ 1 ms is neglected).
 
 from __future__ import annotations
 
-import re
 import time
 
 import serial
 
 from drivers.base import Clock, DeviceFault, MalformedReply
-from drivers.registry import register
 from drivers.transport import SerialInstrument, open_serial_url
-from tcms_daq.units import ARCSEC_PER_DEG, ARCSEC_PER_RAD
-
-STX = b"\x02"
-FRAME_LENGTH = 17
-FRAME_RE = re.compile(rb"^([+-])([ 0-9.]{10}) (.)(.)(.)\r\n$")
-
-
-def dms_to_deg(packed: float) -> float:
-    """``D.MMSSs…`` (degrees, minutes, seconds packed in one decimal number) -> decimal degrees."""
-    sign = -1.0 if packed < 0 else 1.0
-    text = f"{abs(packed):.8f}"
-    deg_text, frac = text.split(".")
-    minutes = int(frac[0:2])
-    seconds = float(frac[2:4] + "." + frac[4:])
-    if minutes >= 60 or seconds >= 60.0:
-        raise ValueError(f"{packed!r} is not a valid D.MMSS angle")
-    return sign * (int(deg_text) + minutes / 60.0 + seconds / 3600.0)
+from tcms_daq.protocols.nd287 import FRAME_LENGTH, FRAME_RE, STX, value_to_arcsec
 
 
 def parse_frame(frame: bytes, instrument: str = "ND 287") -> float:
@@ -57,17 +39,10 @@ def parse_frame(frame: bytes, instrument: str = "ND 287") -> float:
     text = field.decode("ascii").strip()
     if text.count(".") > 1 or not text.replace(".", "").isdigit():
         raise MalformedReply(instrument, f"value field {field!r} is not a number: {frame!r}")
-    value = float(sign.decode("ascii") + text)
-    if unit == b"G":
-        return value * ARCSEC_PER_DEG
-    if unit == b"R":
-        return value * ARCSEC_PER_RAD
-    if unit == b"M":
-        try:
-            return dms_to_deg(value) * ARCSEC_PER_DEG
-        except ValueError as exc:
-            raise MalformedReply(instrument, f"{exc}: {frame!r}") from None
-    raise MalformedReply(instrument, f"unit {unit!r} is not an angle unit (G, R, M): {frame!r}")
+    try:
+        return value_to_arcsec(float(sign.decode("ascii") + text), unit)
+    except ValueError as exc:
+        raise MalformedReply(instrument, f"{exc}: {frame!r}") from None
 
 
 def _read_frame(port: serial.SerialBase) -> bytes:
@@ -75,7 +50,6 @@ def _read_frame(port: serial.SerialBase) -> bytes:
     return port.read_until(b"\r\n", FRAME_LENGTH + 8)
 
 
-@register("nd287")
 class ND287(SerialInstrument):
     """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls ``readings_per_read`` times (arcsec)."""
 

@@ -1,57 +1,36 @@
 """Driver registry keyed by the names used in bench config (``driver = "nd287"`` …), in the style of python-can's
-interface registry. A driver module registers its class with ``@register("name")``; ``create`` builds one from
-config without the caller knowing the class.
+interface registry: every driver — hardware drivers here, the simulator's in-process instruments in ``sim`` — is
+declared as an entry point of the group ``tcms_daq.drivers`` (pyproject ``[project.entry-points]``) and imported
+only when a bench names it, so a bench imports only the libraries it uses and ``drivers`` never imports ``sim``.
 """
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable
+from importlib.metadata import entry_points
 from typing import Any
 
 from tcms_daq.errors import ConfigError
 
-_DRIVERS: dict[str, type] = {}
+ENTRY_POINT_GROUP = "tcms_daq.drivers"
 
-# name -> module that registers it; imported lazily so a bench only imports the libraries it uses.
-_KNOWN_MODULES: dict[str, str] = {}
-
-
-def register(name: str, module: str | None = None) -> Callable[[type], type]:
-    def deco(cls: type) -> type:
-        _DRIVERS[name] = cls
-        return cls
-
-    return deco
-
-
-def declare(name: str, module: str) -> None:
-    """Declare that ``module`` registers driver ``name`` (for lazy import)."""
-    _KNOWN_MODULES[name] = module
+_LOADED: dict[str, type] = {}
 
 
 def names() -> list[str]:
-    return sorted(set(_DRIVERS) | set(_KNOWN_MODULES))
+    """The driver names available in this installation."""
+    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
 
 
 def driver_class(name: str) -> type:
-    if name not in _DRIVERS and name in _KNOWN_MODULES:
-        importlib.import_module(_KNOWN_MODULES[name])
-    try:
-        return _DRIVERS[name]
-    except KeyError:
-        raise ConfigError(f"unknown driver {name!r} (known: {', '.join(names()) or 'none'})") from None
+    """The class registered as ``name``; ConfigError naming the known drivers otherwise."""
+    if name not in _LOADED:
+        found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
+        if not found:
+            raise ConfigError(f"unknown driver {name!r} (known: {', '.join(names()) or 'none'})")
+        _LOADED[name] = found[0].load()
+    return _LOADED[name]
 
 
-def create(name: str, **options: Any):
+def create(name: str, **options: Any) -> Any:
     """Instantiate driver ``name`` with keyword options from config (url, timeouts, limits …)."""
     return driver_class(name)(**options)
-
-
-# Real-protocol drivers (issue 4, drivers engineer).
-declare("nd287", "drivers.nd287")
-declare("aed", "drivers.aed")
-declare("cia402-canopen", "drivers.cia402_canopen")
-declare("cia402-modbus", "drivers.cia402_modbus")
-# In-process drivers over the simulated bench (issue 4, acquisition engineer).
-declare("virtual", "drivers.virtual")

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -119,15 +120,21 @@ class SimulatedBench:
     @classmethod
     def from_config(
         cls,
-        cfg: BenchConfig,
+        cfg: BenchConfig | Mapping[str, Any],
         reducer: ReducerSpec | None = None,
         *,
         seed: int | None = None,
         measuring_chain: MeasuringChain | None = None,
         effects: Effects | None = None,
+        config_dir: str | Path | None = None,
     ) -> SimulatedBench:
-        """A bench from a bench config ([sim], [bench]) and a catalogue reducer (default: ``sim.reducer``)."""
-        return cls(cfg, reducer=reducer, seed=seed, measuring_chain=measuring_chain, effects=effects)
+        """The one simulated-bench factory: a bench from a bench config ([sim], [bench]; a validated model or a
+        plain mapping) and a catalogue reducer (default: ``sim.reducer``). Files the config names (``[sim]
+        geometry``, the catalogue) are relative to the config file, or to ``config_dir`` for a mapping."""
+        bench_cfg = _as_bench_config(cfg)
+        if bench_cfg.source_path is None and config_dir is not None:
+            bench_cfg.source_path = str(Path(config_dir) / "<bench config>")
+        return cls(bench_cfg, reducer=reducer, seed=seed, measuring_chain=measuring_chain, effects=effects)
 
     # ------------------------------------------------------------------------------------------ commands
 

@@ -13,9 +13,8 @@ import asyncio
 from collections.abc import Callable
 
 from sim.instruments.tcp import TcpInstrumentServer
+from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, OVERFLOW_VALUE, format_msv
 
-FACTORY_NOMINAL_OUTPUT = 1_000_000
-OVERFLOW = 9_999_999
 GARBAGE_REPLY = b"+00x1?3#\r\n"  # 10 bytes, CR LF-terminated, not a measured value
 
 
@@ -55,9 +54,8 @@ class AEDServer(TcpInstrumentServer):
 
     def measured_value(self) -> int:
         if self.fault == "sensor_fault":
-            return OVERFLOW
-        value = round((self.torque_nm() - self.tare_nm) * self.counts_per_nm)
-        return max(-OVERFLOW, min(OVERFLOW, value))
+            return OVERFLOW_VALUE
+        return round((self.torque_nm() - self.tare_nm) * self.counts_per_nm)
 
     def execute(self, command: str) -> bytes | None:
         """One command (without terminator) -> reply bytes, or None for no reply."""
@@ -65,7 +63,7 @@ class AEDServer(TcpInstrumentServer):
         if not cmd:
             return None
         if cmd == "MSV?":
-            return f"{self.measured_value():+08d}\r\n".encode("ascii")
+            return format_msv(self.measured_value())
         if cmd == "COF?":
             return f"{self.cof}\r\n".encode("ascii")
         if cmd == "NOV?":

@@ -22,11 +22,14 @@ import enum
 from collections.abc import Callable
 
 from sim.instruments.physics import PhysicsReading, SharedPhysics
+from tcms_daq.protocols.cia402 import (
+    EMCY_COMMUNICATION,
+    MODE_PROFILE_TORQUE,
+    SUPPORTED_MODES_PROFILE_TORQUE,
+    to_int16,
+)
+from tcms_daq.units import ARCSEC_PER_REV
 
-ARCSEC_PER_REV = 360.0 * 3600.0
-SUPPORTED_MODES = 0x0008  # bit 3: profile torque
-MODE_PROFILE_TORQUE = 4
-EMCY_COMMUNICATION = 0x8130  # heartbeat / life guard error
 ERROR_REGISTER_FOR = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10, 0x7: 0x80}  # by the code's first hex digit
 
 
@@ -54,11 +57,6 @@ class DriveCommandError(ValueError):
 
 
 EmcyListener = Callable[[int, int], None]  # (error code, error register)
-
-
-def _int16(value: int) -> int:
-    value &= 0xFFFF
-    return value - 0x10000 if value & 0x8000 else value
 
 
 class Drive402Model:
@@ -200,15 +198,15 @@ class Drive402Model:
 
     def write_mode(self, mode: int) -> None:
         with self.lock:
-            mode = _int16(mode) if mode > 127 else mode
-            if mode != 0 and not (mode in range(1, 32) and SUPPORTED_MODES & (1 << (mode - 1))):
-                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{SUPPORTED_MODES:04X})")
+            mode = to_int16(mode) if mode > 127 else mode
+            if mode != 0 and not (mode in range(1, 32) and SUPPORTED_MODES_PROFILE_TORQUE & (1 << (mode - 1))):
+                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{SUPPORTED_MODES_PROFILE_TORQUE:04X})")
             self.mode = mode
             self._apply()
 
     def write_target_torque(self, permille: int) -> None:
         with self.lock:
-            self.target_torque_permille = _int16(permille)
+            self.target_torque_permille = to_int16(permille)
             self._apply()
 
     def write_max_torque(self, permille: int) -> None:
@@ -235,7 +233,7 @@ class Drive402Model:
 
     def write_quick_stop_option(self, option: int) -> None:
         with self.lock:
-            option = _int16(option)
+            option = to_int16(option)
             if option not in (0, 1, 2, 5, 6):
                 raise DriveCommandError(f"quick stop option {option} not supported (0, 1, 2, 5, 6)")
             self.quick_stop_option = option

@@ -1,5 +1,5 @@
 """CANopen front end of the simulated CiA 402 drive: a canopen ``LocalNode`` (object dictionary
-``drivers/drive402.eds``) on a python-can bus (``virtual`` in-process or ``socketcand`` via the loopback hub).
+``tcms_daq/protocols/drive402.eds``) on a python-can bus (``virtual`` in-process or ``socketcand`` via the loopback hub).
 
 - NMT slave with boot-up and a heartbeat producer (0x1017, default 100 ms).
 - SDO server: reads of the live objects come from the drive model, writes go into it; a value the drive
@@ -28,10 +28,10 @@ from canopen.sdo.exceptions import SdoAbortedError
 
 from sim.instruments.drive402 import Drive402Model, DriveCommandError
 from sim.instruments.loop import PeriodicThread
+from tcms_daq.protocols.cia402 import drive_eds_path
 
 log = logging.getLogger(__name__)
 
-EDS_PATH = Path(__file__).resolve().parents[2] / "drivers" / "drive402.eds"
 FAULTS = ("heartbeat_loss", "mute", "garbage")
 ABORT_RANGE, ABORT_STATE, ABORT_READ_ONLY = 0x06090030, 0x08000022, 0x06010002
 
@@ -46,7 +46,7 @@ class DriveCanopenNode:
         node_id: int = 1,
         heartbeat_ms: int = 100,
         tpdo_period_s: float = 0.01,
-        eds: Path | str = EDS_PATH,
+        eds: Path | str | None = None,
         **bus_options,
     ):
         if not 1 <= node_id <= 127:
@@ -55,7 +55,7 @@ class DriveCanopenNode:
         self.node_id = node_id
         self.heartbeat_ms = int(heartbeat_ms)
         self.tpdo_period_s = float(tpdo_period_s)
-        self.eds = Path(eds)
+        self.eds = Path(eds) if eds is not None else drive_eds_path()
         self.bus_options = bus_options
         self.fault: str | None = None
         self.network: canopen.Network | None = None

@@ -21,8 +21,8 @@ from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.cia402_modbus import RegisterMap
 from sim.instruments.drive402 import Drive402Model, DriveCommandError
+from tcms_daq.protocols.modbus_map import RegisterMap
 
 FAULTS = ("mute",)
 

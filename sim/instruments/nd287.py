@@ -1,6 +1,7 @@
 """ND 287 position display simulator: answers STX (0x02) with a 17-byte frame of the latest encoder angle.
 
-Frame: sign + value (10 chars, leading blanks) + ' ' + unit + sorting + series + CR LF (protocols.md §1.3).
+Frame: sign + value (10 chars, leading blanks) + ' ' + unit + sorting + series + CR LF
+(``tcms_daq.protocols.nd287``).
 Units: 'G' degrees (default), 'R' radians, 'M' packed D.MMSS; an encoder fault answers with unit '?'.
 DC3 (0x13) holds output, DC1 (0x11) releases it (requests received meanwhile are answered on release);
 ENQ (0x05) answers STX + a 13-character error text + CR LF. Other bytes are ignored.
@@ -9,41 +10,13 @@ ENQ (0x05) answers STX + a 13-character error text + CR LF. Other bytes are igno
 from __future__ import annotations
 
 import asyncio
-import math
 from collections.abc import Callable
 
 from sim.instruments.tcp import TcpInstrumentServer
-from tcms_daq.units import ARCSEC_PER_DEG, ARCSEC_PER_RAD
+from tcms_daq.protocols.nd287 import format_frame
 
 STX, DC1, DC3, ENQ = 0x02, 0x11, 0x13, 0x05
 GARBAGE_FRAME = b"@@#\x7f+12.3!!?? G\r\n"  # 17 bytes, CR LF-terminated, not an ND frame
-
-
-def deg_to_dms_packed(angle_deg: float) -> float:
-    """Decimal degrees -> ``D.MMSSs`` packed number (12.5041667° -> 12.3015)."""
-    sign = -1.0 if angle_deg < 0 else 1.0
-    total_s = abs(angle_deg) * 3600.0
-    deg = math.floor(total_s / 3600.0)
-    minutes = math.floor((total_s - deg * 3600.0) / 60.0)
-    seconds = total_s - deg * 3600.0 - minutes * 60.0
-    return sign * (deg + minutes / 100.0 + seconds / 10000.0)
-
-
-def format_frame(angle_arcsec: float, *, unit: str = "G", decimals: int = 5, fault: bool = False) -> bytes:
-    """The 17-byte frame for an angle in arcsec; ``fault`` gives unit '?' (value field still filled)."""
-    if unit == "G":
-        value = angle_arcsec / ARCSEC_PER_DEG
-    elif unit == "R":
-        value = angle_arcsec / ARCSEC_PER_RAD
-    elif unit == "M":
-        value = deg_to_dms_packed(angle_arcsec / ARCSEC_PER_DEG)
-    else:
-        raise ValueError(f"ND 287 unit must be G, R or M, got {unit!r}")
-    field = f"{abs(value):10.{decimals}f}"
-    if len(field) != 10:
-        field, fault = "9" * 10, True  # overflow of the display: report it as a fault
-    sign = "-" if value < 0 and float(field) != 0.0 else "+"
-    return f"{sign}{field} {'?' if fault else unit}  \r\n".encode("ascii")
 
 
 class ND287Server(TcpInstrumentServer):

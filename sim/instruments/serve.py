@@ -133,8 +133,8 @@ class InstrumentSimulators:
             counts_per_rev=opts.counts_per_rev,
         )
         if "modbus" in want or "modbus_rtu" in want:
-            from drivers.cia402_modbus import load_register_map
             from sim.instruments.drive_modbus import DriveModbusServer
+            from tcms_daq.protocols.modbus_map import load_register_map
 
             regmap = load_register_map(Path(opts.modbus_map) if opts.modbus_map else None)
             if "modbus" in want:

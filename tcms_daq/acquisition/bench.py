@@ -167,8 +167,6 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         if not driver_name:
             raise ConfigError(f"bench config: [instruments.{kind}] has no 'driver'")
         opts = {k: v for k, v in opts.items() if v is not None}
-        if kind == "loader" and driver_name == "virtual":
-            opts.setdefault("max_torque_nm", max_torque_nm if math.isfinite(max_torque_nm) else 2000.0)
         cls = registry.driver_class(driver_name)
         from_config = getattr(cls, "from_config", None)
         if from_config is None and "clock" not in opts and _accepts(cls, "clock"):

@@ -122,14 +122,18 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
     Raises TcmsError when the test does not complete (the message carries the state and the reason); the
     samples recorded so far are on the exception as ``record``.
     """
-    from functools import partial
 
-    from drivers.virtual import default_physics_factory
+    from sim.bench import SimulatedBench
     from tcms_daq.acquisition import ProfileRejected, TestRun, compose_bench
     from tcms_daq.acquisition.bench import identity_compensator
 
     config_dir = Path(cfg.source_path).parent if cfg.source_path else None
-    factory = partial(default_physics_factory, reducer=reducer, seed=seed)
+    built: list[SimulatedBench] = []  # the in-process bench's physics, kept for its truth
+
+    def factory(config: Any) -> SimulatedBench:
+        built.append(SimulatedBench.from_config(config, reducer=reducer, seed=seed))
+        return built[-1]
+
     bench = compose_bench(cfg, config_dir=config_dir, speed=speed, physics_factory=factory,
                           compensator=None if compensate else identity_compensator)
     compensation = bench.description.get("compensation", "identity") if compensate else "none (--no-compensation)"
@@ -160,15 +164,13 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
         err.record = record  # type: ignore[attr-defined]
         raise err
     if in_process:
-        physics = bench.loader.bench.physics
+        physics = built[0]
         truth = _truth(physics, profile, reducer)
         used_seed = physics.seed
     else:
         # the simulators run the config's [sim] physics: its truth is known when the config has that table
         truth = None
         if "sim" in cfg.model_fields_set:
-            from sim.bench import SimulatedBench
-
             truth = _truth(SimulatedBench.from_config(cfg, reducer), profile, reducer)
             truth["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
         used_seed = cfg.sim.seed

@@ -92,7 +92,7 @@ def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from drivers.virtual import default_physics_factory
+    from sim.bench import SimulatedBench
     from sim.instruments.physics import SharedPhysics
     from sim.instruments.serve import InstrumentSimulators
     from tcms_daq.config import load_bench_config
@@ -101,7 +101,7 @@ def _serve(args: argparse.Namespace) -> int:
         raise ConfigError(f"--speed must be > 0, got {args.speed}")
     cfg = load_bench_config(args.config, args.overrides)
     opts = _options(args, cfg)
-    physics = SharedPhysics(default_physics_factory(cfg))
+    physics = SharedPhysics(SimulatedBench.from_config(cfg))
     sims = InstrumentSimulators(physics, opts)
     stop = threading.Event()
     control = None

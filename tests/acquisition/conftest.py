@@ -108,14 +108,14 @@ class ProtocolBench:
     one SimulatedBench ticking at real time × speed, and the bench config pointing at their ephemeral ports."""
 
     def __init__(self, speed: float, comm_timeout_s: float = 0.0):
-        from drivers.virtual import default_physics_factory
+        from sim.bench import SimulatedBench
         from sim.instruments.physics import SharedPhysics
         from sim.instruments.serve import InstrumentSimulators, SimulatorOptions
         from tcms_daq.config import load_bench_config
 
         self.speed = speed
         self.config = load_bench_config(LOOPBACK_MODBUS)
-        self.physics = SharedPhysics(default_physics_factory(self.config))  # as `tcms sim serve` builds it
+        self.physics = SharedPhysics(SimulatedBench.from_config(self.config))  # as `tcms sim serve` builds it
         opts = SimulatorOptions(ports={"nd287": 0, "aed": 0, "modbus": 0}, instruments=("nd287", "aed", "modbus"),
                                 modbus_comm_timeout_s=comm_timeout_s)
         self.sims = InstrumentSimulators(self.physics, opts)

@@ -43,11 +43,11 @@ def test_run_is_compensated_and_raw_encoder_is_not(capsys):
 
 def test_sim_encoder_reads_through_the_forward_chain(repo_root):
     # the virtual bench's measuring-chain hook is the compensator's forward direction
-    from drivers.virtual import default_physics_factory
+    from sim.bench import SimulatedBench
     from tcms_daq.config import load_bench_config
 
     cfg = load_bench_config(repo_root / "config" / "bench-sim.toml")
-    bench = default_physics_factory(cfg)
+    bench = SimulatedBench.from_config(cfg)
     bench.set_drive_enabled(True)
     bench.set_torque_target(800.0, 4000.0)
     s = bench.advance(0.5)

@@ -138,7 +138,7 @@ def test_measuring_chain_and_effects_hooks():
 
 
 def test_built_from_config(bench_config, catalogue, write, bench_text):
-    bench = SimulatedBench(bench_config)  # what drivers/virtual.py does with the whole config
+    bench = SimulatedBench(bench_config)  # what sim/virtual.py does with the whole config
     assert bench.reducer.name == "RV-110E" and bench.sample_rate_hz == 500.0 and bench.max_torque_nm == 2000.0
     assert SimulatedBench().reducer.name == "RV-110E"
     b2 = SimulatedBench({"reducer": "RV-60N", "seed": 4})

@@ -15,11 +15,12 @@ from drivers.base import (
     Loader,
     MalformedReply,
 )
-from drivers.cia402_modbus import CiA402Modbus, load_register_map
+from drivers.cia402_modbus import CiA402Modbus
 from drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
 from drivers.testing import wait_until
 from sim.instruments.proxy import FaultProxy
 from tcms_daq.errors import ConfigError
+from tcms_daq.protocols.modbus_map import load_register_map
 
 
 @pytest.fixture

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from drivers.cia402 import state_from_statusword
 from sim.instruments.drive402 import Drive402Model, DriveCommandError
+from tcms_daq.protocols.cia402 import state_from_statusword
 
 
 @pytest.fixture

@@ -6,9 +6,9 @@ import pytest
 import serial
 
 from drivers.base import AngleSource, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
-from drivers.nd287 import ND287, dms_to_deg, parse_frame
+from drivers.nd287 import ND287, parse_frame
 from drivers.testing import ScriptedSerial
-from sim.instruments.nd287 import deg_to_dms_packed, format_frame
+from tcms_daq.protocols.nd287 import deg_to_dms_packed, dms_to_deg, format_frame
 
 # -- transcripts --------------------------------------------------------------------------------------------
 

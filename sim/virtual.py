@@ -16,6 +16,7 @@ Sign convention: positive torque twists the output towards positive angle; angle
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -32,7 +33,7 @@ from drivers.base import (
     LoaderStatus,
     concat_common_columns,
 )
-from drivers.registry import register
+from sim.bench import SimulatedBench
 from tcms_daq.errors import ConfigError
 
 # Bound on buffered samples per channel when nobody reads (oldest dropped): 10 min at 1 kHz.
@@ -211,38 +212,9 @@ class VirtualContext:
             if self.physics_factory is not None:
                 physics = self.physics_factory(self.config)
             else:
-                physics = default_physics_factory(self.config, config_dir=self.config_dir)
+                physics = SimulatedBench.from_config(self.config, config_dir=self.config_dir)
             self.benches[name] = VirtualBench(physics, name=name)
         return self.benches[name]
-
-
-def _section(config: Any, key: str) -> Any:
-    if isinstance(config, Mapping):
-        return config.get(key)
-    return getattr(config, key, None)
-
-
-def default_physics_factory(config: Any, *, reducer: Any = None, seed: int | None = None,
-                            config_dir: Any = None) -> Any:
-    """``sim.bench.SimulatedBench`` from a whole bench config ([sim], [bench]) (``reducer``/``seed`` override
-    ``[sim]``); when ``[sim] geometry`` names a measuring-chain geometry file, the encoder reads through that
-    chain's errors (the compensation module's forward model), so the compensator has something to correct."""
-    from sim.bench import SimulatedBench
-
-    chain = None
-    geometry = _section(_section(config, "sim") or {}, "geometry")
-    if geometry:
-        from tcms_daq.compensation import Compensator
-
-        resolve = getattr(config, "resolve", None)
-        if resolve is not None:
-            path = resolve(geometry)
-        else:  # a plain mapping: relative to the directory it came from
-            from pathlib import Path
-
-            path = Path(geometry) if config_dir is None else Path(config_dir) / geometry
-        chain = Compensator.from_geometry(path).encoder_reading
-    return SimulatedBench(config, reducer=reducer, seed=seed, measuring_chain=chain)
 
 
 def parse_virtual_url(url: str) -> str:
@@ -393,7 +365,6 @@ class VirtualLoader:
         self.commands.append(("fault_reset", 0.0, self.bench.now_s()))
 
 
-@register("virtual")
 class VirtualDriver:
     """Registry entry ``virtual``: builds the angle/torque/loader driver of kind ``kind`` on the shared bench.
 
@@ -416,8 +387,14 @@ class VirtualDriver:
 
     @classmethod
     def from_config(cls, kind: str, options: Mapping[str, Any], context: dict[str, Any]):
+        """Called by the bench composer with the context its instruments share; a loader without
+        ``max_torque_nm`` takes the bench's limit."""
         ctx = context.get("virtual")
         if ctx is None:
             ctx = context["virtual"] = VirtualContext(context.get("config"), context.get("physics_factory"),
                                                       context.get("config_dir"))
-        return cls(kind=kind, context=ctx, **dict(options))
+        opts = dict(options)
+        if kind == "loader":
+            bench_max_nm = float(context.get("bench_max_torque_nm", math.inf))
+            opts.setdefault("max_torque_nm", bench_max_nm if math.isfinite(bench_max_nm) else 2000.0)
+        return cls(kind=kind, context=ctx, **opts)
