@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.base import LoaderStatus
+from tcms_daq.analysis.noise import white_noise_std
 
 
 @dataclass(frozen=True)
@@ -84,13 +85,31 @@ def check_angle_window(time_s: np.ndarray, angle_arcsec: np.ndarray, limits: Int
     return None
 
 
+# How many standard deviations of the rate's noise the rate limit allows on top of the configured limit.
+RATE_NOISE_SIGMAS = 6.0
+MIN_NOISE_SAMPLES = 8
+
+
 class TorqueRateMonitor:
-    """Torque slope over a sliding window, carried across batches."""
+    """Torque slope over a sliding window (N·m/s), carried across batches, judged against the configured limit
+    plus an allowance for the measured sensor noise.
+
+    The rate is the difference of two readings ``rate_window_s`` apart over their time difference; with white
+    noise σ on each reading its noise is σ·√2 / window, so a quasi-static test (a 20 N·m test at 0.5 N·m/s with
+    0.3 N·m of noise: ±2 N·m/s of rate noise at 0.2 s) would trip on noise alone. The limit is therefore raised by
+    RATE_NOISE_SIGMAS of that noise, with σ measured on the recent readings (``white_noise_std``: blind to a
+    single jump, so a real spike does not hide itself).
+    """
 
     def __init__(self, limits: InterlockLimits):
         self.limits = limits
         self._t = np.empty(0)
         self._v = np.empty(0)
+        self.noise_nm = 0.0  # the latest estimate of the torque noise (1 sigma)
+
+    def allowance_nm_per_s(self) -> float:
+        """What the measured noise adds to the limit (N·m/s)."""
+        return RATE_NOISE_SIGMAS * math.sqrt(2.0) * self.noise_nm / self.limits.rate_window_s
 
     def check(self, time_s: np.ndarray, torque_nm: np.ndarray) -> Trip | None:
         limit = self.limits.torque_rate_limit_nm_per_s
@@ -100,6 +119,9 @@ class TorqueRateMonitor:
         t = np.concatenate([self._t, time_s])
         v = np.concatenate([self._v, torque_nm])
         start = len(self._t)
+        if len(v) >= MIN_NOISE_SAMPLES:
+            self.noise_nm = white_noise_std(v)
+        effective = limit + self.allowance_nm_per_s()
         # for each new sample i the first sample at least `window` earlier
         j = np.searchsorted(t, t[start:] - window, side="right") - 1
         valid = j >= 0
@@ -111,11 +133,13 @@ class TorqueRateMonitor:
             ok = dt > 0
             rate = np.zeros_like(dt)
             rate[ok] = (v[i][ok] - v[jj][ok]) / dt[ok]
-            over = np.flatnonzero(np.abs(rate) > limit)
+            over = np.flatnonzero(np.abs(rate) > effective)
             if over.size:
                 k = int(over[0])
-                trip = Trip("torque_rate", f"torque rate {rate[k]:.0f} N·m/s exceeds ±{limit:g} N·m/s",
-                            float(t[i[k]]))
+                trip = Trip("torque_rate", f"torque rate {rate[k]:+.4g} N·m/s over {dt[k]:.3g} s exceeds "
+                                           f"±{effective:.4g} N·m/s (limit {limit:.4g} N·m/s + "
+                                           f"{self.allowance_nm_per_s():.3g} N·m/s for the measured torque noise "
+                                           f"{self.noise_nm:.3g} N·m)", float(t[i[k]]))
         keep = np.searchsorted(t, t[-1] - 2 * window)
         self._t, self._v = t[keep:], v[keep:]
         return trip

@@ -180,9 +180,14 @@ class AcquisitionLoop:
         return dataclasses.replace(limits, rate_window_s=window)
 
     def set_limits(self, limits: InterlockLimits) -> None:
-        """New limits (a new run); clears a previous trip."""
+        """New limits (a new run); clears a previous trip and re-arms the watchdog: every channel counts from
+        now, so a reading that went stale while a trip was set does not end the next run at once."""
         self.limits = limits
         self._rate = TorqueRateMonitor(self._rate_limits(limits))
+        now = self.clock.now()
+        for ch in self._channels.values():
+            ch.last_arrival_s = now
+            ch.errors_in_row = 0
         self.trip = None
         self.trip_event.clear()
 
@@ -238,12 +243,15 @@ class AcquisitionLoop:
             if rest > 0:
                 self._stop.wait(rest)
 
-    def poll_status(self) -> LoaderStatus | None:
+    def poll_status(self, *, wait_for_lock: bool = True) -> LoaderStatus | None:
+        """Read the loader's status (under the loader lock); None when it failed, or when the lock is held and
+        ``wait_for_lock`` is False (a command is in progress: the poll is skipped, not queued)."""
         ch = self._channels["loader"]
+        if not self.loader_lock.acquire(blocking=wait_for_lock):
+            return None
         ch.busy_since = self.clock.now()  # waiting for the lock counts: the loader is busy with a command
         try:
-            with self.loader_lock:
-                status = self.bench.loader.status()
+            status = self.bench.loader.status()
         except InstrumentError as exc:
             self._on_error(ch, exc)
             return None
@@ -252,6 +260,7 @@ class AcquisitionLoop:
             return None
         finally:
             ch.busy_since = None
+            self.loader_lock.release()
         ch.errors_in_row = 0
         ch.readings += 1
         ch.last_arrival_s = self.clock.now()
@@ -262,11 +271,11 @@ class AcquisitionLoop:
         return status
 
     def _status_poller(self) -> None:
-        # after a trip the procedure owns the loader (ramp down, disable, final status): polling on would only
-        # compete for the driver, e.g. with its reconnect attempts when the loader is the lost instrument
+        # Monitoring never stops, a trip or not (the bench view shows the drive's real state, and the next run
+        # starts from a fresh reading); while the procedure commands the loader (ramp down, disable, reconnect
+        # attempts) the poll is skipped rather than competing for the driver.
         while not self._stop.wait(self.status_period_s):
-            if self.trip is None:
-                self.poll_status()
+            self.poll_status(wait_for_lock=False)
 
     def _coordinator(self) -> None:
         while not self._stop.wait(self.period_s):
@@ -381,6 +390,8 @@ class AcquisitionLoop:
             dt = min(self.period_s, deadline - now)
             if self.clock.stepped:
                 self.clock.sleep(dt)
+                if self.clock.now() <= now:  # a clock that cannot move would spin here for ever
+                    raise TcmsError(f"the simulated clock did not advance from {now!r} s by {dt!r} s")
                 self.step()
             else:
                 with self._tick:

@@ -65,8 +65,10 @@ class ProcedureOptions:
     settle_s: wait after connecting and after enabling (readings flowing, watchdog armed);
     tolerance_nm: how close the measured torque must come to each setpoint (None: 2 % of the peak, ≥ 1 N·m);
     settle_timeout_s: extra time allowed to reach a setpoint after its ramp;
-    ramp_down_slope_nm_per_s: slope of the ramp to zero on exit (None: the profile's steepest slope);
-    ramp_down_timeout_s: extra time allowed for the ramp to zero before disabling anyway.
+    ramp_down_slope_nm_per_s: the least slope of the ramp to zero on exit (None: the profile's steepest slope);
+    ramp_down_timeout_s: extra time allowed for the ramp to zero before disabling anyway;
+    max_stop_s: every exit disables the loader within this time, whatever the profile: the ramp from the
+    *measured* torque is steepened so that it takes at most RAMP_SHARE_OF_STOP of it.
     """
 
     settle_s: float = 0.2
@@ -74,6 +76,22 @@ class ProcedureOptions:
     settle_timeout_s: float = 2.0
     ramp_down_slope_nm_per_s: float | None = None
     ramp_down_timeout_s: float = 3.0
+    max_stop_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_stop_s) and self.max_stop_s > 0):
+            raise ValueError(f"max_stop_s must be a positive number of seconds, got {self.max_stop_s}")
+
+
+RAMP_SHARE_OF_STOP = 0.6  # of max_stop_s for the ramp to zero; the rest for reaching zero and disabling
+
+
+def stop_ramp(measured_torque_nm: float, least_slope_nm_per_s: float, max_stop_s: float) -> tuple[float, float]:
+    """(slope N·m/s, duration s) of the ramp to zero from the measured torque: at least ``least_slope``, and
+    steep enough to take no more than RAMP_SHARE_OF_STOP × ``max_stop_s``."""
+    torque = abs(measured_torque_nm) if math.isfinite(measured_torque_nm) else 0.0
+    slope = max(least_slope_nm_per_s, torque / (RAMP_SHARE_OF_STOP * max_stop_s), 1e-9)
+    return slope, torque / slope
 
 
 def _get(obj: Any, *names: str, default: Any = None) -> Any:
@@ -345,8 +363,11 @@ class TestRun:
                 self.record.notes.append("loader lost: no ramp to zero commanded; disable attempted")
             else:
                 try:
+                    started_s = acq.clock.now()
+                    measured = acq.latest_torque_nm()
+                    slope, ramp_s = stop_ramp(self._setpoint_nm if measured is None else measured, slope,
+                                              self.options.max_stop_s)
                     acq.loader_command(loader.set_torque, 0.0, slope)
-                    ramp_s = abs(self._setpoint_nm) / slope
                     self._setpoint_nm = 0.0
                     limit_nm = self.limits.torque_limit_nm
 
@@ -354,7 +375,8 @@ class TestRun:
                         return abs(acq.latest_torque_nm() or 0.0) > limit_nm
 
                     if not acq.wait(ramp_s, check_trips=False, until=over_limit):
-                        acq.wait(self.options.ramp_down_timeout_s, check_trips=False,
+                        left_s = self.options.max_stop_s - (acq.clock.now() - started_s)
+                        acq.wait(max(0.0, min(self.options.ramp_down_timeout_s, left_s)), check_trips=False,
                                  until=lambda: over_limit() or abs(acq.latest_torque_nm() or 0.0) <= self.tolerance_nm)
                 except Exception as exc:
                     self.record.notes.append(f"ramp to zero failed: {exc}")

@@ -31,7 +31,7 @@ from tcms_daq.config import (
     load_reducers_for,
 )
 from tcms_daq.errors import TcmsError
-from tcms_daq.procedure import Profile, build_profile
+from tcms_daq.procedure import Profile, build_profile, check_test_bounds
 from tcms_daq.samples import Samples, write_csv
 
 CSV_COLUMNS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec", "applied_torque_nm", "true_angle_arcsec",
@@ -207,6 +207,10 @@ def _profile_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Na
     from tcms_daq.config import load_test_profile
 
     test = load_test_profile(data, source=cfg.source_path or "<config>")
+    try:
+        check_test_bounds(test, test.max_torque_nm or reducer.rated_torque_nm, cfg.bench)
+    except ValueError as exc:
+        raise TcmsError(f"{exc} ([bench] in {cfg.source_path or 'the config'})") from None
     profile = build_profile(test, reducer)
     if profile.test_torque_nm > cfg.bench.max_torque_nm:
         raise TcmsError(

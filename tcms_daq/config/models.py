@@ -159,12 +159,24 @@ class InstrumentsConfig(BaseModel):
 
 
 class BenchSection(BaseModel):
+    """[bench]: name, torque limit, compensation and catalogue files, and the bounds a test request must keep
+    (``tcms_daq.procedure.profiles.check_test_bounds``): loading rates, the smallest step, the longest test."""
+
     model_config = ConfigDict(extra="allow")
 
     name: str = "bench"
     max_torque_nm: float = Field(2000.0, gt=0.0)
     compensation: str | None = None
     reducers: str = "reducers.toml"
+    min_rate_nm_per_s: float = Field(0.05, gt=0.0)
+    max_rate_nm_per_s: float | None = Field(None, gt=0.0)  # None: max_torque_nm per second
+    min_step_nm: float = Field(0.1, gt=0.0)
+    max_test_duration_s: float = Field(4 * 3600.0, gt=0.0)
+    max_segments: int = Field(20_000, ge=1)
+
+    @property
+    def rate_limit_nm_per_s(self) -> float:
+        return self.max_rate_nm_per_s if self.max_rate_nm_per_s is not None else self.max_torque_nm
 
 
 class SimConfig(BaseModel):

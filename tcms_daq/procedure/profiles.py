@@ -12,11 +12,12 @@ each followed by a dwell of ``dwell_s``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from tcms_daq.config.models import ReducerSpec, TestProfile
+from tcms_daq.config.models import BenchSection, ReducerSpec, TestProfile
 
 #: loop index of samples outside every loop (the approach to −T and the final return to zero)
 OUTSIDE_LOOPS = -1
@@ -153,3 +154,34 @@ def build_profile(test: TestProfile, reducer: ReducerSpec | None = None) -> Prof
         return stepped_profile(torque, test.step_nm, test.dwell_s, rate, test.cycles, test.conditioning_loops,
                                test.tip_dwell_s, test.start)
     return continuous_profile(torque, rate, test.cycles, test.conditioning_loops, test.tip_dwell_s, test.start)
+
+
+def check_test_bounds(test: TestProfile, test_torque_nm: float, bench: BenchSection) -> None:
+    """ValueError (one line naming the field) when a test would leave the bench's bounds: a loading rate outside
+    [min, max], a step below the smallest, more segments than the bench takes, or a test longer than the longest.
+    Checked before the profile is built (a 1e-9 N·m step would otherwise allocate terabytes)."""
+    rate = test.rate_nm_per_s if test.rate_nm_per_s is not None else default_rate_nm_per_s(test_torque_nm)
+    for name, value in (("max_torque_nm", test_torque_nm), ("rate_nm_per_s", rate), ("step_nm", test.step_nm),
+                        ("dwell_s", test.dwell_s), ("tip_dwell_s", test.tip_dwell_s)):
+        if not math.isfinite(value):
+            raise ValueError(f"{name} must be a finite number, got {value}")
+    if rate < bench.min_rate_nm_per_s:
+        raise ValueError(f"rate_nm_per_s {rate:g} N·m/s is below the bench's slowest rate "
+                         f"{bench.min_rate_nm_per_s:g} N·m/s")
+    if rate > bench.rate_limit_nm_per_s:
+        raise ValueError(f"rate_nm_per_s {rate:g} N·m/s exceeds the bench's fastest rate "
+                         f"{bench.rate_limit_nm_per_s:g} N·m/s")
+    loops = test.cycles + test.conditioning_loops
+    segments = 4 * loops + 1
+    if test.kind == "stepped":
+        if test.step_nm < bench.min_step_nm:
+            raise ValueError(f"step_nm {test.step_nm:g} N·m is below the bench's smallest step {bench.min_step_nm:g} N·m")
+        segments = math.ceil(4 * loops * test_torque_nm / test.step_nm) + 1
+        if segments > bench.max_segments:
+            raise ValueError(f"step_nm {test.step_nm:g} N·m makes {segments} steps; the bench takes at most "
+                             f"{bench.max_segments} (a larger step or fewer cycles)")
+    dwell = (test.dwell_s if test.kind == "stepped" else 0.0) * segments + test.tip_dwell_s * 2 * loops
+    duration_s = 4 * loops * test_torque_nm / rate + dwell
+    if duration_s > bench.max_test_duration_s:
+        raise ValueError(f"the test would take {duration_s / 3600:.3g} h; the bench's longest test is "
+                         f"{bench.max_test_duration_s / 3600:.3g} h (rate_nm_per_s {rate:g} N·m/s)")

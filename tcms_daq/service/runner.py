@@ -241,7 +241,7 @@ class BenchRunner:
     # -- tests -----------------------------------------------------------------------------------------------
     def plan(self, request: TestRequest) -> TestPlan:
         from tcms_daq.config.models import TestProfile
-        from tcms_daq.procedure import build_profile
+        from tcms_daq.procedure import build_profile, check_test_bounds
 
         spec = self.reducers.get(request.reducer)
         if spec is None:
@@ -268,9 +268,11 @@ class BenchRunner:
             "dwell_s": request.dwell_s if request.dwell_s is not None else defaults.dwell_s,
         }
         try:
-            profile = build_profile(TestProfile(**fields), spec)
+            test = TestProfile(**fields)
+            check_test_bounds(test, torque, self.config.bench)
+            profile = build_profile(test, spec)
         except ValueError as exc:
-            raise RequestRejected(f"profile: {exc}") from None
+            raise RequestRejected(str(exc).splitlines()[0]) from None
         summary = {**profile.to_dict(), "reducer": spec.name, "rated_torque_nm": spec.rated_torque_nm,
                    "segments": len(profile.segments)}
         return TestPlan(request, summary, _Plan(profile, spec))

@@ -30,7 +30,8 @@ class LinearPhysics:
         self.tau_s = tau_s
         self.torque_noise_nm = torque_noise_nm
         self.angle_noise_arcsec = angle_noise_arcsec
-        self._n = 0  # samples produced; now_s = n / rate
+        self._n = 0  # samples produced; sample k is at k / rate
+        self._now_s = 0.0  # the clock moves by exactly what is asked, between samples too
         self.enabled = False
         self.target_nm = 0.0
         self.slope_nm_per_s = 1e9
@@ -39,7 +40,7 @@ class LinearPhysics:
 
     @property
     def now_s(self) -> float:
-        return self._n / self.rate_hz
+        return self._now_s
 
     def set_drive_enabled(self, enabled: bool) -> None:
         self.enabled = enabled
@@ -52,7 +53,8 @@ class LinearPhysics:
         self.slope_nm_per_s = slope_nm_per_s
 
     def advance(self, duration_s: float) -> Samples:
-        n_end = int(round((self.now_s + duration_s) * self.rate_hz))
+        self._now_s += duration_s
+        n_end = int(np.floor(self._now_s * self.rate_hz + 1e-9))
         n = max(n_end - self._n, 0)
         dt = 1.0 / self.rate_hz
         t = (self._n + 1 + np.arange(n)) / self.rate_hz
