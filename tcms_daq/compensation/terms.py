@@ -135,8 +135,10 @@ def term_from_dict(data: dict[str, Any], where: str = "term") -> Term:
             continue
         if key not in fields:
             raise ConfigError(f"{where}: unknown key {key!r} for term {name!r} (allowed: {', '.join(fields)})")
-        if isinstance(value, bool) or not isinstance(value, int | float | str):
-            raise ConfigError(f"{where}: {key!r} must be a number")
+        numeric = str(fields[key].type) in ("float", "int")
+        if isinstance(value, bool) or not isinstance(value, int | float | str) or (
+                numeric and not isinstance(value, int | float)):
+            raise ConfigError(f"{where}: {key!r} must be a number, got {value!r}")
         if isinstance(value, int | float) and not math.isfinite(value):
             raise ConfigError(f"{where}: {key!r} must be finite")
         kwargs[key] = value

@@ -202,8 +202,16 @@ def build_design(measured: Samples, simulated: Samples, *, signal_period_arcsec:
         raise DataFormatError(f"measured has {n} rows, simulated has {len(simulated)}: they must be the same rows")
     if n < 12:
         raise DataFormatError(f"only {n} rows: the discrepancy workflow needs at least 12 aligned samples")
-    if not signal_period_arcsec > 0:
-        raise DataFormatError(f"signal period must be > 0 arcsec, got {signal_period_arcsec}")
+    if not (signal_period_arcsec > 0 and np.isfinite(signal_period_arcsec)):
+        raise DataFormatError(f"signal period must be a finite number > 0 arcsec, got {signal_period_arcsec}")
+    for side, samples in (("measured", measured), ("simulated", simulated)):
+        columns = (("torque_nm", samples.torque_nm), ("angle_arcsec", samples.angle_arcsec)) + (
+            (("time_s", samples.time_s),) if has_time else ())
+        for name, values in columns:
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                raise DataFormatError(f"{side} {name} is not finite at row {int(bad[0]) + 2} ({values[bad[0]]!r}) "
+                                      f"and {bad.size - 1} more: the workflow needs finite samples")
     if has_time:
         dt = np.abs(measured.time_s - simulated.time_s)
         if np.any(dt > time_tolerance_s * max(1.0, float(np.max(np.abs(measured.time_s))))):

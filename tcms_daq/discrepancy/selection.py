@@ -403,7 +403,8 @@ def select(cols: Columns, y: np.ndarray, rows: np.ndarray, candidates: list[str]
     mses = [p.mse for p in path]
     kmin = int(np.argmin(mses))
     threshold = path[kmin].mse + path[kmin].se_mse
-    chosen = next(k for k in range(len(path)) if path[k].mse <= threshold)
+    # the smallest model within one standard error of the best (the best itself qualifies: never empty)
+    chosen = min(k for k in range(len(path)) if path[k].mse <= threshold or k == kmin)
     for j in range(chosen):
         if path[j + 1].rms > path[j].rms * (1.0 - MIN_GAIN):
             chosen = j

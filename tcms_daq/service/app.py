@@ -19,11 +19,14 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
+from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.service import exports
 from tcms_daq.service.auth import require_token, resolve_token
 from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
 from tcms_daq.service.events import CLOSE_TRY_AGAIN_LATER, EventHub
+from tcms_daq.service.limits import BodySizeLimit
 from tcms_daq.service.live import LiveHub, schema_message
 from tcms_daq.service.metrics import ServiceCollector, make_registry, render
 from tcms_daq.service.report import render_report
@@ -50,6 +53,7 @@ class ServiceSettings:
     live_stall_timeout_s: float = 5.0
     live_max_samples_per_frame: int | None = 4000  # min/max decimation above this (live view only)
     recorder_flush_s: float = 0.2
+    max_body_bytes: int = 1 << 20  # every request body (413 above it); a compensation TOML is a few kB
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -100,12 +104,13 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
                 client.close()
             store.close()
 
-    app = FastAPI(
+    app = FastAPIOffline(  # /docs and /redoc from packaged assets, no CDN
         title="TCMS-DAQ",
         summary="Torsional characteristic tests of precision reducers: acquisition, live data, results.",
         version="0.1.0",
         lifespan=lifespan,
     )
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.state.api_token = token
     app.state.api_token_source = token_source
     app.state.settings = settings
@@ -113,7 +118,8 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
-        errors = jsonable_encoder(exc.errors(), custom_encoder={Exception: str})
+        # jsonable: a NaN or an infinity the client sent comes back as null (strict JSON), never as a 500
+        errors = jsonable(jsonable_encoder(exc.errors(), custom_encoder={Exception: str}))
         return JSONResponse({"detail": _one_line_validation_error(exc), "errors": errors}, status_code=422)
 
     @app.exception_handler(RequestRejected)

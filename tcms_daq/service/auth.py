@@ -29,7 +29,9 @@ def require_token(request: Request) -> None:
     expected: str = request.app.state.api_token
     header = request.headers.get("authorization", "")
     scheme, _, given = header.partition(" ")
-    if scheme.lower() != "bearer" or not given or not secrets.compare_digest(given.strip(), expected):
+    # compared as UTF-8 bytes: compare_digest refuses str with non-ASCII characters (a 500 otherwise)
+    if scheme.lower() != "bearer" or not given or not secrets.compare_digest(given.strip().encode("utf-8"),
+                                                                               expected.encode("utf-8")):
         raise HTTPException(
             status_code=status.HTTP_401_UNAUTHORIZED,
             detail="missing or invalid bearer token (Authorization: Bearer <token>)",

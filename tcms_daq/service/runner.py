@@ -230,11 +230,17 @@ class BenchRunner:
     def set_compensator_toml(self, text: str) -> None:
         """Replace the compensator (compensator TOML or geometry TOML). RequestRejected when it does not load."""
         from tcms_daq.compensation import Compensator
+        from tcms_daq.compensation.plausibility import plausibility_problems
 
         try:
             compensator = Compensator.loads(text, source="body")
-        except TcmsError as exc:
-            raise RequestRejected(f"compensation: {exc}") from None
+        except (TcmsError, RecursionError, TypeError, ValueError) as exc:
+            raise RequestRejected(f"compensation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                                  ) from None
+        problems = plausibility_problems(compensator)
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            raise RequestRejected(f"compensation not plausible: {problems[0]}{more}")
         self.bench.compensator = compensator  # one attribute swap: the next batch uses it
         self.bench.description["compensation"] = "uploaded (PUT /api/compensation)"
 

@@ -14,7 +14,7 @@ class TestRequest(BaseModel):
     at each step (the torque moves between steps at ``rate_nm_per_s``).
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     reducer: str = Field(min_length=1, max_length=64, description="reducer model from the catalogue, e.g. RV-110E")
     max_torque_nm: float = Field(gt=0, description="test torque T (the profile runs between −T and +T), N·m")
@@ -60,7 +60,7 @@ class Health(BaseModel):
 class DiscrepancyRequest(BaseModel):
     """``POST /api/discrepancy``: a stored run against the bench model re-simulated on its torque trace."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     run_id: str = Field(min_length=1, max_length=64, description="id of a stored test run")
     signal_period_arcsec: float = Field(
