@@ -136,6 +136,14 @@ class SimulatedBench:
             bench_cfg.source_path = str(Path(config_dir) / "<bench config>")
         return cls(bench_cfg, reducer=reducer, seed=seed, measuring_chain=measuring_chain, effects=effects)
 
+    def set_specimen(self, reducer: ReducerSpec) -> None:
+        """Mount another catalogue reducer: its physics from now on, a virgin hysteresis state. The torque
+        must be zero (between tests)."""
+        with self._lock:
+            self.physics = physics_from_spec(reducer)
+            self.reducer = reducer
+            self._twist_state = TwistState(float(self.drive.applied_nm), 0.0)
+
     # ------------------------------------------------------------------------------------------ commands
 
     @property

@@ -159,6 +159,13 @@ class VirtualBench:
         with self._lock:
             return self._torque.take()
 
+    def set_specimen(self, reducer: Any) -> None:
+        """The reducer the physics simulates from now on (when the physics can change it)."""
+        with self._lock:
+            setter = getattr(self.physics, "set_specimen", None)
+            if setter is not None:
+                setter(reducer)
+
     def set_drive_enabled(self, enabled: bool) -> None:
         with self._lock:
             self._drive_enabled = bool(enabled)
@@ -358,6 +365,10 @@ class VirtualLoader:
         torque = self.bench.applied_torque_nm if not code else 0.0
         return LoaderStatus(state=state, torque_actual_nm=torque, fault=bool(code), error_code=code,
                             time_s=self.bench.now_s())
+
+    def set_specimen(self, reducer: Any) -> None:
+        """The simulated loader's bench mounts the requested reducer (``Bench.set_specimen``)."""
+        self.bench.set_specimen(reducer)
 
     def fault_reset(self) -> None:
         self._check()

@@ -62,6 +62,17 @@ class Bench:
     def instruments(self) -> dict[str, Any]:
         return {"angle": self.angle, "torque": self.torque, "loader": self.loader}
 
+    def set_specimen(self, reducer: Any) -> bool:
+        """Tell a simulated bench which reducer is mounted (its physics follows the request); a real bench has
+        whatever is mounted and ignores it. True when an instrument took it (``set_specimen`` on a driver)."""
+        taken = False
+        for drv in self.instruments().values():
+            setter = getattr(drv, "set_specimen", None)
+            if setter is not None:
+                setter(reducer)
+                taken = True
+        return taken
+
     def connect(self) -> None:
         """Connect all instruments; on a failure close the ones already open and re-raise."""
         opened = []

@@ -51,13 +51,16 @@ class Limits:
     lost_motion_max_arcsec: float | None = None
 
     def judge(self, values: dict[str, float]) -> dict[str, Any]:
-        """Verdict of mean values: ``{"passed": bool, "checks": {limit_name: {...}}}``."""
+        """Verdict of mean values: ``{"passed": bool, "checks": {limit_name: {...}}}``; each check carries a
+        readable ``label`` ("rigidity ≥ 235.2 N·m/arcmin: 294.0")."""
         rules = (
             ("rigidity_min_nm_per_arcmin", "rigidity_nm_per_arcmin", ">="),
             ("rigidity_max_nm_per_arcmin", "rigidity_nm_per_arcmin", "<="),
             ("backlash_max_arcsec", "backlash_arcsec", "<="),
             ("lost_motion_max_arcsec", "lost_motion_arcsec", "<="),
         )
+        readable = {"rigidity_nm_per_arcmin": ("rigidity", "N·m/arcmin"), "backlash_arcsec": ("backlash", "″"),
+                    "lost_motion_arcsec": ("lost motion", "″")}
         checks: dict[str, Any] = {}
         for name, quantity, comparison in rules:
             limit = getattr(self, name)
@@ -65,12 +68,15 @@ class Limits:
                 continue
             value = values[quantity]
             passed = bool(value >= limit if comparison == ">=" else value <= limit)
+            what, unit = readable[quantity]
+            sign = "≥" if comparison == ">=" else "≤"
             checks[name] = {
                 "quantity": quantity,
                 "value": value,
                 "comparison": comparison,
                 "limit": float(limit),
                 "passed": passed,
+                "label": f"{what} {sign} {float(limit):.4g} {unit}: {value:.4g} {unit}",
             }
         return {"passed": all(c["passed"] for c in checks.values()), "checks": checks}
 

@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from tcms_daq.units import ARCSEC_PER_RAD
+from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
 
 # ------------------------------------------------------------------------------------------------- reducers
 
@@ -33,6 +33,11 @@ class ReducerSimSpec(BaseModel):
     lost_motion_zone_arcsec: float = Field(12.0, ge=0.0)
     lost_motion_zone_pct: float = Field(1.0, gt=0.0, le=50.0)
     friction_transition_pct: float = Field(50.0, gt=0.0, le=200.0)
+
+
+# How far a measured rigidity may lie from the catalogue's before the verdict fails, per reducer family (%):
+# catalogue rigidities are typical values, not guaranteed minima.
+RIGIDITY_TOLERANCE_PCT = {"rv": 20.0, "harmonic": 30.0}
 
 
 class ReducerSpec(BaseModel):
@@ -60,6 +65,7 @@ class ReducerSpec(BaseModel):
     lost_motion_limit_arcsec: float = Field(60.0, gt=0.0)
     lost_motion_pct: float = Field(3.0, gt=0.0, le=50.0)
     rigidity_min_nm_per_arcmin: float | None = Field(None, gt=0.0)
+    rigidity_tolerance_pct: float | None = Field(None, gt=0.0, lt=100.0)  # None: the family's default
     sim: ReducerSimSpec = Field(default_factory=ReducerSimSpec)
     sources: dict[str, str] = Field(default_factory=dict)
     assumed: list[str] = Field(default_factory=list)
@@ -90,14 +96,34 @@ class ReducerSpec(BaseModel):
             return None
         return (float(self.t1_nm), float(self.t2_nm))  # type: ignore[arg-type]
 
-    def limits(self) -> dict[str, float]:
+    @property
+    def rigidity_tolerance(self) -> float:
+        """Allowed relative deviation of the measured rigidity from the catalogue's (the entry's, else its
+        family's default)."""
+        pct = self.rigidity_tolerance_pct
+        return (pct if pct is not None else RIGIDITY_TOLERANCE_PCT[self.kind]) / 100.0
+
+    def expected_rigidity_nm_per_arcmin(self, test_torque_nm: float,
+                                        interval: tuple[float, float] = (0.5, 1.0)) -> float:
+        """The catalogue's secant rigidity over [lo, hi]·T_test (N·m/arcmin): the RV value, or for a Harmonic
+        Drive the secant of its K1/K2/K3 curve over the same interval the evaluation uses."""
+        if self.kind == "rv":
+            return float(self.rigidity_nm_per_arcmin)  # type: ignore[arg-type]
+        lo, hi = interval[0] * test_torque_nm, interval[1] * test_torque_nm
+        twist = hd_twist_arcsec(hi, self) - hd_twist_arcsec(lo, self)
+        return (hi - lo) / twist * ARCSEC_PER_ARCMIN
+
+    def limits(self, test_torque_nm: float | None = None) -> dict[str, float]:
         """Pass/fail limits (keyword arguments of ``tcms_daq.analysis.Limits``): maxima for backlash and lost
-        motion, a minimum rigidity only when the entry sets ``rigidity_min_nm_per_arcmin`` (the catalogue rigidity
-        is a central value, not a limit)."""
+        motion; the rigidity within ± the tolerance of the catalogue's for a test at ``test_torque_nm`` (default
+        the rated torque), or at least ``rigidity_min_nm_per_arcmin`` when the entry sets one."""
         out = {
             "backlash_max_arcsec": self.backlash_limit_arcsec,
             "lost_motion_max_arcsec": self.lost_motion_limit_arcsec,
         }
+        expected = self.expected_rigidity_nm_per_arcmin(test_torque_nm or self.rated_torque_nm)
+        out["rigidity_min_nm_per_arcmin"] = expected * (1.0 - self.rigidity_tolerance)
+        out["rigidity_max_nm_per_arcmin"] = expected * (1.0 + self.rigidity_tolerance)
         if self.rigidity_min_nm_per_arcmin is not None:
             out["rigidity_min_nm_per_arcmin"] = self.rigidity_min_nm_per_arcmin
         return out

@@ -312,6 +312,8 @@ class BenchRunner:
         # lossless, delivered on its own thread; close() lets it hand over what is queued, then joins it
         sub = self.acq.fanout.subscribe_callback(handle, name=f"store-{run_id}", maxsize=None)
         with self._clock_lock:
+            if self.bench.set_specimen(payload.reducer):
+                on_phase("specimen", reducer=payload.reducer.name)
             try:
                 run = TestRun(
                     self.bench, payload.profile,
