@@ -137,9 +137,11 @@ class SimulatedBench:
         return cls(bench_cfg, reducer=reducer, seed=seed, measuring_chain=measuring_chain, effects=effects)
 
     def set_specimen(self, reducer: ReducerSpec) -> None:
-        """Mount another catalogue reducer: its physics from now on, a virgin hysteresis state. The torque
-        must be zero (between tests)."""
+        """Mount another catalogue reducer: its physics from now on, a virgin hysteresis state (between tests,
+        at zero torque). The reducer already mounted stays as it is, friction state included."""
         with self._lock:
+            if self.reducer is not None and self.reducer.name == reducer.name:
+                return
             self.physics = physics_from_spec(reducer)
             self.reducer = reducer
             self._twist_state = TwistState(float(self.drive.applied_nm), 0.0)
