@@ -147,7 +147,7 @@ class CiA402Canopen(CiA402Loader):
 
         self.network: canopen.Network | None = None
         self.node: canopen.RemoteNode | None = None
-        self._master_heartbeat = None
+        self._master_heartbeat: Any = None  # python-can's periodic send task, while running
         self._cond = threading.Condition()
         self._tpdo1: tuple[int, int, int, float] | None = None  # statusword, torque ‰, position, time
         self._tpdo2: tuple[int, int] | None = None  # mode display, error code

@@ -133,7 +133,8 @@ class CiA402Modbus(CiA402Loader):
                 raise InstrumentTimeout(self.name, f"{what}: no response")
             if response.isError():
                 code = getattr(response, "exception_code", None)
-                text = f"{what}: Modbus exception {code} ({EXCEPTION_NAMES.get(code, 'unknown')})"
+                name = EXCEPTION_NAMES.get(code, "unknown") if isinstance(code, int) else "unknown"
+                text = f"{what}: Modbus exception {code} ({name})"
                 if code == 4:
                     raise DeviceFault(self.name, text, code=code)
                 if code in (10, 11):

@@ -280,13 +280,17 @@ def physics_from_spec(spec: ReducerSpec, rigidity_interval: tuple[float, float] 
     """
     tr = spec.rated_torque_nm
     tz = spec.sim.friction_transition_pct / 100.0 * tr
+    hd_stiffness: tuple[float, float, float] | None = None
+    if spec.kind == "harmonic":
+        k1, k2, k3 = spec.k1_nm_per_rad, spec.k2_nm_per_rad, spec.k3_nm_per_rad
+        if k1 is None or k2 is None or k3 is None:  # the catalogue model refuses such an entry
+            raise ConfigError(f"{spec.name}: a Harmonic Drive entry needs K1, K2 and K3")
+        hd_stiffness = (k1, k2, k3)
     params = ReducerPhysics(
         name=spec.name,
         compliance_arcsec_per_nm=None if spec.kind == "harmonic" else 1.0,
         hd_breakpoints_nm=spec.hd_breakpoints_nm,
-        hd_stiffness_nm_per_rad=(
-            (spec.k1_nm_per_rad, spec.k2_nm_per_rad, spec.k3_nm_per_rad) if spec.kind == "harmonic" else None
-        ),  # type: ignore[arg-type]
+        hd_stiffness_nm_per_rad=hd_stiffness,
         lost_motion_zone_arcsec=spec.sim.lost_motion_zone_arcsec,
         lost_motion_zone_torque_nm=spec.sim.lost_motion_zone_pct / 100.0 * tr,
         hysteresis_half_width_arcsec=0.5 * spec.sim.backlash_arcsec / _loop_width_factor(tr, tz),

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.physics import ReducerPhysics
 from tcms_daq.samples import Samples
 
 # Hidden effects at the tested amplitudes (contract names and parameters, as in a [sim.effects] table).
@@ -67,7 +68,8 @@ class TrialDesign:
     encoder_resolution_arcsec: float = 0.1
 
 
-def bench_run(effects_table: dict, seed: int, design: TrialDesign = TrialDesign()) -> tuple[Samples, object]:
+def bench_run(effects_table: dict, seed: int, design: TrialDesign = TrialDesign()
+              ) -> tuple[Samples, ReducerPhysics]:
     """Measured samples of the programme on a simulated bench with ``effects_table`` on; and the physics."""
     from sim.bench import SimulatedBench
     from sim.effects import from_config

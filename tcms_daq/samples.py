@@ -58,7 +58,7 @@ class Samples:
         """All columns, canonical first, by name."""
         return {"time_s": self.time_s, "torque_nm": self.torque_nm, "angle_arcsec": self.angle_arcsec, **self.extra}
 
-    def select(self, mask_or_slice) -> Samples:
+    def select(self, mask_or_slice: slice | np.ndarray) -> Samples:
         return Samples(
             self.time_s[mask_or_slice],
             self.torque_nm[mask_or_slice],

@@ -69,6 +69,13 @@ class DriveCanopenNode:
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
+    @property
+    def _net(self) -> canopen.Network:
+        """The CAN network of a started node (RuntimeError before ``start``)."""
+        if self.network is None:
+            raise RuntimeError("the simulated CANopen node is not started")
+        return self.network
+
     def start(self) -> None:
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1  # receive-thread poll period: bounds how long stop() waits for it
@@ -84,7 +91,7 @@ class DriveCanopenNode:
         self.network, self.node = network, node
         self._sdo_subscribed = True
         self.drive.add_emcy_listener(self._on_emcy)
-        network.send_message(0x700 + self.node_id, [0x00])  # boot-up
+        network.send_message(0x700 + self.node_id, bytes([0x00]))  # boot-up
         node.nmt.state = "PRE-OPERATIONAL"  # INITIALISING -> PRE-OP: the heartbeat producer starts
         self._timer.start()
 
@@ -122,10 +129,10 @@ class DriveCanopenNode:
         # a mute node does not answer SDO requests at all (the client times out)
         sdo_subscribed = self._sdo_subscribed
         if fault == "mute" and sdo_subscribed:
-            self.network.unsubscribe(node.sdo.rx_cobid, node.sdo.on_request)
+            self._net.unsubscribe(node.sdo.rx_cobid, node.sdo.on_request)
             self._sdo_subscribed = False
         elif fault != "mute" and not sdo_subscribed:
-            self.network.subscribe(node.sdo.rx_cobid, node.sdo.on_request)
+            self._net.subscribe(node.sdo.rx_cobid, node.sdo.on_request)
             self._sdo_subscribed = True
 
     # -- SDO -------------------------------------------------------------------------------------------
@@ -157,7 +164,7 @@ class DriveCanopenNode:
             self._consumer = (master, time_ms / 1000.0) if master and time_ms else None
             self._master_seen = None
             if self._consumer:
-                self.network.subscribe(0x700 + master, self._on_master_heartbeat)
+                self._net.subscribe(0x700 + master, self._on_master_heartbeat)
             return
         setter = setters.get(index)
         if setter is None:
@@ -202,7 +209,7 @@ class DriveCanopenNode:
         with self._send_lock:
             tpdo1, tpdo2 = node.tpdo[1], node.tpdo[2]
             if self.fault == "garbage":
-                self.network.send_message(tpdo1.cob_id, b"\xde\xad\x01")
+                self._net.send_message(tpdo1.cob_id, b"\xde\xad\x01")
                 return
             tpdo1[0x6041].raw, tpdo1[0x6077].raw, tpdo1[0x6064].raw = values[0], values[1], values[2]
             tpdo2[0x6061].raw, tpdo2[0x603F].raw = values[3], values[4]

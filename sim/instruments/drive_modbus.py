@@ -57,7 +57,7 @@ class DriveModbusServer:
         self.fault: str | None = None
         self.requests = 0
         self._by_address = regmap.by_address()
-        self._server = None
+        self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._last_request = time.monotonic()
         self._watchdog: asyncio.Task | None = None
 
@@ -119,7 +119,7 @@ class DriveModbusServer:
                     words = self.map.encode(name, self._value(name)) if self._fits(name) else [0] * spec.words
                     registers[spec.address - start_address: spec.address - start_address + spec.words] = words
                 return None
-            pending = {}
+            pending: dict[str, None] = {}  # names of the registers written, in order
             for i in range(len(set_values)):
                 spec, _ = self._by_address[address + i]
                 if not spec.writable:
@@ -163,10 +163,12 @@ class DriveModbusServer:
     async def start(self) -> int:
         if self._server is not None:
             return self.port
+        server: ModbusTcpServer | ModbusSerialServer
         if self.framer == "tcp":
             server = ModbusTcpServer(self._device(), address=(self.host, self.port), ignore_missing_devices=True)
             await server.serve_forever(background=True)
-            self.port = server.transport.sockets[0].getsockname()[1]
+            # pymodbus keeps the asyncio server as ``transport`` once it listens
+            self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[attr-defined]
         else:
             if self.port == 0:
                 self.port = _free_port(self.host)

@@ -19,7 +19,8 @@ from sim.instruments.loop import PeriodicThread
 
 
 class BenchLike(Protocol):
-    now_s: float
+    @property
+    def now_s(self) -> float: ...
 
     def set_drive_enabled(self, enabled: bool) -> None: ...
 

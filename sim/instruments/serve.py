@@ -13,12 +13,18 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sim.instruments.aed import AEDServer
 from sim.instruments.loop import LoopThread
 from sim.instruments.nd287 import ND287Server
 from sim.instruments.physics import SharedPhysics
+
+if TYPE_CHECKING:
+    from sim.instruments.drive402 import Drive402Model
+    from sim.instruments.drive_canopen import DriveCanopenNode
+    from sim.instruments.drive_modbus import DriveModbusServer
+    from sim.instruments.socketcand_hub import SocketcandHub
 
 log = logging.getLogger(__name__)
 
@@ -82,18 +88,30 @@ class InstrumentSimulators:
         self.loop: LoopThread | None = None
         self.nd287: ND287Server | None = None
         self.aed: AEDServer | None = None
-        self.drive = None
-        self.modbus = None
-        self.modbus_rtu = None
-        self.canopen = None
-        self.hub = None
+        self.drive: Drive402Model | None = None
+        self.modbus: DriveModbusServer | None = None
+        self.modbus_rtu: DriveModbusServer | None = None
+        self.canopen: DriveCanopenNode | None = None
+        self.hub: SocketcandHub | None = None
         self.ports: dict[str, int] = {}
+
+    @property
+    def running_loop(self) -> LoopThread:
+        """The asyncio loop thread of started simulators (RuntimeError before ``start``)."""
+        if self.loop is None:
+            raise RuntimeError("the simulators are not started")
+        return self.loop
+
+    def _require(self, obj: Any, what: str) -> Any:
+        if obj is None:
+            raise ValueError(f"no running simulated {what}")
+        return obj
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
     def start(self) -> dict[str, int]:
         opts = self.options
-        self.loop = LoopThread()
+        self.loop = loop = LoopThread()
         try:
             want = set(opts.instruments)
             if "nd287" in want:
@@ -105,7 +123,7 @@ class InstrumentSimulators:
                     decimals=opts.nd287_decimals,
                     reply_delay_s=opts.nd287_reply_delay_s,
                 )
-                self.ports["nd287"] = self.loop.run(self.nd287.start())
+                self.ports["nd287"] = loop.run(self.nd287.start())
             if "aed" in want:
                 self.aed = AEDServer(
                     lambda: self.physics.latest().torque_nm,
@@ -114,7 +132,7 @@ class InstrumentSimulators:
                     port=opts.ports.get("aed", 0),
                     reply_delay_s=opts.aed_reply_delay_s,
                 )
-                self.ports["aed"] = self.loop.run(self.aed.start())
+                self.ports["aed"] = loop.run(self.aed.start())
             if want & {"modbus", "modbus_rtu", "canopen"}:
                 self._start_drive(want)
         except BaseException:
@@ -126,7 +144,8 @@ class InstrumentSimulators:
         from sim.instruments.drive402 import Drive402Model
 
         opts = self.options
-        self.drive = Drive402Model(
+        loop = self.running_loop
+        self.drive = drive = Drive402Model(
             self.physics,
             rated_torque_mnm=round(opts.rated_torque_nm * 1000),
             max_torque_permille=opts.max_torque_permille,
@@ -138,26 +157,26 @@ class InstrumentSimulators:
 
             regmap = load_register_map(Path(opts.modbus_map) if opts.modbus_map else None)
             if "modbus" in want:
-                self.modbus = DriveModbusServer(
-                    self.drive, regmap, host=opts.host, port=opts.ports.get("modbus", 0),
+                self.modbus = modbus = DriveModbusServer(
+                    drive, regmap, host=opts.host, port=opts.ports.get("modbus", 0),
                     comm_timeout_s=opts.modbus_comm_timeout_s,
                 )
-                self.ports["modbus"] = self.loop.run(self.modbus.start())
+                self.ports["modbus"] = loop.run(modbus.start())
             if "modbus_rtu" in want:
-                self.modbus_rtu = DriveModbusServer(
-                    self.drive, regmap, host=opts.host, port=opts.ports.get("modbus_rtu", 0), framer="rtu",
+                self.modbus_rtu = modbus_rtu = DriveModbusServer(
+                    drive, regmap, host=opts.host, port=opts.ports.get("modbus_rtu", 0), framer="rtu",
                     comm_timeout_s=opts.modbus_comm_timeout_s,
                 )
-                self.ports["modbus_rtu"] = self.loop.run(self.modbus_rtu.start())
+                self.ports["modbus_rtu"] = loop.run(modbus_rtu.start())
         if "canopen" in want:
             from sim.instruments.drive_canopen import DriveCanopenNode
 
             if opts.can_interface == "socketcand":
                 from sim.instruments.socketcand_hub import SocketcandHub
 
-                self.hub = SocketcandHub(host=opts.host, port=opts.ports.get("socketcand", 0))
-                self.ports["socketcand"] = self.loop.run(self.hub.start())
-                bus_options = {
+                self.hub = hub = SocketcandHub(host=opts.host, port=opts.ports.get("socketcand", 0))
+                self.ports["socketcand"] = loop.run(hub.start())
+                bus_options: dict[str, Any] = {
                     "interface": "socketcand", "channel": opts.can_channel,
                     "host": opts.host, "port": self.ports["socketcand"], "tcp_tune": True,  # TCP_NODELAY
                 }
@@ -165,10 +184,10 @@ class InstrumentSimulators:
                 bus_options = {"interface": "virtual", "channel": opts.can_channel}
             else:
                 raise ValueError(f"can_interface must be 'socketcand' or 'virtual', got {opts.can_interface!r}")
-            self.canopen = DriveCanopenNode(
-                self.drive, node_id=opts.node_id, heartbeat_ms=opts.heartbeat_ms, **bus_options
+            self.canopen = canopen_node = DriveCanopenNode(
+                drive, node_id=opts.node_id, heartbeat_ms=opts.heartbeat_ms, **bus_options
             )
-            self.canopen.start()
+            canopen_node.start()
 
     def stop(self) -> None:
         if self.canopen is not None:
@@ -205,7 +224,7 @@ class InstrumentSimulators:
         """Stop and re-start one server on the same port (the instrument was power-cycled).
         ``canopen`` power-cycles the drive and its CAN node (the socketcand hub keeps running)."""
         if instrument == "canopen":
-            self.canopen.restart()
+            self._require(self.canopen, "CANopen drive").restart()
             return
         self.stop_server(instrument)
         self.start_server(instrument)
@@ -214,12 +233,12 @@ class InstrumentSimulators:
         """Stop one server; for ``socketcand`` the drive's CAN node goes down with the hub it is attached to."""
         if instrument in ("socketcand", "hub") and self.canopen is not None:
             self.canopen.stop()
-        self.loop.run(self.server(instrument).stop())
+        self.running_loop.run(self.server(instrument).stop())
 
     def start_server(self, instrument: str) -> None:
-        self.loop.run(self.server(instrument).start())
+        self.running_loop.run(self.server(instrument).start())
         if instrument in ("socketcand", "hub") and self.canopen is not None:
-            self.drive.power_cycle()
+            self._require(self.drive, "drive").power_cycle()
             self.canopen.start()
 
     def inject(self, instrument: str, fault: str | None) -> None:
@@ -229,8 +248,8 @@ class InstrumentSimulators:
         if instrument == "drive":
             if fault is None:
                 return
-            self.drive.inject_fault(int(fault))
+            self._require(self.drive, "drive").inject_fault(int(fault))
         elif instrument == "canopen":
-            self.canopen.inject(fault)
+            self._require(self.canopen, "CANopen drive").inject(fault)
         else:
             self.server(instrument).inject(fault)

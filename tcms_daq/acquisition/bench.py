@@ -189,10 +189,11 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         description[kind] = {"driver": driver_name, **{k: v for k, v in opts.items() if k != "clock"}}
 
     sources = [getattr(d, "time_source", None) for d in drivers.values()]
-    if all(s is not None for s in sources):
-        if any(s is not sources[0] for s in sources):
+    shared = sources[0]
+    if shared is not None and all(s is not None for s in sources):
+        if any(s is not shared for s in sources):
             raise ConfigError("bench config: the simulated instruments must share one bench (same url)")
-        clock: Clock = SimulatedClock(sources[0], speed=math.inf if speed is None else speed)
+        clock: Clock = SimulatedClock(shared, speed=math.inf if speed is None else speed)
     elif any(s is not None for s in sources):
         raise ConfigError("bench config: cannot mix simulated (virtual) and real instruments on one bench")
     else:

@@ -134,7 +134,7 @@ class FanOut:
     def subscribe_callback(self, callback: Callable[[Message], Any], name: str | None = None,
                            maxsize: int | None = 64) -> Subscription:
         """Run ``callback(message)`` on a dedicated thread; exceptions are recorded, not raised."""
-        sub = self.subscribe(name or getattr(callback, "__name__", "callback"), maxsize)
+        sub = self.subscribe(name or str(getattr(callback, "__name__", "callback")), maxsize)
 
         def pump() -> None:
             while True:

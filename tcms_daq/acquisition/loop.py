@@ -156,9 +156,9 @@ class AcquisitionLoop:
             t.join(timeout=5.0)
         self._threads.clear()
         self.step()
-        t, tq, a = self._aligner.flush()
-        if len(t):
-            self._publish(t, tq, a, self._aligner.released_extra)
+        time_s, torque_nm, angle_arcsec = self._aligner.flush()
+        if len(time_s):
+            self._publish(time_s, torque_nm, angle_arcsec, self._aligner.released_extra)
         self.running = False
 
     def close(self) -> None:

@@ -285,8 +285,9 @@ class TestRun:
                 return self.record
             # loader commands already tripped the matching interlock (loader_command); others name theirs here
             kind = "device_fault" if isinstance(exc, DeviceFault) else "lost_instrument"
-            acq.raise_trip(Trip(kind, f"instrument error: {exc}", acq.clock.now()))
-            self._finish_early(acq, recorder, ABORTED, InterlockTripped(acq.trip))
+            trip = Trip(kind, f"instrument error: {exc}", acq.clock.now())
+            acq.raise_trip(trip)
+            self._finish_early(acq, recorder, ABORTED, InterlockTripped(acq.trip or trip))
         except Exception as exc:
             self._finish_early(acq, recorder, FAILED, exc)
         finally:

@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.ndimage import uniform_filter1d
 
 from tcms_daq.analysis import harmonic
@@ -143,7 +144,8 @@ class Evaluation:
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        return jsonable(asdict(self))
+        out: dict[str, Any] = jsonable(asdict(self))
+        return out
 
 
 def jsonable(obj: Any) -> Any:
@@ -159,7 +161,8 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
-def _validated(time_s, torque_nm, angle_arcsec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _validated(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: npt.ArrayLike
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cols = {}
     for name, values in (("time_s", time_s), ("torque_nm", torque_nm), ("angle_arcsec", angle_arcsec)):
         try:
@@ -277,9 +280,9 @@ def _branch_rate(time_s: np.ndarray, torque_smooth_nm: np.ndarray, branch: Branc
 
 
 def evaluate(
-    time_s,
-    torque_nm,
-    angle_arcsec,
+    time_s: npt.ArrayLike,
+    torque_nm: npt.ArrayLike,
+    angle_arcsec: npt.ArrayLike,
     *,
     rated_torque_nm: float,
     test_torque_nm: float | None = None,

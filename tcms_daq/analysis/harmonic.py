@@ -7,7 +7,10 @@ regions: K1 on [0, T1], K2 on [T1, T2], K3 above T2 (N·m/rad). The catalogue an
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 from tcms_daq.units import ARCSEC_PER_RAD
 
@@ -15,8 +18,8 @@ GRID_POINTS_PER_REGION = 41
 MIN_REGION_FRACTION = 0.05  # a region must span at least 5 % of the largest breakpoint to be fitted
 
 
-def hd_torsion_angle_rad(torque_nm, t1_nm: float, t2_nm: float, k1_nm_per_rad: float, k2_nm_per_rad: float,
-                         k3_nm_per_rad: float):
+def hd_torsion_angle_rad(torque_nm: npt.ArrayLike, t1_nm: float, t2_nm: float, k1_nm_per_rad: float,
+                         k2_nm_per_rad: float, k3_nm_per_rad: float) -> Any:
     """Torsion angle (rad) of one direction for |torque| from zero, by the catalogue's three-region formula.
 
     Odd in torque: a negative torque gives the negative angle. HFUC-32-100 (T1 29, K1 6.7e4, T2 108,

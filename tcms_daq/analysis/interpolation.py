@@ -95,4 +95,4 @@ def angle_at_torque(
     u_star = np.clip(np.nan_to_num(u_star, nan=0.0, posinf=1.0, neginf=-1.0), -1.0, 1.0)
     out = p[:, 0] + p[:, 1] * u_star + p[:, 2] * u_star**2
     out[~reached] = np.nan
-    return out
+    return np.asarray(out, dtype=float)

@@ -113,7 +113,7 @@ def _serve(args: argparse.Namespace) -> int:
         physics.start(speed=args.speed)
         if args.control_port is not None:
             control = ControlServer(sims, host=opts.host, port=args.control_port)
-            ports["control"] = sims.loop.run(control.start())
+            ports["control"] = sims.running_loop.run(control.start())
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.set())
         print(json.dumps({
@@ -123,7 +123,7 @@ def _serve(args: argparse.Namespace) -> int:
         stop.wait(args.duration)
     finally:
         if control is not None:
-            sims.loop.run(control.stop())
+            sims.running_loop.run(control.stop())
         physics.stop()
         sims.stop()
     return 0

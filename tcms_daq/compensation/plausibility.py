@@ -27,7 +27,7 @@ def plausibility_problems(comp: Compensator, bounds: PlausibilityBounds = Plausi
     problems: list[str] = []
     for term in comp.terms:
         label = term.label()
-        for f in dataclasses.fields(term):  # type: ignore[arg-type]  # every Term subclass is a dataclass
+        for f in dataclasses.fields(term):  # every Term subclass is a dataclass
             value = getattr(term, f.name)
             if not isinstance(value, int | float) or isinstance(value, bool):
                 continue

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -90,7 +91,7 @@ def _key_path(prefix: str, loc: tuple[Any, ...]) -> str:
     return ".".join(parts) or "(top level)"
 
 
-def _problem(err: dict[str, Any]) -> str:
+def _problem(err: Mapping[str, Any]) -> str:
     kind = err.get("type", "")
     msg = err.get("msg", "invalid value")
     if kind == "missing":

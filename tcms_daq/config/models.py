@@ -134,8 +134,10 @@ def hd_twist_arcsec(torque_nm: float, spec: ReducerSpec) -> float:
     # imported here: the analysis package pulls in scipy, which loading a config does not need
     from tcms_daq.analysis.harmonic import hd_torsion_angle_rad
 
-    return hd_torsion_angle_rad(float(torque_nm), spec.t1_nm, spec.t2_nm, spec.k1_nm_per_rad, spec.k2_nm_per_rad,
-                                spec.k3_nm_per_rad) * ARCSEC_PER_RAD
+    t1, t2, k1, k2, k3 = spec.t1_nm, spec.t2_nm, spec.k1_nm_per_rad, spec.k2_nm_per_rad, spec.k3_nm_per_rad
+    if t1 is None or t2 is None or k1 is None or k2 is None or k3 is None:
+        raise ValueError(f"{spec.name}: not a Harmonic Drive entry (no T1/T2, K1/K2/K3)")
+    return hd_torsion_angle_rad(float(torque_nm), t1, t2, k1, k2, k3) * ARCSEC_PER_RAD
 
 
 # ------------------------------------------------------------------------------------------------- profiles

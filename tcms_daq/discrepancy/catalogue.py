@@ -174,10 +174,17 @@ def grid(name: str, data: DesignData) -> np.ndarray | None:
     return None
 
 
+def _value(nl: float | None, name: str) -> float:
+    """The nonlinear value an effect needs (its period, its time skew)."""
+    if nl is None:
+        raise ValueError(f"effect {name!r} needs its nonlinear value (period or skew)")
+    return float(nl)
+
+
 def columns(name: str, data: DesignData, nl: float | None = None) -> np.ndarray:
     """Design columns (n × m) of a linear effect, or the fixed-gain signature (n × 1) of ``time_skew``."""
     if name == "time_skew":
-        return skew_shift(data, float(nl))[:, None]
+        return skew_shift(data, _value(nl, name))[:, None]
     if name == "thermal_drift":
         return (data.time_s - data.time_s[0])[:, None]
     if name == "bending_deformation":
@@ -187,7 +194,7 @@ def columns(name: str, data: DesignData, nl: float | None = None) -> np.ndarray:
     if name == "scale_error":
         return data.sim_angle_arcsec[:, None]
     if name in ("interpolation_error", "periodic_error"):
-        return sincos(data.sim_angle_arcsec, float(nl))
+        return sincos(data.sim_angle_arcsec, _value(nl, name))
     if name == "backlash":
         return (-0.5 * data.direction)[:, None]
     if name == "torque_zero_offset":
@@ -200,19 +207,19 @@ def columns(name: str, data: DesignData, nl: float | None = None) -> np.ndarray:
 def columns_at(name: str, data: DesignData, nl: float | None, rows: np.ndarray) -> np.ndarray:
     """``columns(name, data, nl)[rows]`` without evaluating the other rows (for nonlinear values)."""
     if name == "time_skew":
-        return skew_shift(data, float(nl), rows)[:, None]
+        return skew_shift(data, _value(nl, name), rows)[:, None]
     if name in ("interpolation_error", "periodic_error"):
-        return sincos(data.sim_angle_arcsec[rows], float(nl))
+        return sincos(data.sim_angle_arcsec[rows], _value(nl, name))
     return columns(name, data, nl)[rows]
 
 
 def parameters(name: str, coef: np.ndarray, nl: float | None) -> dict[str, float]:
     """Contract parameters from fitted coefficients (and the nonlinear value)."""
     if name == "time_skew":
-        return {"skew_s": float(nl)}
+        return {"skew_s": _value(nl, name)}
     if name in ("interpolation_error", "periodic_error"):
         a, b = float(coef[0]), float(coef[1])  # a·sin x + b·cos x = A·sin(x + ψ)
-        return {"period_arcsec": float(nl), "amplitude_arcsec": math.hypot(a, b), "phase_rad": math.atan2(b, a)}
+        return {"period_arcsec": _value(nl, name), "amplitude_arcsec": math.hypot(a, b), "phase_rad": math.atan2(b, a)}
     key = CATALOGUE[name].parameters[0]
     return {key: float(coef[0])}
 

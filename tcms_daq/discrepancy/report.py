@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+from typing import Any
 
 import numpy as np
 
@@ -35,8 +36,8 @@ def figures(result) -> list[tuple[str, str]]:
     before, after = result.residual_before_arcsec, result.residual_after_arcsec
     i = _thin(len(before))
     out: list[tuple[str, str]] = []
-    kw_b = {"s": 3, "alpha": 0.5, "color": "tab:red", "label": "before (measured − simulated)"}
-    kw_a = {"s": 3, "alpha": 0.5, "color": "tab:blue", "label": "after (measured − re-simulated)"}
+    kw_b: dict[str, Any] = {"s": 3, "alpha": 0.5, "color": "tab:red", "label": "before (measured − simulated)"}
+    kw_a: dict[str, Any] = {"s": 3, "alpha": 0.5, "color": "tab:blue", "label": "after (measured − re-simulated)"}
 
     x_time = d.time_s if d.has_time else np.arange(len(before))
     fig, ax = plt.subplots(figsize=(9, 3.2))

@@ -71,6 +71,8 @@ class Columns:
         g = self._grids.get(name)
         if g is None:
             values = cat.grid(name, self.data)
+            if values is None:
+                raise ValueError(f"effect {name!r} has no grid of nonlinear values")
             scan = np.flatnonzero(self.in_scan)
             if cat.CATALOGUE[name].fixed_gain:
                 d = np.stack([cat.columns_at(name, self.data, float(v), scan)[:, 0] for v in values])
@@ -85,6 +87,9 @@ class Columns:
         return g
 
 
+Sums = dict[str, tuple[np.ndarray, np.ndarray]]
+
+
 def _stacked(parts: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The product matrices stacked into one float32 block (one pass over memory per scan); ``_names`` and
     ``_m`` let :func:`_sums` split the result."""
@@ -92,7 +97,7 @@ def _stacked(parts: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {"_block": block, "_names": np.array(list(parts)), "_m": np.array(len(next(iter(parts.values()))))}
 
 
-def _sums(prods: dict[str, np.ndarray], w: np.ndarray, wr: np.ndarray) -> dict[str, np.ndarray]:
+def _sums(prods: dict[str, np.ndarray], w: np.ndarray, wr: np.ndarray) -> Sums:
     """For every product P: (P @ w, P @ wr) as float64, from one matrix product."""
     if "_block" not in prods:
         return {k: (v @ w, v @ wr) for k, v in prods.items()}
@@ -153,7 +158,7 @@ def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.nda
     residual of the model without it, on the strided scan rows that are training rows.
     """
     values, prods = cols.grid(name)
-    w = np.zeros(int(cols.in_scan.sum()))
+    w: np.ndarray | None = np.zeros(int(cols.in_scan.sum()))
     in_train = train[cols.in_scan[train]]
     if len(in_train) < 8:
         in_train = train

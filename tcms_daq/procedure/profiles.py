@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -72,7 +73,7 @@ class Profile:
         step = float(self.step_nm)  # type: ignore[arg-type]
         return step / (step / self.rate_nm_per_s + self.dwell_s)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d.pop("segments")
         d["mean_rate_nm_per_s"] = self.mean_rate_nm_per_s

@@ -73,7 +73,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         store = RunStore(settings.data_dir / STORE_FILENAME)
-        bench = runner or await asyncio.to_thread(
+        bench: Runner = runner if runner is not None else await asyncio.to_thread(
             BenchRunner.from_config, settings.config_path, sim_speed=settings.sim_speed
         )
         saved_compensation = settings.data_dir / COMPENSATION_FILENAME

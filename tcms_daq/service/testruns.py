@@ -13,7 +13,7 @@ from typing import Any
 
 from tcms_daq.errors import TcmsError
 from tcms_daq.service.events import EventHub
-from tcms_daq.service.runner import BenchRunner, RequestRejected, RunOutcome
+from tcms_daq.service.runner import RequestRejected, Runner, RunOutcome
 from tcms_daq.service.schemas import TestRequest
 from tcms_daq.store import Recorder, RunRecord, RunStore, new_run_id
 
@@ -27,7 +27,7 @@ class UnknownRun(TcmsError):
 
 
 class TestManager:
-    def __init__(self, store: RunStore, runner: BenchRunner, events: EventHub, recorder_flush_s: float = 0.2):
+    def __init__(self, store: RunStore, runner: Runner, events: EventHub, recorder_flush_s: float = 0.2):
         self.store = store
         self.runner = runner
         self.events = events
