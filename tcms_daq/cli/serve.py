@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 from pathlib import Path
 
@@ -42,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from tcms_daq.service.app import ServiceSettings, create_app
+    from tcms_daq.service.auth import RedactTokenInAccessLog
     from tcms_daq.service.runner import BenchRunner
     from tcms_daq.store import STORE_FILENAME
 
@@ -54,8 +56,11 @@ def run(args: argparse.Namespace) -> int:
     # Compose the bench and reach its instruments before the server starts, so a bad config or an instrument
     # that does not answer is a one-line error, not a startup traceback after the URL was printed.
     runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed, overrides=args.overrides)
+    everywhere = args.host in ("0.0.0.0", "::", "")
     settings = ServiceSettings(
-        data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(runner.config)
+        data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(runner.config),
+        # Host check against DNS rebinding on loopback; bound to all interfaces the names are not known here
+        allowed_hosts=None if everywhere else ("127.0.0.1", "localhost", "::1", "[::1]", args.host),
     )
     sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -74,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     _print_banner(args, app, runner, sock.getsockname()[1], Path(data_dir) / STORE_FILENAME)
     config = uvicorn.Config(app, log_level=args.log_level, ws_per_message_deflate=False, lifespan="on",
                             timeout_graceful_shutdown=10)
+    logging.getLogger("uvicorn.access").addFilter(RedactTokenInAccessLog())
     server = _server(config)
     server.run(sockets=[sock])  # after a signal, uvicorn re-raises it here: the process ends with its status
     if not server.started:

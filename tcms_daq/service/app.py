@@ -13,6 +13,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
+from urllib.parse import urlsplit
 
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.encoders import jsonable_encoder
@@ -20,6 +21,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.service import exports
@@ -54,6 +56,10 @@ class ServiceSettings:
     live_max_samples_per_frame: int | None = 4000  # min/max decimation above this (live view only)
     recorder_flush_s: float = 0.2
     max_body_bytes: int = 1 << 20  # every request body (413 above it); a compensation TOML is a few kB
+    # browsers: WebSockets accept these Origins (besides the service's own, same host:port); None = only its own
+    allowed_origins: tuple[str, ...] = ()
+    # Host header check against DNS rebinding; None = any host (a service bound to all interfaces)
+    allowed_hosts: tuple[str, ...] | None = ("127.0.0.1", "localhost", "::1", "[::1]")
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -111,6 +117,8 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         lifespan=lifespan,
     )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    if settings.allowed_hosts is not None:
+        app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(settings.allowed_hosts))
     app.state.api_token = token
     app.state.api_token_source = token_source
     app.state.settings = settings
@@ -284,9 +292,22 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         except (WebSocketDisconnect, RuntimeError):
             return
 
+    def _foreign_origin(ws: WebSocket) -> str | None:
+        """The Origin of a browser page on another site (refused: it could read live data), else None.
+        Clients that are not browsers send no Origin and are let in."""
+        origin = ws.headers.get("origin")
+        if origin is None or origin in settings.allowed_origins:
+            return None
+        if urlsplit(origin).netloc.lower() == (ws.headers.get("host") or "").lower():
+            return None
+        return origin
+
     @app.websocket("/ws/live")
     async def ws_live(ws: WebSocket) -> None:
         live: LiveHub = ws.app.state.live
+        if (origin := _foreign_origin(ws)) is not None:
+            await ws.close(code=1008, reason=f"origin {origin[:80]} not allowed")
+            return
         await ws.accept()
         await ws.send_json(schema_message(live.frame_rate_hz, live.max_samples_per_frame))
         client = await live.serve(ws.send_bytes, _until_disconnect(ws))
@@ -302,6 +323,9 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
             since = int(since_text) if since_text is not None else None
         except ValueError:
             await ws.close(code=1008, reason="since must be an integer")
+            return
+        if (origin := _foreign_origin(ws)) is not None:
+            await ws.close(code=1008, reason=f"origin {origin[:80]} not allowed")
             return
         await ws.accept()
         client = await events.serve(ws.send_json, _until_disconnect(ws), since=since)

@@ -6,7 +6,9 @@ printed with the dashboard URL (as Jupyter does). Read endpoints stay open.
 
 from __future__ import annotations
 
+import logging
 import os
+import re
 import secrets
 
 from fastapi import HTTPException, Request, status
@@ -37,3 +39,17 @@ def require_token(request: Request) -> None:
             detail="missing or invalid bearer token (Authorization: Bearer <token>)",
             headers={"WWW-Authenticate": "Bearer"},
         )
+
+
+_TOKEN_IN_QUERY = re.compile(r"(?i)([?&]token=)[^&\s]*")
+
+
+class RedactTokenInAccessLog(logging.Filter):
+    """Masks ``?token=…`` in uvicorn's access log lines (the dashboard URL carries the token)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.args, tuple):
+            record.args = tuple(_TOKEN_IN_QUERY.sub(r"\1***", a) if isinstance(a, str) else a for a in record.args)
+        elif isinstance(record.msg, str):
+            record.msg = _TOKEN_IN_QUERY.sub(r"\1***", record.msg)
+        return True
