@@ -47,6 +47,7 @@ from tcms_daq.acquisition.record import (
 )
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment
+from tcms_daq.runstate import RunState
 from tcms_daq.samples import Samples
 
 
@@ -219,7 +220,7 @@ class TestRun:
 
     # -- public API -----------------------------------------------------------------------------------
     @property
-    def state(self) -> str:
+    def state(self) -> RunState:
         return self.record.state
 
     @property
@@ -396,7 +397,7 @@ class TestRun:
             except Exception as exc:
                 self.record.loader_final = {"state": "unknown", "error": str(exc)}
 
-    def _finish_early(self, acq: AcquisitionLoop | None, recorder, state: str, exc: BaseException) -> None:
+    def _finish_early(self, acq: AcquisitionLoop | None, recorder, state: RunState, exc: BaseException) -> None:
         if isinstance(exc, InterlockTripped):
             reason = exc.trip.reason
             self.record.trip = exc.trip.to_dict()
@@ -441,7 +442,7 @@ class TestRun:
         s.extra["loop_index"] = loop
 
     # -- state machine -------------------------------------------------------------------------------
-    def _transition(self, state: str, reason: str | None = None) -> None:
+    def _transition(self, state: RunState, reason: str | None = None) -> None:
         current = self.record.state
         if state not in TRANSITIONS[current]:
             raise ProcedureError(f"invalid state transition {current} → {state}")

@@ -12,35 +12,21 @@ from typing import Any
 
 import numpy as np
 
+from tcms_daq.runstate import PROCEDURE_FINAL, PROCEDURE_TRANSITIONS, RunState
 from tcms_daq.samples import Samples
 
-IDLE = "idle"
-PREPARING = "preparing"
-LOADING = "loading"
-EVALUATING = "evaluating"
-COMPLETED = "completed"
-ABORTED = "aborted"
-FAILED = "failed"
-
-FINAL_STATES = (COMPLETED, ABORTED, FAILED)
-
-# The explicit state machine: every allowed transition. Any state but a final one may end in aborted/failed.
-TRANSITIONS: dict[str, tuple[str, ...]] = {
-    IDLE: (PREPARING, ABORTED, FAILED),
-    PREPARING: (LOADING, ABORTED, FAILED),
-    LOADING: (EVALUATING, ABORTED, FAILED),
-    EVALUATING: (COMPLETED, FAILED, ABORTED),
-    COMPLETED: (),
-    ABORTED: (),
-    FAILED: (),
-}
+# The procedure's states and transitions, from the one vocabulary of run states.
+IDLE, PREPARING, LOADING, EVALUATING = RunState.IDLE, RunState.PREPARING, RunState.LOADING, RunState.EVALUATING
+COMPLETED, ABORTED, FAILED = RunState.COMPLETED, RunState.ABORTED, RunState.FAILED
+FINAL_STATES = PROCEDURE_FINAL
+TRANSITIONS = PROCEDURE_TRANSITIONS
 
 
 @dataclass(frozen=True)
 class StateChange:
     """Entering ``state`` at ``time_s`` (acquisition clock) / ``wall_time`` (Unix s), with an optional reason."""
 
-    state: str
+    state: RunState
     time_s: float
     wall_time: float
     reason: str | None = None
@@ -63,7 +49,7 @@ class RunRecord:
 
     run_id: str
     bench_name: str = "bench"
-    state: str = IDLE
+    state: RunState = IDLE
     reason: str | None = None
     history: list[StateChange] = field(default_factory=list)
     samples: Samples = field(default_factory=_empty_samples)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from tcms_daq.store import RunRecord
+from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
 MAX_PLOT_POINTS = 20_000
@@ -73,7 +73,7 @@ def flatten_results(results: Mapping[str, Any], prefix: str = "") -> list[tuple[
     return rows
 
 
-def render_report(record: RunRecord, columns: Mapping[str, np.ndarray]) -> str:
+def render_report(record: StoredRun, columns: Mapping[str, np.ndarray]) -> str:
     req = record.request
     meta_rows = [
         ("run", record.id),

@@ -15,7 +15,7 @@ from tcms_daq.errors import TcmsError
 from tcms_daq.service.events import EventHub
 from tcms_daq.service.runner import RequestRejected, Runner, RunOutcome
 from tcms_daq.service.schemas import TestRequest
-from tcms_daq.store import Recorder, RunRecord, RunStore, new_run_id
+from tcms_daq.store import Recorder, RunStore, StoredRun, new_run_id
 
 
 class Conflict(TcmsError):
@@ -42,7 +42,7 @@ class TestManager:
     def active_id(self) -> str | None:
         return self._active_id
 
-    def submit(self, request: TestRequest) -> RunRecord:
+    def submit(self, request: TestRequest) -> StoredRun:
         """Validate, store as ``queued`` and start a test. Raises RequestRejected (422) or Conflict (409)."""
         plan = self.runner.plan(request)  # raises RequestRejected with a one-line reason
         with self._lock:
@@ -67,7 +67,7 @@ class TestManager:
             self._thread.start()
         return record
 
-    def abort(self, run_id: str, reason: str = "aborted by the operator") -> RunRecord:
+    def abort(self, run_id: str, reason: str = "aborted by the operator") -> StoredRun:
         record = self.store.get_run(run_id)
         if record is None:
             raise UnknownRun(f"no test with id {run_id!r}")

@@ -6,8 +6,8 @@ from tcms_daq.store.sqlite_store import (
     FINAL_STATUSES,
     RUN_STATUSES,
     STORE_FILENAME,
-    RunRecord,
     RunStore,
+    StoredRun,
     StoreError,
     new_run_id,
 )
@@ -18,7 +18,7 @@ __all__ = [
     "RUN_STATUSES",
     "STORE_FILENAME",
     "Recorder",
-    "RunRecord",
+    "StoredRun",
     "RunStore",
     "StoreError",
     "new_run_id",

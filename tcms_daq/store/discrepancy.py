@@ -13,13 +13,13 @@ from tcms_daq.discrepancy.stored import ForwardModel, resimulate
 from tcms_daq.discrepancy.workflow import DiscrepancyResult
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples, write_csv
-from tcms_daq.store.sqlite_store import STORE_FILENAME, RunRecord, RunStore
+from tcms_daq.store.sqlite_store import STORE_FILENAME, RunStore, StoredRun
 
 ModelForReducer = Callable[[str], ForwardModel]
 """Reducer name → its forward model; raises DataFormatError (one line) for an unknown reducer."""
 
 
-def recorded_reducer(record: RunRecord) -> str | None:
+def recorded_reducer(record: StoredRun) -> str | None:
     """The reducer a run was made on: from its request, else from the [sim] table of its config snapshot."""
     req = record.request or {}
     for key in ("reducer", "reducer_name"):

@@ -26,11 +26,12 @@ from typing import Any
 import numpy as np
 
 from tcms_daq.errors import TcmsError
+from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples, samples_from_columns
 
-RUN_STATUSES: tuple[str, ...] = ("queued", "running", "completed", "aborted", "failed", "interrupted")
-ACTIVE_STATUSES: tuple[str, ...] = ("queued", "running")
-FINAL_STATUSES: tuple[str, ...] = ("completed", "aborted", "failed", "interrupted")
+RUN_STATUSES: tuple[str, ...] = STORED  # tcms_daq.runstate.RunState: one vocabulary
+ACTIVE_STATUSES: tuple[str, ...] = STORED_ACTIVE
+FINAL_STATUSES: tuple[str, ...] = STORED_FINAL
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -70,7 +71,7 @@ class StoreError(TcmsError):
 
 
 @dataclass(frozen=True)
-class RunRecord:
+class StoredRun:
     """One run as read from the store. Times are UNIX seconds (UTC)."""
 
     id: str
@@ -211,7 +212,7 @@ class RunStore:
         config_snapshot: Mapping[str, Any] | None = None,
         compensator_toml: str | None = None,
         status: str = "queued",
-    ) -> RunRecord:
+    ) -> StoredRun:
         if status not in RUN_STATUSES:
             raise StoreError(f"unknown run status {status!r}")
         if not channels or len(set(channels)) != len(channels):
@@ -266,7 +267,7 @@ class RunStore:
         if cur.rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
-    def get_run(self, run_id: str) -> RunRecord | None:
+    def get_run(self, run_id: str) -> StoredRun | None:
         row = self._conn().execute(
             "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
             "config_snapshot, compensator_toml, channels, sample_count FROM runs WHERE id=?",
@@ -274,7 +275,7 @@ class RunStore:
         ).fetchone()
         return None if row is None else _record(row)
 
-    def list_runs(self, limit: int = 100, offset: int = 0) -> list[RunRecord]:
+    def list_runs(self, limit: int = 100, offset: int = 0) -> list[StoredRun]:
         rows = self._conn().execute(
             "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
             "NULL, NULL, channels, sample_count FROM runs ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
@@ -350,8 +351,8 @@ class RunStore:
         return samples_from_columns(self.read_columns(run_id))
 
 
-def _record(row: Sequence[Any]) -> RunRecord:
-    return RunRecord(
+def _record(row: Sequence[Any]) -> StoredRun:
+    return StoredRun(
         id=row[0],
         created_at=row[1],
         started_at=row[2],
