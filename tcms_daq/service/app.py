@@ -38,7 +38,7 @@ from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
 from tcms_daq.store import STORE_FILENAME, RunStore
 
 STATIC_DIR = Path(__file__).parent / "static"
-COMPENSATION_FILENAME = "compensation-active.toml"  # the last PUT /api/compensation, reloaded at start
+COMPENSATION_FILENAME = "compensation-active.toml"  # where uploads were kept before versions: imported once
 DISCREPANCY_DIRNAME = "discrepancy"  # one folder per POST /api/discrepancy analysis
 
 
@@ -82,9 +82,13 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         bench: Runner = runner if runner is not None else await asyncio.to_thread(
             BenchRunner.from_config, settings.config_path, sim_speed=settings.sim_speed
         )
+        # the compensation in use is the latest accepted version (a file from before versions is imported once)
         saved_compensation = settings.data_dir / COMPENSATION_FILENAME
-        if saved_compensation.is_file():
+        if store.compensation() is None and saved_compensation.is_file():
             await asyncio.to_thread(bench.set_compensator_toml, saved_compensation.read_text(encoding="utf-8"))
+            store.add_compensation(bench.compensator_toml(), note=f"imported from {COMPENSATION_FILENAME}")
+        elif (latest := store.compensation()) is not None:
+            await asyncio.to_thread(bench.set_compensator_toml, latest[1])
         live = LiveHub(settings.frame_rate_hz, settings.live_queue_frames, settings.live_stall_timeout_s,
                        settings.live_max_samples_per_frame)
         events = EventHub()
@@ -214,22 +218,46 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         """The compensator the next test will use, as TOML."""
         return PlainTextResponse(request.app.state.runner.compensator_toml(), media_type="application/toml")
 
-    @app.put("/api/compensation", response_class=PlainTextResponse, dependencies=auth, tags=["compensation"])
-    async def put_compensation(request: Request) -> PlainTextResponse:
-        """Replace the compensator with the TOML in the body (422 if it does not parse; 409 during a test)."""
+    async def _activate_compensation(request: Request, text: str, note: str, rollback_of: int | None = None
+                                     ) -> PlainTextResponse:
+        """Check, apply and keep a compensation as the next version (422 implausible; 409 during a test)."""
+        state = request.app.state
+        if state.manager.active_id is not None:
+            raise Conflict(f"test {state.manager.active_id} is running; change the compensation after it")
+        await asyncio.to_thread(state.runner.set_compensator_toml, text)
+        applied = state.runner.compensator_toml()
+        version = await asyncio.to_thread(state.store.add_compensation, applied, note, rollback_of)
+        state.events.publish("compensation_changed", version=version.version, note=note)
+        return PlainTextResponse(applied, media_type="application/toml",
+                                 headers={"X-Compensation-Version": str(version.version)})
+
+    @app.put("/api/compensation", response_class=PlainTextResponse, dependencies=auth, tags=["compensation"],
+             openapi_extra={"requestBody": {"required": True, "content": {
+                 "application/toml": {"schema": {"type": "string"}}, "text/plain": {"schema": {"type": "string"}}}}})
+    async def put_compensation(request: Request,
+                               note: Annotated[str, Query(max_length=200)] = "") -> PlainTextResponse:
+        """Replace the compensator with the TOML in the body, kept as a new version with ``note`` (422 if it
+        does not parse or is not plausible; 409 during a test)."""
         raw = await request.body()
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError:
             raise RequestRejected("compensation body is not UTF-8 TOML text") from None
-        state = request.app.state
-        if state.manager.active_id is not None:
-            raise Conflict(f"test {state.manager.active_id} is running; change the compensation after it")
-        await asyncio.to_thread(state.runner.set_compensator_toml, text)
-        path = state.settings.data_dir / COMPENSATION_FILENAME
-        await asyncio.to_thread(path.write_text, text, "utf-8")
-        state.events.publish("compensation_changed")
-        return PlainTextResponse(state.runner.compensator_toml(), media_type="application/toml")
+        return await _activate_compensation(request, text, note)
+
+    @app.get("/api/compensation/history", tags=["compensation"])
+    def compensation_history(request: Request) -> list[dict[str, Any]]:
+        """Every accepted compensation, newest first (the first is in use): version, time, note, sha256."""
+        return [v.summary() for v in request.app.state.store.compensation_history()]
+
+    @app.post("/api/compensation/rollback/{version}", response_class=PlainTextResponse, dependencies=auth,
+              tags=["compensation"])
+    async def rollback_compensation(version: int, request: Request) -> PlainTextResponse:
+        """Use an earlier version again (kept as a new version that names it; 404 unknown version)."""
+        found = request.app.state.store.compensation(version)
+        if found is None:
+            raise UnknownRun(f"no compensation version {version}")
+        return await _activate_compensation(request, found[1], f"rollback to version {version}", version)
 
     @app.post("/api/discrepancy", status_code=201, dependencies=auth, tags=["discrepancy"])
     async def post_discrepancy(body: DiscrepancyRequest, request: Request, response: Response) -> dict:

@@ -6,6 +6,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from tcms_daq.runstate import RunState
+
 
 class TestRequest(BaseModel):
     """``POST /api/tests``: one torsional characteristic test.
@@ -42,7 +44,7 @@ class TestAccepted(BaseModel):
 
 class TestSummary(BaseModel):
     id: str
-    status: Literal["queued", "running", "completed", "aborted", "failed", "interrupted"]
+    status: RunState  # one of the stored states: queued, running, completed, aborted, failed, interrupted
     created_at: str | None
     started_at: str | None
     finished_at: str | None
@@ -51,6 +53,8 @@ class TestSummary(BaseModel):
     error: str | None
     sample_count: int
     channels: list[str]
+    compensation_version: int | None = None  # the accepted compensation upload the run used (None: config file)
+    compensation_sha256: str | None = None  # of the compensator TOML the run used (single-run view)
 
 
 class Health(BaseModel):

@@ -56,6 +56,7 @@ class TestManager:
                 profile=plan.profile_summary,
                 config_snapshot=self.runner.config_snapshot(),
                 compensator_toml=self.runner.compensator_toml(),
+                compensation_version=(latest[0].version if (latest := self.store.compensation()) else None),
             )
             self._active_id = run_id
             self._abort = threading.Event()

@@ -12,6 +12,7 @@ opens with ``recover=False`` and leaves the active run alone.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sqlite3
 import threading
@@ -50,6 +51,14 @@ CREATE TABLE IF NOT EXISTS runs (
     sample_count INTEGER NOT NULL DEFAULT 0
 );
 CREATE INDEX IF NOT EXISTS runs_created ON runs(created_at);
+CREATE TABLE IF NOT EXISTS compensations (
+    version INTEGER PRIMARY KEY AUTOINCREMENT,
+    created_at REAL NOT NULL,
+    note TEXT NOT NULL,
+    sha256 TEXT NOT NULL,
+    toml TEXT NOT NULL,
+    rollback_of INTEGER
+);
 CREATE TABLE IF NOT EXISTS sample_batches (
     run_id TEXT NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
     batch_index INTEGER NOT NULL,
@@ -87,6 +96,7 @@ class StoredRun:
     compensator_toml: str | None
     channels: tuple[str, ...]
     sample_count: int
+    compensation_version: int | None = None  # the accepted upload in use (None: the bench config's file)
 
     def summary(self) -> dict[str, Any]:
         """The JSON view used by the REST API (everything but the large snapshot fields)."""
@@ -101,7 +111,28 @@ class StoredRun:
             "error": self.error,
             "sample_count": self.sample_count,
             "channels": list(self.channels),
+            "compensation_version": self.compensation_version,
+            "compensation_sha256": None if self.compensator_toml is None else text_sha256(self.compensator_toml),
         }
+
+
+def text_sha256(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class CompensationVersion:
+    """One accepted compensation upload (the TOML as the service applied it), or a rollback to an earlier one."""
+
+    version: int
+    created_at: float
+    note: str
+    sha256: str
+    rollback_of: int | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {"version": self.version, "created_at": _iso(self.created_at), "note": self.note,
+                "sha256": self.sha256, "rollback_of": self.rollback_of}
 
 
 def _iso(t: float | None) -> str | None:
@@ -148,6 +179,9 @@ class RunStore:
         self._closed = False
         conn = self._conn()
         conn.executescript(_SCHEMA)
+        columns = {row[1] for row in conn.execute("PRAGMA table_info(runs)")}
+        if "compensation_version" not in columns:  # a store from before compensation versions
+            conn.execute("ALTER TABLE runs ADD COLUMN compensation_version INTEGER")
         self.recovered_run_ids: list[str] = self._mark_interrupted() if recover else []
 
     # -- connections -----------------------------------------------------------------------------------------
@@ -211,6 +245,7 @@ class RunStore:
         profile: Mapping[str, Any] | None = None,
         config_snapshot: Mapping[str, Any] | None = None,
         compensator_toml: str | None = None,
+        compensation_version: int | None = None,
         status: str = "queued",
     ) -> StoredRun:
         if status not in RUN_STATUSES:
@@ -220,7 +255,7 @@ class RunStore:
         try:
             self._write(
                 "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
-                "channels) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                "channels, compensation_version) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id,
                     time.time(),
@@ -230,6 +265,7 @@ class RunStore:
                     _dumps(None if config_snapshot is None else dict(config_snapshot)),
                     compensator_toml,
                     json.dumps(list(channels)),
+                    compensation_version,
                 ),
             )
         except sqlite3.IntegrityError:
@@ -267,10 +303,34 @@ class RunStore:
         if cur.rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
+    # -- compensation versions -------------------------------------------------------------------------------
+    def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
+        """Keep an accepted compensation (the TOML as applied) as the next version; returns it."""
+        created = time.time()
+        cur = self._write("INSERT INTO compensations (created_at, note, sha256, toml, rollback_of) "
+                          "VALUES (?, ?, ?, ?, ?)", (created, note, text_sha256(toml), toml, rollback_of))
+        version = cur.lastrowid
+        assert version is not None  # an INSERT into a rowid table always has one
+        return CompensationVersion(version, created, note, text_sha256(toml), rollback_of)
+
+    def compensation_history(self, limit: int = 100) -> list[CompensationVersion]:
+        """Accepted compensations, newest first."""
+        rows = self._conn().execute("SELECT version, created_at, note, sha256, rollback_of FROM compensations "
+                                    "ORDER BY version DESC LIMIT ?", (limit,)).fetchall()
+        return [CompensationVersion(*row) for row in rows]
+
+    def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None:
+        """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
+        sql = "SELECT version, created_at, note, sha256, rollback_of, toml FROM compensations "
+        row = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
+               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1")).fetchone()
+        return None if row is None else (CompensationVersion(*row[:5]), row[5])
+
+    # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:
         row = self._conn().execute(
             "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
-            "config_snapshot, compensator_toml, channels, sample_count FROM runs WHERE id=?",
+            "config_snapshot, compensator_toml, channels, sample_count, compensation_version FROM runs WHERE id=?",
             (run_id,),
         ).fetchone()
         return None if row is None else _record(row)
@@ -278,7 +338,8 @@ class RunStore:
     def list_runs(self, limit: int = 100, offset: int = 0) -> list[StoredRun]:
         rows = self._conn().execute(
             "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
-            "NULL, NULL, channels, sample_count FROM runs ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
+            "NULL, NULL, channels, sample_count, compensation_version FROM runs ORDER BY created_at DESC, id DESC "
+            "LIMIT ? OFFSET ?",
             (limit, offset),
         ).fetchall()
         return [_record(r) for r in rows]
@@ -366,4 +427,5 @@ def _record(row: Sequence[Any]) -> StoredRun:
         compensator_toml=row[10],
         channels=tuple(json.loads(row[11])),
         sample_count=row[12],
+        compensation_version=row[13],
     )
