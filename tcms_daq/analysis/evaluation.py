@@ -53,7 +53,7 @@ class Limits:
 
     def judge(self, values: dict[str, float]) -> dict[str, Any]:
         """Verdict of mean values: ``{"passed": bool, "checks": {limit_name: {...}}}``; each check carries a
-        readable ``label`` ("rigidity ≥ 235.2 N·m/arcmin: 294.0")."""
+        readable ``label`` of its limit ("rigidity ≥ 235.2 N·m/arcmin")."""
         rules = (
             ("rigidity_min_nm_per_arcmin", "rigidity_nm_per_arcmin", ">="),
             ("rigidity_max_nm_per_arcmin", "rigidity_nm_per_arcmin", "<="),
@@ -77,7 +77,7 @@ class Limits:
                 "comparison": comparison,
                 "limit": float(limit),
                 "passed": passed,
-                "label": f"{what} {sign} {float(limit):.4g} {unit}: {value:.4g} {unit}",
+                "label": f"{what} {sign} {float(limit):.4g}{'' if unit == '″' else ' '}{unit}",
             }
         return {"passed": all(c["passed"] for c in checks.values()), "checks": checks}
 

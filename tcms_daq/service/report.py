@@ -145,8 +145,7 @@ def _results_html(results: Mapping[str, Any]) -> str:
         for check in (verdict.get("checks") or {}).values():
             ok = bool(check.get("passed"))
             rows.append(
-                f"<tr class='{'pass' if ok else 'fail'}'><th>{html.escape(str(check.get('quantity')))} "
-                f"{html.escape(str(check.get('comparison')))} {_fmt(check.get('limit'))}</th>"
+                f"<tr class='{'pass' if ok else 'fail'}'><th>{html.escape(str(check.get('label') or check))}</th>"
                 f"<td>{_fmt(check.get('value'))}</td><td>{'pass' if ok else 'FAIL'}</td></tr>"
             )
         ok = bool(verdict.get("passed"))

@@ -243,7 +243,7 @@
     const verdict = res.verdict;
     if (verdict && typeof verdict === "object") {
       for (const [name, c] of Object.entries(verdict.checks || {})) {
-        rows.push([`${c.quantity} ${c.comparison} ${fmt(c.limit)}`, (c.passed ? "pass" : "FAIL") + " (" + fmt(c.value) + ")",
+        rows.push([c.label || `${c.quantity} ${c.comparison} ${fmt(c.limit)}`, (c.passed ? "pass" : "FAIL") + " (" + fmt(c.value) + ")",
           c.passed ? "pass" : "fail"]);
       }
       rows.push(["verdict", verdict.passed ? "pass" : "FAIL", verdict.passed ? "pass" : "fail"]);
