@@ -110,6 +110,9 @@ class AcquisitionLoop:
         self.loader_lock = threading.RLock()
         self._io_locks = {"angle": threading.RLock(), "torque": threading.RLock()}
         self.last_status: LoaderStatus | None = None
+        # a drive in FAULT trips only while a run has the drive (armed after its fault reset and enable); between
+        # runs the fault is shown (last_status) and the next run resets it
+        self.drive_fault_armed = True
         self._aligner = Aligner(max_wait_s=max_align_wait_s)
         self._rate = TorqueRateMonitor(self._rate_limits(self.limits))
         now = self.clock.now()
@@ -265,7 +268,7 @@ class AcquisitionLoop:
         ch.readings += 1
         ch.last_arrival_s = self.clock.now()
         self.last_status = status
-        trip = check_loader_status(status)
+        trip = check_loader_status(status) if self.drive_fault_armed else None
         if trip is not None:
             self.raise_trip(Trip(trip.interlock, trip.reason, self.clock.now()))
         return status

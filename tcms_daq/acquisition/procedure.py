@@ -261,6 +261,7 @@ class TestRun:
             if acq is None:
                 acq = AcquisitionLoop(self.bench, self.limits)
                 self._acq = acq
+            acq.drive_fault_armed = False  # until _prepare has reset a fault an earlier run left
             acq.set_limits(self.limits)
             recorder = acq.fanout.subscribe(f"recorder-{self.run_id}", maxsize=None)
             subs = [acq.fanout.subscribe_callback(cb, maxsize=self.subscriber_queue) for cb in self.subscribers]
@@ -319,6 +320,7 @@ class TestRun:
     # -- the phases ----------------------------------------------------------------------------------
     def _prepare(self, acq: AcquisitionLoop) -> None:
         opts = self.options
+        acq.drive_fault_armed = False  # a fault left by an earlier run is reset here, not tripped on
         acq.wait(opts.settle_s, abort_event=self.abort_event)
         status = acq.loader_command(self.bench.loader.status)
         if status.fault:
@@ -326,6 +328,7 @@ class TestRun:
             acq.loader_command(self.bench.loader.fault_reset)
         acq.instrument_command("torque", self.bench.torque.tare)
         acq.loader_command(self.bench.loader.enable)
+        acq.drive_fault_armed = True
         self._setpoint_nm = 0.0
         acq.wait(opts.settle_s, abort_event=self.abort_event)
 
