@@ -57,11 +57,11 @@ def _bench_config(directory: Path, rate_hz: float) -> Path:
     return path
 
 
-def _start_service(config: Path, data_dir: Path) -> tuple[subprocess.Popen, str]:
+def _start_service(config: Path, data_dir: Path, sim_speed: float = 1.0) -> tuple[subprocess.Popen, str]:
     env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(
         [sys.executable, "-m", "tcms_daq.cli", "serve", "--port", "0", "--config", str(config),
-         "--data-dir", str(data_dir), "--sim-speed", "1"],
+         "--data-dir", str(data_dir), "--sim-speed", str(sim_speed)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO,
     )
     deadline = time.monotonic() + 60

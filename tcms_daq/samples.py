@@ -159,16 +159,18 @@ def samples_from_columns(cols: Mapping[str, np.ndarray]) -> Samples:
     return Samples(cols.get("time_s", zeros), cols.get("torque_nm", zeros), cols.get("angle_arcsec", zeros), extra)
 
 
-def csv_bytes(columns: Mapping[str, np.ndarray]) -> bytes:
-    """Canonical CSV of equally long float columns, in the given order: a header row, then the shortest text
-    that reads back to the same float (``nan``, ``inf``), so a round trip is exact. The one CSV writer of the
-    project (files, exports); Arrow's C++ writer, not a Python loop per row."""
+def csv_bytes(columns: Mapping[str, np.ndarray], header: bool = True) -> bytes:
+    """Canonical CSV of equally long float columns, in the given order: a header row (unless ``header`` is
+    False: a later chunk of a streamed file), then the shortest text that reads back to the same float
+    (``nan``, ``inf``), so a round trip is exact. The one CSV writer of the project (files, exports); Arrow's
+    C++ writer, not a Python loop per row."""
     import pyarrow as pa
     import pyarrow.csv as pa_csv
 
     cols = {name: np.asarray(values, dtype=float) for name, values in columns.items()}
     buf = io.BytesIO()
-    buf.write((",".join(cols) + "\n").encode())
+    if header:
+        buf.write((",".join(cols) + "\n").encode())
     if cols and len(next(iter(cols.values()))):
         pa_csv.write_csv(pa.table(cols), buf, pa_csv.WriteOptions(include_header=False, quoting_style="none"))
     return buf.getvalue()

@@ -123,6 +123,7 @@ class FanOut:
         self._lock = threading.Lock()
         self._seq = 0
         self.callback_errors: list[str] = []
+        self._sinks: list[Callable[[Samples], Any]] = []
 
     def subscribe(self, name: str, maxsize: int | None = 64) -> Subscription:
         """A pull subscription; ``maxsize=None`` makes it lossless (unbounded)."""
@@ -153,6 +154,17 @@ class FanOut:
         sub.thread = thread
         return sub
 
+    def add_sink(self, sink: Callable[[Samples], Any]) -> None:
+        """Call ``sink(samples)`` with every data batch in the publisher's thread, without a queue: for a sink
+        that copies the batch and returns (a run's sample buffer); it must never block."""
+        with self._lock:
+            self._sinks.append(sink)
+
+    def remove_sink(self, sink: Callable[[Samples], Any]) -> None:
+        with self._lock:
+            if sink in self._sinks:
+                self._sinks.remove(sink)
+
     def unsubscribe(self, sub: Subscription) -> None:
         with self._lock:
             if sub in self._subs:
@@ -166,6 +178,12 @@ class FanOut:
         with self._lock:
             msg = DataMessage(self._next_seq(), samples)
             subs = list(self._subs)
+            sinks = list(self._sinks)
+        for sink in sinks:
+            try:
+                sink(samples)
+            except Exception as exc:  # recorded like a callback subscriber's failure; acquisition goes on
+                self.callback_errors.append(f"sink {getattr(sink, '__qualname__', sink)}: {type(exc).__name__}: {exc}")
         for sub in subs:
             sub._put(msg)
         return msg

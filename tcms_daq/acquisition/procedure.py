@@ -31,7 +31,7 @@ import numpy as np
 
 from drivers.base import DeviceFault, InstrumentError, LoaderStatus
 from tcms_daq.acquisition.bench import Bench
-from tcms_daq.acquisition.fanout import DataMessage, Message
+from tcms_daq.acquisition.fanout import Message
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip
 from tcms_daq.acquisition.loop import AbortRequested, AcquisitionLoop, InterlockTripped
 from tcms_daq.acquisition.record import (
@@ -43,7 +43,9 @@ from tcms_daq.acquisition.record import (
     PREPARING,
     TRANSITIONS,
     RunRecord,
+    SampleBuffer,
     StateChange,
+    empty_samples,
 )
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment
@@ -69,7 +71,9 @@ class ProcedureOptions:
     ramp_down_slope_nm_per_s: the least slope of the ramp to zero on exit (None: the profile's steepest slope);
     ramp_down_timeout_s: extra time allowed for the ramp to zero before disabling anyway;
     max_stop_s: every exit disables the loader within this time, whatever the profile: the ramp from the
-    *measured* torque is steepened so that it takes at most RAMP_SHARE_OF_STOP of it.
+    *measured* torque is steepened so that it takes at most RAMP_SHARE_OF_STOP of it;
+    kept_columns: the sample columns the run record keeps in memory (None: every column; the service keeps the
+    canonical three, since its store records the channels as they arrive).
     """
 
     settle_s: float = 0.2
@@ -78,6 +82,7 @@ class ProcedureOptions:
     ramp_down_slope_nm_per_s: float | None = None
     ramp_down_timeout_s: float = 3.0
     max_stop_s: float = 5.0
+    kept_columns: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_stop_s) and self.max_stop_s > 0):
@@ -252,7 +257,7 @@ class TestRun:
         own_acq = acq is None
         own_connect = False
         subs = []
-        recorder = None
+        buffer: SampleBuffer | None = None
         try:
             self._transition(PREPARING)
             if not self.bench.connected:
@@ -263,7 +268,8 @@ class TestRun:
                 self._acq = acq
             acq.drive_fault_armed = False  # until _prepare has reset a fault an earlier run left
             acq.set_limits(self.limits)
-            recorder = acq.fanout.subscribe(f"recorder-{self.run_id}", maxsize=None)
+            buffer = SampleBuffer(self.options.kept_columns)  # every batch, copied in by the acquisition thread: the run's samples
+            acq.fanout.add_sink(buffer.append)
             subs = [acq.fanout.subscribe_callback(cb, maxsize=self.subscriber_queue) for cb in self.subscribers]
             self._publish_state()
             acq.start()
@@ -275,37 +281,37 @@ class TestRun:
             self.record.loading_window_s = (t_start, acq.clock.now())
             self._safe_stop(acq)
             self._transition(EVALUATING)
-            self._collect(recorder)
+            self._collect(buffer)
             if self.evaluate is not None:
                 self.record.evaluation = self.evaluate(self.record.evaluated_samples())
             self._transition(COMPLETED)
         except (InterlockTripped, AbortRequested) as exc:
-            self._finish_early(acq, recorder, ABORTED, exc)
+            self._finish_early(acq, buffer, ABORTED, exc)
         except InstrumentError as exc:  # a command failed: treat like the matching interlock
             if acq is None:  # could not even connect
-                self._finish_early(acq, recorder, FAILED, exc)
+                self._finish_early(acq, buffer, FAILED, exc)
                 return self.record
             # loader commands already tripped the matching interlock (loader_command); others name theirs here
             kind = "device_fault" if isinstance(exc, DeviceFault) else "lost_instrument"
             trip = Trip(kind, f"instrument error: {exc}", acq.clock.now())
             acq.raise_trip(trip)
-            self._finish_early(acq, recorder, ABORTED, InterlockTripped(acq.trip or trip))
+            self._finish_early(acq, buffer, ABORTED, InterlockTripped(acq.trip or trip))
         except Exception as exc:
-            self._finish_early(acq, recorder, FAILED, exc)
+            self._finish_early(acq, buffer, FAILED, exc)
         finally:
             try:
                 if acq is not None:
                     self._safe_stop(acq)
                     if own_acq:
                         acq.stop()
-                    self._collect(recorder)
+                    if buffer is not None:
+                        acq.fanout.remove_sink(buffer.append)
+                    self._collect(buffer)
                     self.record.acquisition = {
                         "channels": acq.channel_stats(),
                         "subscribers": {s.name: {"dropped": s.dropped, "delivered": s.delivered} for s in subs},
-                        "recorder_max_backlog": recorder.max_backlog if recorder else 0,
+                        "recorded_samples": len(buffer) if buffer is not None else 0,
                     }
-                    if recorder is not None:
-                        recorder.close()
                     for s in subs:
                         s.close()
                     if own_acq:
@@ -400,7 +406,8 @@ class TestRun:
             except Exception as exc:
                 self.record.loader_final = {"state": "unknown", "error": str(exc)}
 
-    def _finish_early(self, acq: AcquisitionLoop | None, recorder, state: RunState, exc: BaseException) -> None:
+    def _finish_early(self, acq: AcquisitionLoop | None, buffer: SampleBuffer | None, state: RunState,
+                      exc: BaseException) -> None:
         if isinstance(exc, InterlockTripped):
             reason = exc.trip.reason
             self.record.trip = exc.trip.to_dict()
@@ -418,17 +425,14 @@ class TestRun:
                 self._safe_stop(acq)
             except Exception as stop_exc:  # pragma: no cover - _safe_stop records its own failures
                 self.record.notes.append(f"safe stop: {stop_exc}")
-            self._collect(recorder)
+            self._collect(buffer)
         self._transition(state, reason)
 
-    def _collect(self, recorder) -> None:
-        if recorder is None:
+    def _collect(self, buffer: SampleBuffer | None) -> None:
+        if buffer is None or not len(buffer):
             return
-        parts = [m.samples for m in recorder.drain() if isinstance(m, DataMessage)]
-        if parts:
-            if len(self.record.samples):
-                parts.insert(0, self.record.samples)
-            self.record.samples = Samples.concat(parts)
+        self.record.samples = empty_samples()  # let the buffer join its chunks in place (no second copy)
+        self.record.samples = buffer.to_samples()
         self._tag_loops()
 
     def _tag_loops(self) -> None:

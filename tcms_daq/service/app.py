@@ -18,7 +18,14 @@ from urllib.parse import urlsplit
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse, Response
+from fastapi.responses import (
+    FileResponse,
+    HTMLResponse,
+    JSONResponse,
+    PlainTextResponse,
+    Response,
+    StreamingResponse,
+)
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -197,14 +204,15 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
 
     @app.get("/api/tests/{run_id}/samples", tags=["tests"])
     def get_samples(
-        run_id: str, request: Request, format: Annotated[str, Query(pattern="^(csv|json|parquet|mdf4)$")] = "csv"
+        run_id: str, request: Request,
+        format: Annotated[exports.ExportFormat, Query(description="file format of the export")] = exports.ExportFormat.CSV
     ) -> Response:
         record = _record(request, run_id)
-        columns = request.app.state.store.read_columns(record.id)
+        store = request.app.state.store
         exporter, media_type, ext = exports.EXPORTERS[format]
-        body = exporter(columns, record.id)
-        return Response(
-            body, media_type=media_type,
+        chunks = exports.ChunkSource(lambda: store.iter_columns(record.id))
+        return StreamingResponse(
+            exporter(chunks, list(record.channels), record.id), media_type=media_type,
             headers={"Content-Disposition": f'attachment; filename="tcms-{record.id}.{ext}"'},
         )
 

@@ -294,7 +294,7 @@ class BenchRunner:
 
     def execute(self, plan: TestPlan, *, run_id: str, record: BatchSink, on_phase: Callable[..., None],
                 abort: threading.Event) -> RunOutcome:
-        from tcms_daq.acquisition import DataMessage, EventMessage, ProfileRejected, TestRun
+        from tcms_daq.acquisition import DataMessage, EventMessage, ProcedureOptions, ProfileRejected, TestRun
 
         payload: _Plan = plan.payload
         if self.acq is None:
@@ -320,6 +320,8 @@ class BenchRunner:
                     reducer_torque_limit_nm=1.1 * payload.reducer.rated_torque_nm,
                     evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
                     run_id=run_id, profile_info={"reducer": payload.reducer.name},
+                    # the store records every channel as it arrives: the run keeps in memory what it evaluates
+                    options=ProcedureOptions(kept_columns=()),
                 )
                 result = run.run()
             except ProfileRejected as exc:

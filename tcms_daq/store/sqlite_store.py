@@ -18,7 +18,7 @@ import sqlite3
 import threading
 import time
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -396,17 +396,35 @@ class RunStore:
             raise StoreError(f"unknown run {run_id!r}")
         return tuple(json.loads(row[0]))
 
+    def iter_columns(self, run_id: str, chunk_samples: int = 65_536) -> Iterator[dict[str, np.ndarray]]:
+        """A run's samples in consecutive chunks of about ``chunk_samples`` (whole stored batches), as float64
+        columns by channel name: for exports that stream. Each chunk is its own query, so the iterator may be
+        advanced from different threads."""
+        channels = self._channels(run_id)
+        next_index = 0
+        while True:
+            rows = self._conn().execute(
+                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id=? AND batch_index >= ? "
+                "ORDER BY batch_index LIMIT ?", (run_id, next_index, max(1, chunk_samples // 64)),
+            ).fetchall()
+            if not rows:
+                return
+            blocks = []
+            for index, n, blob in rows:
+                blocks.append(np.frombuffer(blob, dtype=_LE_F64).reshape(len(channels), n))
+                next_index = index + 1
+                if sum(b.shape[1] for b in blocks) >= chunk_samples:
+                    break
+            data = np.concatenate(blocks, axis=1)
+            yield {name: data[i].astype(float, copy=True) for i, name in enumerate(channels)}
+
     def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
         """All samples of a run as float64 columns by channel name (empty arrays when none were recorded)."""
         channels = self._channels(run_id)
-        blocks = [
-            np.frombuffer(blob, dtype=_LE_F64).reshape(len(channels), n)
-            for n, blob in self._conn().execute(
-                "SELECT n_samples, data FROM sample_batches WHERE run_id=? ORDER BY batch_index", (run_id,)
-            )
-        ]
-        data = np.concatenate(blocks, axis=1) if blocks else np.empty((len(channels), 0))
-        return {name: data[i].astype(float, copy=True) for i, name in enumerate(channels)}
+        chunks = list(self.iter_columns(run_id))
+        if not chunks:
+            return {name: np.empty(0) for name in channels}
+        return {name: np.concatenate([c[name] for c in chunks]) for name in channels}
 
     def read_samples(self, run_id: str) -> Samples:
         return samples_from_columns(self.read_columns(run_id))
