@@ -16,6 +16,7 @@ from typing import Annotated, Any
 from urllib.parse import urlsplit
 
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
+from fastapi import Path as PathParam
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import (
@@ -184,7 +185,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
 
     @app.get("/api/tests", response_model=list[TestSummary], tags=["tests"])
     def list_tests(
-        request: Request, limit: Annotated[int, Query(ge=1, le=1000)] = 100, offset: Annotated[int, Query(ge=0)] = 0
+        request: Request, limit: Annotated[int, Query(ge=1, le=1000)] = 100, offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0
     ) -> list[dict]:
         return [r.summary() for r in request.app.state.store.list_runs(limit, offset)]
 
@@ -260,7 +261,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
 
     @app.post("/api/compensation/rollback/{version}", response_class=PlainTextResponse, dependencies=auth,
               tags=["compensation"])
-    async def rollback_compensation(version: int, request: Request) -> PlainTextResponse:
+    async def rollback_compensation(version: Annotated[int, PathParam(ge=1, le=2**31 - 1)], request: Request) -> PlainTextResponse:
         """Use an earlier version again (kept as a new version that names it; 404 unknown version)."""
         found = request.app.state.store.compensation(version)
         if found is None:
