@@ -61,10 +61,25 @@ class _QuietStreamSplits(logging.Filter):
 logging.getLogger("can.interfaces.socketcand.socketcand").addFilter(_QuietStreamSplits())
 
 DEVICE_TYPE_402 = 0x0192  # low word of 0x1000
+LINK_ERROR_BACKOFF_S = 0.1  # the receive thread's pause after a failed bus read
 TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
 TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
 RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
 SETTING_OBJECTS = {"max_torque": 0x6072, "torque_slope": 0x6087, "mode": 0x6060}  # CiA402Loader settings
+
+
+class _LinkErrorListener(can.Listener):
+    """Hands the receive thread's read errors to the driver (python-can calls ``on_error`` of its listeners and
+    keeps the thread alive when one handled it)."""
+
+    def __init__(self, on_error: Callable[[Exception], None]):
+        self._handle = on_error
+
+    def on_message_received(self, msg: can.Message) -> None:
+        pass
+
+    def on_error(self, exc: Exception) -> None:
+        self._handle(exc)
 
 
 #: python-can interfaces of real CAN adapters a loader URL may name (``pcan://PCAN_USBBUS1``); network-based
@@ -196,6 +211,8 @@ class CiA402Canopen(CiA402Loader):
             options.setdefault("tcp_tune", True)
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.1  # receive-thread poll period: bounds how long close() waits for it
+        # without a listener's on_error, python-can's receive thread dies with the CanError of a lost link
+        network.listeners.append(_LinkErrorListener(self._on_link_error))  # type: ignore[arg-type]  # any can.Listener
         try:
             network.connect(**options)
         except (can.CanError, OSError, TimeoutError, ValueError) as exc:
@@ -326,6 +343,18 @@ class CiA402Canopen(CiA402Loader):
         return node
 
     # -- callbacks (python-can notifier thread) --------------------------------------------------------
+
+    def _on_link_error(self, exc: Exception) -> None:
+        """The receive thread's bus read failed: the link is lost now (the next command reconnects, bounded);
+        logged once per link, and the thread is slowed down instead of spinning on a dead bus."""
+        with self._cond:
+            first = self._last_heartbeat is not None
+            self._last_heartbeat = None
+            self._cond.notify_all()
+        if first:
+            log.warning("%s: CAN link lost (%s: %s); reconnecting on the next command", self.name,
+                        type(exc).__name__, exc)
+        time.sleep(LINK_ERROR_BACKOFF_S)
 
     def _on_heartbeat(self, state: int) -> None:
         with self._cond:

@@ -15,8 +15,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 
 COMMON_FAULTS = ("mute", "garbage", "partial")
+
+log = logging.getLogger(__name__)
 
 
 class TcpServer:
@@ -74,6 +77,9 @@ class TcpServer:
             await self.serve_connection(reader, writer)
         except (ConnectionError, asyncio.IncompleteReadError):
             pass
+        except Exception as exc:  # noqa: BLE001 - one bad client must not end the server: log, drop it
+            log.warning("%s on port %s: connection dropped after %s: %s", self.name, self.port,
+                        type(exc).__name__, exc)
         finally:
             self._writers.discard(writer)
             writer.close()

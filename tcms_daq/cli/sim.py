@@ -129,6 +129,9 @@ def _serve(args: argparse.Namespace) -> int:
     return 0
 
 
+CONTROL_LINE_LIMIT = 2**16  # asyncio's default stream limit: one JSON request per line stays far below it
+
+
 class ControlServer(TcpServer):
     """Line-based JSON control channel (fault injection, restarts, status) on the simulators' event loop."""
 
@@ -139,7 +142,17 @@ class ControlServer(TcpServer):
         self.sims = sims
 
     async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        while line := await reader.readline():
+        while True:
+            try:
+                line = await reader.readline()
+            except ValueError:  # asyncio's LimitOverrunError, wrapped: a line beyond the stream limit
+                reply = {"ok": False, "error": f"request line longer than {CONTROL_LINE_LIMIT} bytes: "
+                         "connection closed"}
+                writer.write((json.dumps(reply) + "\n").encode())
+                await writer.drain()
+                return
+            if not line:
+                return
             try:
                 reply = await asyncio.to_thread(self.execute, json.loads(line))
             except Exception as exc:  # noqa: BLE001 - every failure is answered, the channel stays up

@@ -3,7 +3,9 @@ loopback socketcand hub), timeout, malformed PDO, reconnect after a drive restar
 
 from __future__ import annotations
 
+import logging
 import socket
+import threading
 import time
 
 import can
@@ -273,3 +275,50 @@ def test_clean_close_disarms_the_drive_watchdog(can_sims):
         drv.write_controlword(cw)
     time.sleep(0.5)  # longer than the consumer time (300 ms)
     assert drv.error_code == 0 and drv.state.label == "OPERATION ENABLED"
+
+
+
+@pytest.fixture
+def thread_deaths(monkeypatch) -> list[str]:
+    died: list[str] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: died.append(f"{args.thread}: {args.exc_value!r}"))
+    return died
+
+
+def test_a_lost_socketcand_link_kills_no_thread(make_sims, thread_deaths):
+    """The hub goes away and comes back: no thread dies, the driver reconnects (issue 10 item 8)."""
+    sims = make_sims(instruments=("canopen",), can_interface="socketcand", heartbeat_ms=50)
+    sims.physics.start(speed=1.0)
+    url = f"socketcand://127.0.0.1:{sims.ports['socketcand']}/{sims.options.can_channel}"
+    with CiA402Canopen(url, **FAST) as drive:
+        drive.enable()
+        sims.stop_server("socketcand")
+        time.sleep(0.8)
+        with pytest.raises(Disconnected):
+            drive.status()
+        sims.start_server("socketcand")
+        assert wait_until(lambda: _status_or_none(drive) is not None, 3.0)
+    assert thread_deaths == []
+
+
+def test_bus_read_errors_keep_the_receive_thread_alive(can_sims, thread_deaths, caplog):
+    """python-can's receive thread gets a CanError from every read (a failing adapter): it stays alive and
+    slowed down, the driver logs the loss once and the next command reconnects on a new bus."""
+    with caplog.at_level(logging.WARNING, logger="drivers.cia402_canopen"), _driver(can_sims) as drive:
+        drive.enable()
+        bus = drive.network.bus
+        reads = []
+
+        def failing_recv(timeout=None):
+            reads.append(time.monotonic())
+            raise can.CanOperationError("adapter gone")
+
+        bus.recv = failing_recv
+        assert wait_until(lambda: len(reads) >= 3, 3.0)
+        assert not drive._heartbeat_alive()  # lost at once, not after the heartbeat timeout
+        assert drive.status().state == "OPERATION ENABLED"  # the bounded reconnect opened a new bus
+        assert drive.network.bus is not bus
+    assert thread_deaths == []
+    lost = [r.getMessage() for r in caplog.records if "CAN link lost" in r.getMessage()]
+    assert len(lost) == 1 and "adapter gone" in lost[0]
+    assert (reads[-1] - reads[0]) / max(1, len(reads) - 1) >= 0.05  # throttled, not a busy loop

@@ -139,3 +139,14 @@ def test_drivers_across_processes(served):
     with CiA402Modbus(urls["loader_modbus"]) as loader:
         assert loader.status().state == "SWITCH ON DISABLED"
         assert _control(served, cmd="status")["drive"]["state"] == "SWITCH ON DISABLED"
+
+
+def test_control_channel_survives_an_overlong_line(served):
+    """A line beyond the stream limit is answered with an error and that connection closed; the channel goes
+    on serving (issue 10 item 8: it raised an uncaught LimitOverrunError)."""
+    with socket.create_connection(("127.0.0.1", served["ports"]["control"]), timeout=5) as sock:
+        sock.sendall(b'{"cmd": "status", "pad": "' + b"x" * 200_000 + b'"}\n')
+        reply = json.loads(sock.makefile().readline())
+    assert reply["ok"] is False and "longer than" in reply["error"]
+    assert _control(served, cmd="status")["ok"] is True
+    assert _control(served, cmd="nonsense")["error"].startswith("ValueError: unknown command")
