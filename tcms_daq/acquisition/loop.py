@@ -18,6 +18,7 @@ and judges the interlocks. The first trip is kept in :attr:`trip`; :meth:`wait` 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -47,6 +48,9 @@ from tcms_daq.acquisition.interlocks import (
 )
 from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
+
+log = logging.getLogger(__name__)
+WORKER_RESTART_S = 0.5  # pause before a failed acquisition worker starts again (real time)
 
 
 class InterlockTripped(TcmsError):
@@ -146,7 +150,23 @@ class AcquisitionLoop:
         return self
 
     def _spawn(self, target: Callable, *args: Any) -> None:
-        t = threading.Thread(target=target, args=args, name=f"tcms-acq-{target.__name__}-{args}", daemon=True)
+        name = f"tcms-acq-{target.__name__}-{args}"
+
+        def guarded() -> None:
+            """A worker that fails on a bug ends the run with the reason (a trip), is logged with its traceback
+            and starts again, so monitoring goes on for the next test; it never dies silently."""
+            while not self._stop.is_set():
+                try:
+                    target(*args)
+                    return
+                except Exception as exc:
+                    log.exception("%s failed; restarting it in %g s", name, WORKER_RESTART_S)
+                    self.raise_trip(Trip("internal_error", f"acquisition thread {target.__name__.strip('_')} "
+                                         f"failed: {type(exc).__name__}: {exc}", self.clock.now()))
+                    if self._stop.wait(WORKER_RESTART_S):
+                        return
+
+        t = threading.Thread(target=guarded, name=name, daemon=True)
         t.start()
         self._threads.append(t)
 

@@ -81,8 +81,10 @@ def virtual_config(max_torque_nm: float = 2000.0) -> dict:
 
 @pytest.fixture
 def make_bench():
-    def make(seed: int = 0, max_torque_nm: float = 2000.0, **physics_kw):
-        return compose_bench(virtual_config(max_torque_nm), physics_factory=lambda _cfg: LinearPhysics(seed, **physics_kw))
+    def make(seed: int = 0, max_torque_nm: float = 2000.0, speed: float | None = None, **physics_kw):
+        """speed: None runs the simulated clock as fast as possible (stepped); a number paces it (threads)."""
+        return compose_bench(virtual_config(max_torque_nm), speed=speed,
+                             physics_factory=lambda _cfg: LinearPhysics(seed, **physics_kw))
 
     return make
 

@@ -6,6 +6,7 @@ through the simulator's control port (EMCY drive fault, heartbeat loss) abort th
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import subprocess
 import sys
@@ -192,3 +193,40 @@ def test_tcms_run_without_the_simulators_is_a_one_line_error(tmp_path, capsys):
     assert main(["run", "--config", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("tcms: error: test failed: ND 287: cannot open") and err.count("\n") == 1
+
+
+def test_a_failing_worker_thread_on_real_time_aborts_and_restarts(sim_serve, tmp_path, caplog):
+    """Real time over the protocols: the coordinator thread hits a bug once (compensation raising). The run
+    aborts with the worker's error as the reason, the traceback is logged, the worker starts again, and the
+    next test on the same acquisition completes (issue 10 item 8: no silent thread deaths)."""
+    from tcms_daq.acquisition import AcquisitionLoop
+    from tcms_daq.config import load_bench_config
+
+    path = sim_serve.config_file(tmp_path, "modbus")
+    bench = compose_bench(load_bench_config(path), config_dir=path.parent, speed=SPEED)
+    bench.connect()
+    real_compensate = bench.compensate
+    calls = {"n": 0}
+
+    def flaky(raw, torque, t):
+        calls["n"] += 1
+        if calls["n"] == 60:
+            raise FloatingPointError("compensation blew up")
+        return real_compensate(raw, torque, t)
+
+    bench.compensate = flaky
+    profile = continuous_profile(500.0, 1000.0, cycles=1, conditioning_loops=1, tip_dwell_s=0.1)
+    acq = AcquisitionLoop(bench)
+    try:
+        with caplog.at_level(logging.ERROR, logger="tcms_daq.acquisition.loop"):
+            first = TestRun(bench, profile, acquisition=acq).run()
+        assert first.state == "aborted", first.reason
+        assert first.trip["interlock"] == "internal_error"
+        assert "coordinator failed: FloatingPointError: compensation blew up" in first.reason
+        assert any("failed; restarting" in r.getMessage() and r.exc_info for r in caplog.records)
+        assert first.loader_final["state"] == "SWITCH ON DISABLED"
+        second = TestRun(bench, profile, acquisition=acq).run()
+        assert second.state == "completed", second.reason
+    finally:
+        acq.close()
+        bench.close()

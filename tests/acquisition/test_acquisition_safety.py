@@ -12,7 +12,7 @@ from tcms_daq.acquisition.procedure import ProcedureOptions, stop_ramp
 from tcms_daq.cli import main
 from tcms_daq.config.models import BenchSection, TestProfile
 from tcms_daq.procedure import check_test_bounds
-from tcms_daq.procedure.profiles import Segment
+from tcms_daq.procedure.profiles import Segment, continuous_profile
 
 ABORT_AT_S = 2.0
 
@@ -92,3 +92,33 @@ def test_the_cli_refuses_an_absurd_rate_with_one_line(capsys):
     assert main(["run", "--rate", "0.001"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("tcms: error: rate_nm_per_s 0.001 N·m/s is below") and "\n" not in err
+
+
+
+def test_a_bug_in_the_acquisition_path_ends_the_run_with_the_reason(make_bench):
+    """Compensation raising once (a bug) on the stepped clock: the run fails with the error as its reason and
+    the next test on the same acquisition completes. (Real time, with worker threads: test_acquisition_e2e.)"""
+    from tcms_daq.acquisition import AcquisitionLoop
+
+    bench = make_bench()
+    bench.connect()
+    real_compensate = bench.compensate
+    calls = {"n": 0}
+
+    def flaky(raw, torque, t):
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise FloatingPointError("compensation blew up")
+        return real_compensate(raw, torque, t)
+
+    bench.compensate = flaky
+    profile = continuous_profile(300.0, 600.0, cycles=1, conditioning_loops=1, tip_dwell_s=0.05)
+    acq = AcquisitionLoop(bench)
+    try:
+        first = TestRun(bench, profile, acquisition=acq).run()
+        assert first.state == "failed" and "FloatingPointError: compensation blew up" in first.reason
+        second = TestRun(bench, profile, acquisition=acq).run()
+        assert second.state == "completed", second.reason
+    finally:
+        acq.close()
+        bench.close()
