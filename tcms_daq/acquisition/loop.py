@@ -50,6 +50,8 @@ from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
 
 log = logging.getLogger(__name__)
+# CiA 402 states in which the drive can apply torque (a loader left in one after a run is disabled)
+POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
 WORKER_RESTART_S = 0.5  # pause before a failed acquisition worker starts again (real time)
 
 
@@ -117,6 +119,8 @@ class AcquisitionLoop:
         # a drive in FAULT trips only while a run has the drive (armed after its fault reset and enable); between
         # runs the fault is shown (last_status) and the next run resets it
         self.drive_fault_armed = True
+        # a run ended without confirming the loader disabled: the status poll disables it when it answers again
+        self.disable_pending = False
         self._aligner = Aligner(max_wait_s=max_align_wait_s)
         self._rate = TorqueRateMonitor(self._rate_limits(self.limits))
         now = self.clock.now()
@@ -275,6 +279,8 @@ class AcquisitionLoop:
         ch.busy_since = self.clock.now()  # waiting for the lock counts: the loader is busy with a command
         try:
             status = self.bench.loader.status()
+            if self.disable_pending:
+                status = self._disable_left_enabled(status)
         except InstrumentError as exc:
             self._on_error(ch, exc)
             return None
@@ -291,6 +297,17 @@ class AcquisitionLoop:
         trip = check_loader_status(status) if self.drive_fault_armed else None
         if trip is not None:
             self.raise_trip(Trip(trip.interlock, trip.reason, self.clock.now()))
+        return status
+
+    def _disable_left_enabled(self, status: LoaderStatus) -> LoaderStatus:
+        """A run ended without confirming the loader disabled (its link was down): now that the loader answers
+        again, disable it if it is still powered, and read it again. Called under the loader lock."""
+        if status.state in POWERED_STATES:
+            self.bench.loader.disable()
+            log.warning("%s answered again after a run that could not disable it (%s): disabled now",
+                        self.bench.loader.name, status.state)
+            status = self.bench.loader.status()
+        self.disable_pending = False
         return status
 
     def _status_poller(self) -> None:

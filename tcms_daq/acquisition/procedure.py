@@ -327,6 +327,7 @@ class TestRun:
     def _prepare(self, acq: AcquisitionLoop) -> None:
         opts = self.options
         acq.drive_fault_armed = False  # a fault left by an earlier run is reset here, not tripped on
+        acq.disable_pending = False  # this run takes the loader over
         acq.wait(opts.settle_s, abort_event=self.abort_event)
         status = acq.loader_command(self.bench.loader.status)
         if status.fault:
@@ -394,7 +395,8 @@ class TestRun:
             try:
                 acq.loader_command(loader.disable)
             except Exception as exc:
-                self.record.notes.append(f"disable failed: {exc}")
+                self.record.notes.append(f"disable failed: {exc}; the loader is disabled when it answers again")
+                acq.disable_pending = True
             acq.wait(self.options.settle_s, check_trips=False)
             if loader_lost:
                 self.record.loader_final = {"state": "unknown", "error": "loader lost"}

@@ -1,6 +1,8 @@
 """The fault table on the real-time protocol bench (issue 10): `tcms sim serve` in one process, `tcms serve` over
 the protocols in another. For each fault the simulators can inject mid-test: the test ends aborted with the
-reason, the drive is left disabled, the fault is cleared, and the next test completes — no restart."""
+reason, the drive is left disabled, the fault is cleared, and the next test completes — no restart of the
+service. The loader is the CANopen drive, or the Modbus TCP drive for the Modbus rows; the last row kills the
+simulator process mid-test and starts it again on the same ports."""
 
 from __future__ import annotations
 
@@ -9,24 +11,34 @@ import socket
 import subprocess
 import sys
 import time
+import tomllib
+from pathlib import Path
 
 import httpx
 import pytest
+import tomli_w
 from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
+
+from tcms_daq.config.loader import resolve_config_path
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 400, "cycles": 1, "rate_nm_per_s": 400}
 FAULT_AFTER_S = 1.0  # real seconds into the test (speed 4: well inside the loading)
 
-# (instrument, fault, what the abort reason names)
+# (loader, instrument, fault, what the abort reason names)
 FAULTS = [
-    ("nd287", "encoder_fault", "angle instrument fault"),
-    ("nd287", "garbage", "lost angle instrument"),
-    ("nd287", "mute", "angle"),
-    ("aed", "garbage", "lost torque instrument"),
-    ("aed", "sensor_fault", "torque instrument fault"),
-    ("aed", "mute", "torque"),
-    ("drive", 0x2310, "drive fault 0x2310"),
-    ("canopen", "heartbeat_loss", "loader"),
+    ("canopen", "nd287", "encoder_fault", "angle instrument fault"),
+    ("canopen", "nd287", "garbage", "lost angle instrument"),
+    ("canopen", "nd287", "partial", "angle"),
+    ("canopen", "nd287", "mute", "angle"),
+    ("canopen", "aed", "garbage", "lost torque instrument"),
+    ("canopen", "aed", "partial", "torque"),
+    ("canopen", "aed", "sensor_fault", "torque instrument fault"),
+    ("canopen", "aed", "mute", "torque"),
+    ("canopen", "drive", 0x2310, "drive fault 0x2310"),
+    ("canopen", "canopen", "heartbeat_loss", "loader"),
+    ("canopen", "canopen", "mute", "loader"),
+    ("modbus", "modbus", "mute", "loader"),
+    ("modbus", "drive", 0x2310, "drive fault 0x2310"),
 ]
 
 
@@ -36,31 +48,83 @@ def _control(port: int, **request) -> dict:
         return json.loads(sock.makefile().readline())
 
 
-@pytest.fixture(scope="module")
-def bench(tmp_path_factory):
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _start_sim(ports: dict[str, int]) -> tuple[subprocess.Popen, dict]:
     sim = subprocess.Popen([sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", "bench-loopback.toml",
-                            "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0",
-                            "--control-port", "0", "--speed", "4"],
+                            *(a for name, port in ports.items() for a in (f"--{name}-port", str(port))),
+                            "--speed", "4"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    service = None
-    try:
-        info = json.loads(sim.stdout.readline() or "{}")
-        assert "urls" in info, sim.stderr.read()
+    info = json.loads(sim.stdout.readline() or "{}")
+    assert "urls" in info, sim.stderr.read()
+    return sim, info
+
+
+def _config_with_loader(directory: Path, loader: str, urls: dict[str, str]) -> Path:
+    """The packaged loopback config with its loader table replaced by the CANopen or the Modbus TCP drive."""
+    packaged = resolve_config_path("bench-loopback.toml")
+    cfg = tomllib.loads(packaged.read_text(encoding="utf-8"))
+    for key in ("compensation", "reducers"):
+        cfg["bench"][key] = str(packaged.parent / cfg["bench"][key])
+    cfg["sim"]["geometry"] = str(packaged.parent / cfg["sim"]["geometry"])
+    cfg["instruments"]["loader"] = ({**cfg["instruments"]["loader"], "url": urls["loader_canopen"]}
+                                    if loader == "canopen" else
+                                    {"driver": "cia402-modbus", "url": urls["loader_modbus"]})
+    path = directory / f"bench-{loader}.toml"
+    path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
+    return path
+
+
+class Bench:
+    """`tcms sim serve` on fixed loopback ports and `tcms serve` over its protocols; the simulator can be killed
+    and started again on the same ports."""
+
+    def __init__(self, data_dir, loader: str):
+        self.ports = {name: _free_port() for name in ("nd287", "aed", "modbus", "socketcand", "control")}
+        self.sim, info = _start_sim(self.ports)
         urls = info["urls"]
-        service, base = start_serve_process([
-            "--config", "bench-loopback.toml", "--port", "0", "--sim-speed", "4",
-            "--data-dir", str(tmp_path_factory.mktemp("data")),
-            "--set", f"instruments.angle.url={urls['angle']}", "--set", f"instruments.torque.url={urls['torque']}",
-            "--set", f"instruments.loader.url={urls['loader_canopen']}"])
-        client = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
-        wait_for(lambda: client.get("/api/health").status_code == 200, timeout_s=30)
-        yield client, info["ports"]["control"]
-        client.close()
-    finally:
-        if service is not None:
-            stop_process(service)
-        sim.terminate()
-        sim.wait(15)
+        config = _config_with_loader(data_dir, loader, urls)
+        self.service, base = start_serve_process([
+            "--config", str(config), "--port", "0", "--sim-speed", "4", "--data-dir", str(data_dir),
+            "--set", f"instruments.angle.url={urls['angle']}", "--set", f"instruments.torque.url={urls['torque']}"])
+        self.client = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
+        wait_for(lambda: self.client.get("/api/health").status_code == 200, timeout_s=30)
+
+    @property
+    def control(self) -> int:
+        return self.ports["control"]
+
+    def kill_sim(self) -> None:
+        self.sim.kill()
+        self.sim.wait(15)
+
+    def restart_sim(self) -> None:
+        self.sim, _ = _start_sim(self.ports)
+
+    def close(self) -> None:
+        self.client.close()
+        stop_process(self.service)
+        if self.sim.poll() is None:
+            self.sim.terminate()
+            self.sim.wait(15)
+
+
+@pytest.fixture(scope="module")
+def benches(tmp_path_factory):
+    made: dict[str, Bench] = {}
+
+    def get(loader: str) -> Bench:
+        if loader not in made:
+            made[loader] = Bench(tmp_path_factory.mktemp(f"data-{loader}"), loader)
+        return made[loader]
+
+    yield get
+    for bench in made.values():
+        bench.close()
 
 
 def _run(client: httpx.Client, on_the_way=None) -> dict:
@@ -78,19 +142,45 @@ def _run(client: httpx.Client, on_the_way=None) -> dict:
         time.sleep(0.1)
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(600)
-@pytest.mark.parametrize("instrument, fault, reason", FAULTS, ids=[f"{i}-{f}" for i, f, _ in FAULTS])
-def test_fault_aborts_safely_and_the_next_test_completes(bench, instrument, fault, reason):
-    client, control = bench
-    aborted = _run(client, lambda: _control(control, cmd="inject", instrument=instrument, fault=fault))
-    assert aborted["status"] == "aborted", aborted
-    assert reason in aborted["error"], aborted["error"]
-    _control(control, cmd="inject", instrument=instrument, fault=None)
+def _bench_loader_state(bench: Bench) -> str | None:
+    status = bench.client.get("/api/bench").json()["instruments"]["loader"].get("status")
+    return None if status is None else status["state"]
+
+
+def _assert_left_safe_then_next_completes(bench: Bench) -> None:
     # the physics behind the simulators: the drive left disabled at (nearly) zero torque
-    state = wait_for(lambda: (s := _control(control, cmd="status"))["drive"]["state"] != "OPERATION ENABLED"
+    state = wait_for(lambda: (s := _control(bench.control, cmd="status"))["drive"]["state"] != "OPERATION ENABLED"
                      and abs(s["applied_torque_nm"]) < 20.0 and s, timeout_s=30)
     assert state["drive"]["state"] in ("SWITCH ON DISABLED", "FAULT", "READY TO SWITCH ON"), state
-    after = _run(client)
+    # the service shows the drive's real state (its status poll never stops, a trip or not)
+    wait_for(lambda: _bench_loader_state(bench) == _control(bench.control, cmd="status")["drive"]["state"],
+             timeout_s=15)
+    after = _run(bench.client)
     assert after["status"] == "completed", after["error"]
     assert 250 < after["results"]["rigidity_nm_per_arcmin"] < 350
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize("loader, instrument, fault, reason", FAULTS,
+                         ids=[f"{lo}-{i}-{f}" for lo, i, f, _ in FAULTS])
+def test_fault_aborts_safely_and_the_next_test_completes(benches, loader, instrument, fault, reason):
+    bench = benches(loader)
+    aborted = _run(bench.client, lambda: _control(bench.control, cmd="inject", instrument=instrument, fault=fault))
+    assert aborted["status"] == "aborted", aborted
+    assert reason in aborted["error"], aborted["error"]
+    _control(bench.control, cmd="inject", instrument=instrument, fault=None)
+    _assert_left_safe_then_next_completes(bench)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_simulator_killed_mid_test_and_restarted(benches):
+    """Every instrument gone at once (the simulator process killed): aborted naming a lost instrument; the
+    simulator started again on the same ports (a fresh drive, disabled); the next test completes."""
+    bench = benches("canopen")
+    aborted = _run(bench.client, bench.kill_sim)
+    assert aborted["status"] == "aborted", aborted
+    assert "lost" in aborted["error"] or "stale" in aborted["error"], aborted["error"]
+    bench.restart_sim()
+    _assert_left_safe_then_next_completes(bench)
