@@ -205,8 +205,22 @@ class BenchRunner:
             "instruments": instruments,
             "last_interlock": trip,
             "samples_published": self.acq.samples_published if self.acq is not None else 0,
-            "reducers": [{"name": r.name, "kind": r.kind, "rated_torque_nm": r.rated_torque_nm}
+            "reducers": [{"name": r.name, "kind": r.kind, "rated_torque_nm": r.rated_torque_nm,
+                          "max_test_torque_nm": min(r.rated_torque_nm, self.bench.max_torque_nm)}
                          for r in self.reducers.values()],
+            "test_bounds": self.test_bounds(),
+        }
+
+    def test_bounds(self) -> dict[str, float]:
+        """The bounds ``POST /api/tests`` checks (``check_test_bounds`` and the torque limits), for forms."""
+        section = self.config.bench
+        return {
+            "max_torque_nm": self.bench.max_torque_nm,
+            "min_rate_nm_per_s": section.min_rate_nm_per_s,
+            "max_rate_nm_per_s": section.rate_limit_nm_per_s,
+            "min_step_nm": section.min_step_nm,
+            "max_test_duration_s": section.max_test_duration_s,
+            "max_segments": section.max_segments,
         }
 
     def _monotonic_at_clock_zero(self) -> float | None:

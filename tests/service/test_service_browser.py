@@ -9,6 +9,7 @@ import os
 import shutil
 from pathlib import Path
 
+import httpx
 import pytest
 from svc_helpers import TOKEN, serve
 
@@ -50,6 +51,15 @@ def test_dashboard_starts_a_test_and_draws_the_loop(settings_factory, sim_config
             assert "token=" not in page.url  # taken out of the address bar, kept for the tab
             page.wait_for_function("document.querySelector('#f-reducer').options.length > 0")
             page.wait_for_function("window.tcms.state.frames > 5")  # idle bench is streaming
+            # the form's limits are the API's (GET /api/bench → test_bounds; the reducer's permitted peak)
+            bounds = httpx.get(f"{srv.base}/api/bench").json()["test_bounds"]
+            assert float(page.get_attribute("#f-rate", "min")) == bounds["min_rate_nm_per_s"]
+            assert float(page.get_attribute("#f-rate", "max")) == bounds["max_rate_nm_per_s"]
+            assert float(page.get_attribute("#f-step", "min")) == bounds["min_step_nm"]
+            page.select_option("#f-reducer", "HFUC-32-100")
+            assert float(page.get_attribute("#f-torque", "max")) == 137.0  # its rated torque, below the bench's
+            page.fill("#f-torque", "400")
+            assert page.evaluate("document.querySelector('#f-torque').checkValidity()") is False
             page.select_option("#f-reducer", "RV-110E")
             page.fill("#f-torque", "400")
             page.fill("#f-cycles", "1")

@@ -334,9 +334,11 @@
         for (const r of bench.reducers || []) {
           const o = document.createElement("option");
           o.value = r.name; o.textContent = `${r.name} (${r.rated_torque_nm} N·m)`;
+          o.dataset.maxTorque = r.max_test_torque_nm;
           sel.appendChild(o);
         }
       }
+      applyBounds(bench.test_bounds || {});
       if (bench.active_test) {
         const run = await api("GET", "/api/tests/" + encodeURIComponent(bench.active_test));
         setTestState(run.id, run.status);
@@ -344,6 +346,25 @@
       $("live-rate").textContent = Math.round(bench.live.acquisition_rate_samples_per_second);
     } catch (e) { message("bench status: " + e.message, true); }
   }
+  // The form's limits are the service's own (GET /api/bench → test_bounds), so the browser refuses what the
+  // API would refuse, with the bench's numbers.
+  function applyBounds(b) {
+    const set = (id, attr, v) => { if (v !== undefined && v !== null) $(id).setAttribute(attr, v); };
+    set("f-rate", "min", b.min_rate_nm_per_s);
+    set("f-rate", "max", b.max_rate_nm_per_s);
+    set("f-step", "min", b.min_step_nm);
+    set("f-torque", "max", b.max_torque_nm);
+    state.bounds = b;
+    reducerBound();
+  }
+  function reducerBound() {
+    const o = $("f-reducer").selectedOptions[0];
+    const bench = (state.bounds || {}).max_torque_nm;
+    const limit = o && o.dataset.maxTorque ? parseFloat(o.dataset.maxTorque) : bench;
+    if (limit !== undefined) $("f-torque").setAttribute("max", limit);
+  }
+  $("f-reducer").addEventListener("change", reducerBound);
+
   setInterval(async () => {
     try {
       const bench = await api("GET", "/api/bench");
