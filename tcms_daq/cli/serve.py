@@ -27,8 +27,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"run store directory (default: $TCMS_DATA_DIR or ./{DEFAULT_DATA_DIR})")
     p.add_argument("--sim-speed", type=float, default=1.0,
                    help="simulated seconds per real second for a simulated bench (default 1 = real time)")
+    p.add_argument("--read-token", choices=["auto", "on", "off"], default="auto",
+                   help="reads (/api/…, /ws/…, /metrics) need the token too: 'auto' (default) when bound beyond "
+                        "loopback, 'on' always, 'off' never (liveness, the dashboard's files and /docs stay open)")
     p.add_argument("--log-level", default="warning", choices=["critical", "error", "warning", "info", "debug"])
     p.set_defaults(func=run)
+
+
+def _loopback(host: str) -> bool:
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False  # a host name: assume it is reachable from elsewhere
 
 
 def _service_token(config) -> str | None:
@@ -61,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(runner.config),
         # Host check against DNS rebinding on loopback; bound to all interfaces the names are not known here
         allowed_hosts=None if everywhere else ("127.0.0.1", "localhost", "::1", "[::1]", args.host),
+        read_token_required=args.read_token == "on" or (args.read_token == "auto" and not _loopback(args.host)),
     )
     sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

@@ -33,7 +33,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.service import exports
-from tcms_daq.service.auth import require_token, resolve_token
+from tcms_daq.service.auth import ReadTokenMiddleware, require_token, resolve_token
 from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
 from tcms_daq.service.events import CLOSE_TRY_AGAIN_LATER, EventHub
 from tcms_daq.service.limits import BodySizeLimit
@@ -68,6 +68,8 @@ class ServiceSettings:
     allowed_origins: tuple[str, ...] = ()
     # Host header check against DNS rebinding; None = any host (a service bound to all interfaces)
     allowed_hosts: tuple[str, ...] | None = ("127.0.0.1", "localhost", "::1", "[::1]")
+    # reads (/api/…, /ws/…, /metrics) need the token too (``tcms serve`` turns this on beyond loopback)
+    read_token_required: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -129,6 +131,8 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         lifespan=lifespan,
     )
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    if settings.read_token_required:
+        app.add_middleware(ReadTokenMiddleware, token=token)
     if settings.allowed_hosts is not None:
         app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(settings.allowed_hosts))
     app.state.api_token = token

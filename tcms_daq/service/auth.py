@@ -1,7 +1,8 @@
 """Bearer-token auth for mutating endpoints (DESIGN §7).
 
 The token comes from config, else ``TCMS_API_TOKEN``; with neither, a random one is generated at start and
-printed with the dashboard URL (as Jupyter does). Read endpoints stay open.
+printed with the dashboard URL (as Jupyter does). Read endpoints are open on loopback; a service reachable from
+other machines puts them behind the token too (:class:`ReadTokenMiddleware`, ``tcms serve --read-token``).
 """
 
 from __future__ import annotations
@@ -10,8 +11,11 @@ import logging
 import os
 import re
 import secrets
+from urllib.parse import parse_qs
 
-from fastapi import HTTPException, Request, status
+from fastapi import Depends, HTTPException, Request, status
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 TOKEN_ENV = "TCMS_API_TOKEN"
 
@@ -26,19 +30,71 @@ def resolve_token(configured: str | None) -> tuple[str, str]:
     return secrets.token_urlsafe(24), "generated"
 
 
-def require_token(request: Request) -> None:
-    """FastAPI dependency: 401 unless ``Authorization: Bearer <token>`` matches the service token."""
-    expected: str = request.app.state.api_token
-    header = request.headers.get("authorization", "")
+def token_matches(given: str | None, expected: str) -> bool:
+    """Constant-time comparison as UTF-8 bytes (compare_digest refuses str with non-ASCII characters)."""
+    if not given:
+        return False
+    return secrets.compare_digest(given.strip().encode("utf-8"), expected.encode("utf-8"))
+
+
+def bearer_of(header: str) -> str | None:
     scheme, _, given = header.partition(" ")
-    # compared as UTF-8 bytes: compare_digest refuses str with non-ASCII characters (a 500 otherwise)
-    if scheme.lower() != "bearer" or not given or not secrets.compare_digest(given.strip().encode("utf-8"),
-                                                                               expected.encode("utf-8")):
+    return given if scheme.lower() == "bearer" else None
+
+
+_bearer = HTTPBearer(auto_error=False, description="the service token (printed by `tcms serve`)")
+
+
+def require_token(request: Request, _credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> None:
+    """FastAPI dependency: 401 unless ``Authorization: Bearer <token>`` matches the service token. Declared
+    through HTTPBearer, so the OpenAPI document names the security scheme of each protected operation."""
+    expected: str = request.app.state.api_token
+    if not token_matches(bearer_of(request.headers.get("authorization", "")), expected):
         raise HTTPException(
             status_code=status.HTTP_401_UNAUTHORIZED,
             detail="missing or invalid bearer token (Authorization: Bearer <token>)",
             headers={"WWW-Authenticate": "Bearer"},
         )
+
+
+# reads that stay open when reads need the token: liveness, the dashboard's files, the API description
+OPEN_PATHS = ("/api/health", "/static/", "/docs", "/redoc", "/openapi.json")
+
+
+class ReadTokenMiddleware:
+    """Every request under /api/, /metrics and /ws/ needs the token (the ``Authorization`` header, or
+    ``?token=`` for a browser's WebSocket or link, which cannot set headers; masked in the access log);
+    401 / WebSocket close 1008 otherwise."""
+
+    def __init__(self, app: ASGIApp, token: str):
+        self.app = app
+        self.token = token
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] not in ("http", "websocket") or not self._protected(scope["path"]):
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        given = bearer_of(headers.get("authorization", ""))
+        if given is None:  # a browser's WebSocket or link cannot set headers
+            given = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [None])[0]
+        if token_matches(given, self.token):
+            await self.app(scope, receive, send)
+            return
+        if scope["type"] == "websocket":
+            await send({"type": "websocket.close", "code": 1008, "reason": "missing or invalid token"})
+            return
+        body = b'{"detail":"missing or invalid bearer token (reads need it on this service)"}'
+        await send({"type": "http.response.start", "status": 401,
+                    "headers": [(b"content-type", b"application/json"), (b"www-authenticate", b"Bearer"),
+                                (b"content-length", str(len(body)).encode())]})
+        await send({"type": "http.response.body", "body": body})
+
+    @staticmethod
+    def _protected(path: str) -> bool:
+        if any(path == p or path.startswith(p) for p in OPEN_PATHS):
+            return False
+        return path.startswith(("/api/", "/ws/")) or path == "/metrics"
 
 
 _TOKEN_IN_QUERY = re.compile(r"(?i)([?&]token=)[^&\s]*")

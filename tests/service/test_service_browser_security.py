@@ -8,7 +8,7 @@ import logging
 import httpx
 import pytest
 import websocket
-from svc_helpers import ScriptedRunner, serve
+from svc_helpers import TOKEN, ScriptedRunner, serve
 
 from tcms_daq.service.auth import RedactTokenInAccessLog
 
@@ -38,3 +38,49 @@ def test_the_token_is_masked_in_access_log_lines():
                                ("127.0.0.1:5", "GET", "/?token=s3cret&x=1", "1.1", 200), None)
     assert RedactTokenInAccessLog().filter(record)
     assert "s3cret" not in record.getMessage() and "token=***&x=1" in record.getMessage()
+
+
+def test_reads_need_the_token_when_configured(settings_factory):
+    """A service reachable from other machines (``--read-token``, on by default beyond loopback): every read
+    needs the token, by header or ``?token=``; liveness, the dashboard's files and the API description stay
+    open."""
+    with serve(settings_factory(read_token_required=True), runner=ScriptedRunner()) as srv:
+        anonymous = httpx.Client(base_url=srv.base, timeout=5)
+        for path in ("/api/tests", "/api/bench", "/api/compensation", "/api/discrepancy", "/metrics",
+                     "/api/tests/nope/samples"):
+            r = anonymous.get(path)
+            assert r.status_code == 401, path
+            assert r.headers["www-authenticate"] == "Bearer"
+        for path in ("/api/health", "/", "/openapi.json", "/docs"):
+            assert anonymous.get(path).status_code == 200, path
+        assert anonymous.get("/api/tests", params={"token": "wrong"}).status_code == 401
+        assert anonymous.get("/api/tests", params={"token": TOKEN}).status_code == 200
+        with srv.client() as client:
+            assert client.get("/api/bench").status_code == 200
+        for path in ("/ws/live", "/ws/events"):
+            with pytest.raises(websocket.WebSocketBadStatusException):
+                websocket.create_connection(srv.ws_base + path, timeout=5)
+            websocket.create_connection(f"{srv.ws_base}{path}?token={TOKEN}", timeout=5).close()
+
+
+def test_reads_stay_open_on_loopback_by_default(settings_factory):
+    with serve(settings_factory(), runner=ScriptedRunner()) as srv:
+        assert httpx.get(srv.base + "/api/tests", timeout=5).status_code == 200
+
+
+@pytest.mark.parametrize("host, loopback", [("127.0.0.1", True), ("::1", True), ("localhost", True),
+                                            ("0.0.0.0", False), ("::", False), ("192.168.10.7", False),
+                                            ("bench-pc.lab", False)])
+def test_read_token_auto_follows_the_bound_interface(host, loopback):
+    from tcms_daq.cli.serve import _loopback
+
+    assert _loopback(host) is loopback
+
+
+def test_openapi_names_the_bearer_scheme_on_protected_operations(settings_factory):
+    with serve(settings_factory(), runner=ScriptedRunner()) as srv:
+        doc = httpx.get(srv.base + "/openapi.json", timeout=5).json()
+    assert doc["components"]["securitySchemes"]["HTTPBearer"] == {
+        "type": "http", "scheme": "bearer", "description": "the service token (printed by `tcms serve`)"}
+    assert doc["paths"]["/api/tests"]["post"]["security"] == [{"HTTPBearer": []}]
+    assert "security" not in doc["paths"]["/api/tests"]["get"]

@@ -161,7 +161,15 @@
   }
   requestAnimationFrame(paint);
 
-  function wsUrl(path) { return (location.protocol === "https:" ? "wss://" : "ws://") + location.host + path; }
+  function wsUrl(path) {
+    return (location.protocol === "https:" ? "wss://" : "ws://") + location.host + withToken(path);
+  }
+  // a browser cannot set headers on a WebSocket or a link: the token rides along as ?token= (a service bound
+  // beyond loopback wants it for reads too; the service masks it in its access log)
+  function withToken(path) {
+    const token = $("f-token").value.trim();
+    return token ? path + (path.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(token) : path;
+  }
 
   function connectLive() {
     const ws = new WebSocket(wsUrl("/ws/live"));
@@ -272,7 +280,7 @@
       body.appendChild(tr);
     }
     const link = $("report-link");
-    link.href = "/api/tests/" + encodeURIComponent(id) + "/report";
+    link.href = withToken("/api/tests/" + encodeURIComponent(id) + "/report");
     link.hidden = false;
     state.resultId = id;
     $("discrepancy").disabled = !(run.sample_count > 0) || ["queued", "running"].includes(run.status);
@@ -300,7 +308,7 @@
       const d = await api("POST", "/api/discrepancy", { run_id: id });
       $("discrepancy-result").textContent = describeDiscrepancy(d);
       const link = $("discrepancy-link");
-      link.href = d.report_url;
+      link.href = withToken(d.report_url);
       link.hidden = false;
     } catch (e) {
       $("discrepancy-result").textContent = "";
@@ -320,7 +328,7 @@
     for (const r of runs) {
       const tr = document.createElement("tr");
       tr.innerHTML = `<td>${escapeHtml(r.id)}</td><td>${escapeHtml(String(r.request.reducer || ""))}</td>` +
-        `<td>${escapeHtml(r.status)}</td><td><a href="/api/tests/${encodeURIComponent(r.id)}/report" target="_blank">report</a></td>`;
+        `<td>${escapeHtml(r.status)}</td><td><a href="${escapeHtml(withToken("/api/tests/" + encodeURIComponent(r.id) + "/report"))}" target="_blank">report</a></td>`;
       body.appendChild(tr);
     }
   }
