@@ -82,3 +82,135 @@ class DiscrepancyRequest(BaseModel):
         if unknown:
             raise ValueError(f"unknown effect {unknown[0]!r} (known: {', '.join(EFFECT_NAMES)})")
         return self
+
+
+# -- answers ------------------------------------------------------------------------------------------------
+class ErrorBody(BaseModel):
+    """Every error answer: one line saying what is wrong."""
+
+    detail: str
+
+
+class ValidationErrorBody(ErrorBody):
+    """422: ``detail`` names the field in one line; ``errors`` are pydantic's, when the request did not parse."""
+
+    errors: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class LoaderStatusView(BaseModel):
+    state: str = Field(description="CiA 402 state, e.g. SWITCH ON DISABLED, OPERATION ENABLED, FAULT")
+    torque_actual_nm: float
+    fault: bool
+    error_code: int = Field(description="0x603F error code (0: none)")
+
+
+class InstrumentView(BaseModel):
+    """One instrument as configured (driver, url …) with its counters; the loader with its last status."""
+
+    model_config = ConfigDict(extra="allow")
+
+    instrument: str | None = None
+    readings: int | None = None
+    errors: int | None = None
+    status: LoaderStatusView | None = None
+
+
+class InterlockView(BaseModel):
+    interlock: str
+    reason: str
+    time_s: float
+
+
+class ReducerView(BaseModel):
+    name: str
+    kind: str | None = None
+    rated_torque_nm: float
+    max_test_torque_nm: float | None = Field(None, description="the largest test torque accepted, N·m")
+
+
+class TestBounds(BaseModel):
+    """The bounds ``POST /api/tests`` keeps (the bench config's ``[bench]``)."""
+
+    max_torque_nm: float
+    min_rate_nm_per_s: float
+    max_rate_nm_per_s: float
+    min_step_nm: float
+    max_test_duration_s: float
+    max_segments: int
+
+
+class LiveRates(BaseModel):
+    acquisition_rate_samples_per_second: float
+    frame_rate_hz: float
+    clients: int
+
+
+class BenchStatus(BaseModel):
+    """``GET /api/bench``."""
+
+    name: str
+    config: str | None = None
+    max_torque_nm: float
+    clock: Literal["simulated", "monotonic"] | None = None
+    sim_speed: float | None = None
+    monotonic_at_clock_zero_s: float | None = None
+    connected: bool | None = None
+    compensation: str | None = None
+    instruments: dict[str, InstrumentView]
+    last_interlock: InterlockView | None = None
+    samples_published: int = 0
+    reducers: list[ReducerView]
+    test_bounds: TestBounds | None = None
+    active_test: str | None
+    live: LiveRates
+
+
+class CompensationVersion(BaseModel):
+    version: int
+    created_at: str | None
+    note: str
+    sha256: str
+    rollback_of: int | None = None
+
+
+class DiscrepancyListItem(BaseModel):
+    id: str
+    run_id: str
+    created_at: str | None
+    report_url: str
+    cv_rms_before_arcsec: float | None
+    cv_rms_after_arcsec: float | None
+    effects: list[str]
+
+
+class DiscrepancyAnalysis(BaseModel):
+    """One analysis (``tcms discrepancy --json`` plus its id, run and report); further keys as the CLI's."""
+
+    model_config = ConfigDict(extra="allow")
+
+    id: str
+    run_id: str
+    created_at: str | None
+    options: dict[str, Any]
+    report_url: str
+    effects: list[dict[str, Any]]
+    rms_before_arcsec: float | None = None
+    rms_after_arcsec: float | None = None
+    cv_rms_before_arcsec: float | None = None
+    cv_rms_after_arcsec: float | None = None
+
+
+class LiveClientView(BaseModel):
+    name: str
+    sent: int
+    dropped: int
+    queued: int
+
+
+class LiveStats(BaseModel):
+    sequence: int
+    frames_total: int
+    dropped_total: int
+    samples_decimated_total: int
+    evicted_total: int
+    clients: list[LiveClientView]

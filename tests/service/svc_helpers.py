@@ -75,8 +75,13 @@ class ScriptedRunner:
                 self._emit(rng.normal(0, 0.3, n))
 
     def status(self) -> dict:
-        return {"name": "scripted bench", "max_torque_nm": 1000.0,
-                "reducers": [{"name": "RV-110E", "rated_torque_nm": 1078.0}], "instruments": {}}
+        return {"name": "scripted bench", "config": None, "max_torque_nm": 1000.0, "clock": "monotonic",
+                "connected": True, "compensation": None, "instruments": {}, "last_interlock": None,
+                "samples_published": 0,
+                "reducers": [{"name": "RV-110E", "kind": "RV", "rated_torque_nm": 1078.0,
+                              "max_test_torque_nm": 1000.0}],
+                "test_bounds": {"max_torque_nm": 1000.0, "min_rate_nm_per_s": 0.05, "max_rate_nm_per_s": 1000.0,
+                                "min_step_nm": 0.1, "max_test_duration_s": 3600.0, "max_segments": 20000}}
 
     def config_snapshot(self) -> dict:
         return {"bench": {"name": "scripted bench"}}

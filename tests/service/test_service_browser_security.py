@@ -84,3 +84,28 @@ def test_openapi_names_the_bearer_scheme_on_protected_operations(settings_factor
         "type": "http", "scheme": "bearer", "description": "the service token (printed by `tcms serve`)"}
     assert doc["paths"]["/api/tests"]["post"]["security"] == [{"HTTPBearer": []}]
     assert "security" not in doc["paths"]["/api/tests"]["get"]
+
+
+def test_every_operation_has_a_readable_id_a_typed_answer_and_documented_errors(settings_factory):
+    """The API contract (issue 13 item 4): operation ids are the handlers' names; every JSON answer has a
+    schema; mutating operations name the bearer scheme and document 401; routes with a path id document 404."""
+    import re
+
+    with serve(settings_factory(), runner=ScriptedRunner()) as srv:
+        doc = httpx.get(srv.base + "/openapi.json", timeout=5).json()
+    seen = set()
+    for path, operations in doc["paths"].items():
+        for method, op in operations.items():
+            assert re.fullmatch(r"[a-z][a-z_]*", op["operationId"]), op["operationId"]
+            assert op["operationId"] not in seen
+            seen.add(op["operationId"])
+            ok = next(v for k, v in op["responses"].items() if k.startswith("2"))
+            json_answer = ok.get("content", {}).get("application/json")
+            if json_answer is not None:
+                assert json_answer["schema"] not in ({}, {"type": "object"}) or path.endswith("/profile"), path
+            if method in ("post", "put", "delete"):
+                assert op.get("security") == [{"HTTPBearer": []}], (method, path)
+                assert "401" in op["responses"]
+            if "{" in path:
+                assert "404" in op["responses"], path
+    assert len(seen) >= 20

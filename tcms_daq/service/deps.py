@@ -1,0 +1,83 @@
+"""Typed FastAPI dependencies: what a route handler may ask for (the objects the lifespan put on app.state).
+
+``Store``, ``Bench``, ``Manager``, ``Live``, ``Events``, ``Analyses`` and ``Settings`` are ``Annotated`` types,
+so a handler states its collaborators in its signature; ``StoredRunDep`` resolves ``{run_id}`` (404 unknown);
+``AUTH`` is the bearer-token check of mutating operations. ``errors(...)`` documents a route's error answers.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import Depends, Request
+
+from tcms_daq.service.auth import require_token
+from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
+from tcms_daq.service.events import EventHub
+from tcms_daq.service.live import LiveHub
+from tcms_daq.service.runner import Runner
+from tcms_daq.service.schemas import ErrorBody, ValidationErrorBody
+from tcms_daq.service.settings import ServiceSettings
+from tcms_daq.service.testruns import TestManager, UnknownRun
+from tcms_daq.store import RunStore, StoredRun
+
+
+def _store(request: Request) -> RunStore:
+    return request.app.state.store
+
+
+def _bench(request: Request) -> Runner:
+    return request.app.state.runner
+
+
+def _manager(request: Request) -> TestManager:
+    return request.app.state.manager
+
+
+def _live(request: Request) -> LiveHub:
+    return request.app.state.live
+
+
+def _events(request: Request) -> EventHub:
+    return request.app.state.events
+
+
+def _analyses(request: Request) -> DiscrepancyRuns:
+    return request.app.state.discrepancy
+
+
+def _settings(request: Request) -> ServiceSettings:
+    return request.app.state.settings
+
+
+Store = Annotated[RunStore, Depends(_store)]
+Bench = Annotated[Runner, Depends(_bench)]
+Manager = Annotated[TestManager, Depends(_manager)]
+Live = Annotated[LiveHub, Depends(_live)]
+Events = Annotated[EventHub, Depends(_events)]
+Analyses = Annotated[DiscrepancyRuns, Depends(_analyses)]
+Settings = Annotated[ServiceSettings, Depends(_settings)]
+
+
+def _stored_run(run_id: str, store: Store) -> StoredRun:
+    record = store.get_run(run_id)
+    if record is None:
+        raise UnknownRun(f"no test with id {run_id!r}")
+    return record
+
+
+StoredRunDep = Annotated[StoredRun, Depends(_stored_run)]
+AUTH = [Depends(require_token)]
+
+_ERRORS: dict[int, dict[str, Any]] = {
+    401: {"model": ErrorBody, "description": "missing or invalid bearer token"},
+    404: {"model": ErrorBody, "description": "no such test, version or analysis"},
+    409: {"model": ErrorBody, "description": "a test is running (or another analysis)"},
+    413: {"model": ErrorBody, "description": "request body above the service's limit"},
+    422: {"model": ValidationErrorBody, "description": "invalid request: one line naming the field"},
+}
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """The documented error answers of a route (``responses=errors(404, 422)``)."""
+    return {code: _ERRORS[code] for code in codes}

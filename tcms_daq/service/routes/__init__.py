@@ -1,0 +1,9 @@
+"""The service's routes, one router per resource (tests, bench, compensation, discrepancy, live, service).
+
+Each handler takes what it needs through the typed dependencies of :mod:`tcms_daq.service.deps` and answers
+with a response model of :mod:`tcms_daq.service.schemas`; ``create_app`` includes them all.
+"""
+
+from tcms_daq.service.routes import bench, compensation, discrepancy, live, service, tests
+
+ROUTERS = (service.router, bench.router, tests.router, compensation.router, discrepancy.router, live.router)

@@ -1,0 +1,74 @@
+"""The compensation in use: read it, upload a new version (checked for plausibility), history, rollback."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request
+from fastapi import Path as PathParam
+from fastapi.responses import PlainTextResponse
+
+from tcms_daq.service.deps import AUTH, Bench, Events, Manager, Store, errors
+from tcms_daq.service.runner import RequestRejected
+from tcms_daq.service.schemas import CompensationVersion
+from tcms_daq.service.testruns import Conflict, UnknownRun
+
+router = APIRouter(prefix="/api/compensation", tags=["compensation"])
+
+TOML_BODY = {"requestBody": {"required": True, "description": "the compensator as TOML ([compensator] terms)",
+                             "content": {"application/toml": {"schema": {"type": "string"}},
+                                         "text/plain": {"schema": {"type": "string"}}}}}
+TOML_ANSWER: dict[int | str, dict[str, Any]] = {200: {"description": "the compensator now in use, as TOML (header X-Compensation-Version)",
+                     "content": {"application/toml": {"schema": {"type": "string"}}}}}
+
+
+@router.get("", response_class=PlainTextResponse,
+            responses={200: {"content": {"application/toml": {"schema": {"type": "string"}}}}})
+def get_compensation(bench: Bench) -> PlainTextResponse:
+    """The compensator the next test will use, as TOML."""
+    return PlainTextResponse(bench.compensator_toml(), media_type="application/toml")
+
+
+async def _activate(bench: Bench, manager: Manager, store: Store, events: Events, text: str, note: str,
+                    rollback_of: int | None = None) -> PlainTextResponse:
+    """Check, apply and keep a compensation as the next version (422 implausible; 409 during a test)."""
+    if manager.active_id is not None:
+        raise Conflict(f"test {manager.active_id} is running; change the compensation after it")
+    await asyncio.to_thread(bench.set_compensator_toml, text)
+    applied = bench.compensator_toml()
+    version = await asyncio.to_thread(store.add_compensation, applied, note, rollback_of)
+    events.publish("compensation_changed", version=version.version, note=note)
+    return PlainTextResponse(applied, media_type="application/toml",
+                             headers={"X-Compensation-Version": str(version.version)})
+
+
+@router.put("", response_class=PlainTextResponse, dependencies=AUTH, openapi_extra=TOML_BODY,
+            responses={**TOML_ANSWER, **errors(401, 409, 413, 422)})
+async def put_compensation(request: Request, bench: Bench, manager: Manager, store: Store, events: Events,
+                           note: Annotated[str, Query(max_length=200)] = "") -> PlainTextResponse:
+    """Replace the compensator with the TOML in the body, kept as a new version with ``note`` (422 if it does
+    not parse or is not plausible; 409 during a test)."""
+    raw = await request.body()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RequestRejected("compensation body is not UTF-8 TOML text") from None
+    return await _activate(bench, manager, store, events, text, note)
+
+
+@router.get("/history", response_model=list[CompensationVersion])
+def compensation_history(store: Store) -> list[dict]:
+    """Every accepted compensation, newest first (the first is in use): version, time, note, sha256."""
+    return [v.summary() for v in store.compensation_history()]
+
+
+@router.post("/rollback/{version}", response_class=PlainTextResponse, dependencies=AUTH,
+             responses={**TOML_ANSWER, **errors(401, 404, 409, 422)})
+async def rollback_compensation(version: Annotated[int, PathParam(ge=1, le=2**31 - 1)], bench: Bench,
+                                manager: Manager, store: Store, events: Events) -> PlainTextResponse:
+    """Use an earlier version again (kept as a new version that names it; 404 unknown version)."""
+    found = store.compensation(version)
+    if found is None:
+        raise UnknownRun(f"no compensation version {version}")
+    return await _activate(bench, manager, store, events, found[1], f"rollback to version {version}", version)

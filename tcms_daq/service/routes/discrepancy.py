@@ -1,0 +1,59 @@
+"""Discrepancy analyses of stored runs: run one, list them, one, its report and its model file."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Response
+from fastapi.responses import FileResponse, HTMLResponse, PlainTextResponse
+
+from tcms_daq.service.deps import AUTH, Analyses, Manager, errors
+from tcms_daq.service.schemas import DiscrepancyAnalysis, DiscrepancyListItem, DiscrepancyRequest
+from tcms_daq.service.testruns import Conflict
+
+router = APIRouter(prefix="/api/discrepancy", tags=["discrepancy"])
+
+
+@router.post("", status_code=201, response_model=DiscrepancyAnalysis, dependencies=AUTH,
+             responses=errors(401, 404, 409, 413, 422))
+async def post_discrepancy(body: DiscrepancyRequest, response: Response, manager: Manager,
+                           analyses: Analyses) -> dict[str, Any]:
+    """Name the effects the bench model misses on a stored run (as ``tcms discrepancy --run ID --json``).
+
+    The run's measured angle is compared with the catalogue reducer's model re-simulated on its torque trace.
+    404 unknown run; 409 while a test runs (the analysis takes seconds of CPU that acquisition must not lose) or
+    another analysis runs; 422 when the run cannot be compared (too few samples, no reducer recorded …). The
+    analysis is kept: ``report_url``.
+    """
+    if manager.active_id is not None:
+        raise Conflict(f"test {manager.active_id} is running; find missing effects after it ends")
+    doc = await asyncio.to_thread(analyses.analyse, body)
+    response.headers["Location"] = f"/api/discrepancy/{doc['id']}"
+    return doc
+
+
+@router.get("", response_model=list[DiscrepancyListItem], responses=errors(422))
+def list_discrepancy(analyses: Analyses,
+                     limit: Annotated[int, Query(ge=1, le=1000)] = 100) -> list[dict[str, Any]]:
+    """Finished analyses, newest first: the effects named and the held-out RMS before and after."""
+    return analyses.list(limit)
+
+
+@router.get("/{analysis_id}", response_model=DiscrepancyAnalysis, responses=errors(404))
+def get_discrepancy(analysis_id: str, analyses: Analyses) -> dict[str, Any]:
+    """One analysis: the effects named with their parameters, aliases, the residual before and after."""
+    return analyses.get(analysis_id)
+
+
+@router.get("/{analysis_id}/report", response_class=HTMLResponse, responses=errors(404))
+def get_discrepancy_report(analysis_id: str, analyses: Analyses) -> FileResponse:
+    """The analysis report (residual before/after against time, torque and angle; the loops)."""
+    return FileResponse(analyses.path(analysis_id, "report.html"), media_type="text/html")
+
+
+@router.get("/{analysis_id}/model", response_class=PlainTextResponse, responses={
+    **errors(404), 200: {"content": {"application/toml": {"schema": {"type": "string"}}}}})
+def get_discrepancy_model(analysis_id: str, analyses: Analyses) -> FileResponse:
+    """The model file with the accepted terms (``tcms discrepancy`` model.toml)."""
+    return FileResponse(analyses.path(analysis_id, "model.toml"), media_type="application/toml")

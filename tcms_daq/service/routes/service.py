@@ -1,0 +1,32 @@
+"""Liveness, Prometheus metrics and the dashboard page."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter, Request
+from fastapi.responses import FileResponse, PlainTextResponse
+
+from tcms_daq.service.metrics import render
+from tcms_daq.service.schemas import Health
+
+STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
+
+router = APIRouter(tags=["service"])
+
+
+@router.get("/api/health", response_model=Health)
+def health() -> Health:
+    """200 while the service runs (open even when reads need the token)."""
+    return Health(status="ok")
+
+
+@router.get("/metrics", response_class=PlainTextResponse)
+def metrics(request: Request) -> PlainTextResponse:
+    """Prometheus text format: acquisition rate, live clients and drops, runs by status, active test."""
+    return PlainTextResponse(render(request.app.state.metrics), media_type="text/plain; version=0.0.4; charset=utf-8")
+
+
+@router.get("/", include_in_schema=False)
+def dashboard() -> FileResponse:
+    return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
