@@ -1,8 +1,7 @@
 """Process settings from the environment, read in one place (pydantic-settings; prefix ``TCMS_``).
 
-``TCMS_CONFIG_DIR`` — a directory searched first for config files named without a path (default: the packaged
-defaults only); ``TCMS_DATA_DIR`` — the run store directory (default ``./data``); ``TCMS_API_TOKEN`` — the
-service's bearer token when the config has none. Only the composition roots (CLI, service) read them.
+``TCMS_DATA_DIR`` — the run store directory (default ``./data``); ``TCMS_API_TOKEN`` — the service's bearer token
+when the config has none. Only the composition roots (CLI, service) read them; nothing else reads ``os.environ``.
 """
 
 from __future__ import annotations
@@ -17,7 +16,6 @@ DEFAULT_DATA_DIR = Path("data")
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="TCMS_", extra="ignore")
 
-    config_dir: Path | None = None
     data_dir: Path = DEFAULT_DATA_DIR
     api_token: str | None = None
 

@@ -8,7 +8,6 @@ other machines puts them behind the token too (:class:`ReadTokenMiddleware`, ``t
 from __future__ import annotations
 
 import logging
-import os
 import re
 import secrets
 from urllib.parse import parse_qs
@@ -17,14 +16,14 @@ from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-TOKEN_ENV = "TCMS_API_TOKEN"
+from tcms_daq.settings import read_settings
 
 
 def resolve_token(configured: str | None) -> tuple[str, str]:
     """(token, where it came from: 'config' | 'environment' | 'generated')."""
     if configured:
         return configured, "config"
-    env = os.environ.get(TOKEN_ENV, "").strip()
+    env = (read_settings().api_token or "").strip()
     if env:
         return env, "environment"
     return secrets.token_urlsafe(24), "generated"
