@@ -16,6 +16,8 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from tcms_daq.service.clients import ClientQueue, WhenFull
+
 CLOSE_TRY_AGAIN_LATER = 1013
 
 
@@ -32,21 +34,7 @@ async def run_until_either(sender: Awaitable[Any], closer: Awaitable[Any]) -> No
                 await task
 
 
-class EventClient:
-    def __init__(self, send: Callable[[dict], Awaitable[None]], max_backlog: int):
-        self.send = send
-        self.queue: asyncio.Queue[dict] = asyncio.Queue()
-        self.max_backlog = max_backlog
-        self.overflowed = False
-
-    def offer(self, event: dict) -> None:
-        if self.overflowed:
-            return
-        if self.queue.qsize() >= self.max_backlog:
-            self.overflowed = True  # the endpoint closes the socket; the client resyncs with ?since=
-            self.queue.put_nowait({})
-            return
-        self.queue.put_nowait(event)
+EventClient = ClientQueue[dict]
 
 
 class EventHub:
@@ -90,7 +78,8 @@ class EventHub:
         self, send: Callable[[dict], Awaitable[None]], wait_closed: Awaitable[None], since: int | None = None
     ) -> EventClient:
         """Send the hello (and the replay after ``since``), then every new event until disconnect/overflow."""
-        client = EventClient(send, self.max_backlog)
+        # lossless up to the backlog; beyond it the client is closed and resyncs with ?since=
+        client: EventClient = ClientQueue(send, max_queue=self.max_backlog, when_full=WhenFull.CLOSE, name="events")
         # register before taking the replay so nothing falls between them; duplicates are filtered by seq
         self.clients.add(client)
         try:
@@ -107,9 +96,5 @@ class EventHub:
         return client
 
     async def _run_filtered(self, client: EventClient, sent_upto: int) -> None:
-        while True:
-            event = await client.queue.get()
-            if client.overflowed:
-                return
-            if event["seq"] > sent_upto:
-                await client.send(event)
+        """Send the client's events after the replay (registered before it, so duplicates are skipped)."""
+        await client.run(lambda event: event if event["seq"] > sent_upto else None)

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tcms_daq.service.clients import ClientQueue, WhenFull
 from tcms_daq.service.events import run_until_either
 
 FRAME_MAGIC = b"TCMS"
@@ -141,64 +142,17 @@ def with_dropped(frame: bytes, dropped: int) -> bytes:
     return frame[:_DROPPED_OFFSET] + struct.pack("<I", min(dropped, 0xFFFFFFFF)) + frame[FRAME_HEADER.size :]
 
 
-class LiveClient:
-    """One subscriber: a bounded queue that drops its oldest frame when full, and a sender task."""
+class LiveClient(ClientQueue[bytes]):
+    """A live client: bounded frame queue that drops its oldest frame when full (the count is patched into the
+    header of each frame it is sent), evicted when one send blocks longer than ``stall_timeout_s``."""
 
-    def __init__(
-        self,
-        send: Callable[[bytes], Awaitable[None]],
-        *,
-        name: str,
-        max_queue: int = 50,
-        stall_timeout_s: float = 5.0,
-    ):
-        self.name = name
-        self._send = send
-        self._queue: deque[bytes] = deque()
-        self._max_queue = max_queue
-        self._ready = asyncio.Event()
-        self.stall_timeout_s = stall_timeout_s
-        self.dropped = 0
-        self.sent = 0
-        self.evicted = False
-        self.closed = False
-        self.connected_at = time.monotonic()
+    def __init__(self, send: Callable[[bytes], Awaitable[None]], *, name: str, max_queue: int = 50,
+                 stall_timeout_s: float = 5.0):
+        super().__init__(send, max_queue=max_queue, when_full=WhenFull.DROP_OLDEST, name=name,
+                         stall_timeout_s=stall_timeout_s)
 
-    def offer(self, frame: bytes) -> None:
-        """Queue a frame; never awaits. When full, the oldest queued frame is dropped and counted."""
-        if self.closed:
-            return
-        if len(self._queue) >= self._max_queue:
-            self._queue.popleft()
-            self.dropped += 1
-        self._queue.append(frame)
-        self._ready.set()
-
-    @property
-    def queued(self) -> int:
-        return len(self._queue)
-
-    async def run(self) -> None:
-        """Send queued frames until closed; returns (evicted=True) when one send blocks too long."""
-        while not self.closed:
-            if not self._queue:
-                self._ready.clear()
-                await self._ready.wait()
-                continue
-            frame = self._queue.popleft()
-            if self.dropped:
-                frame = with_dropped(frame, self.dropped)
-            try:
-                await asyncio.wait_for(self._send(frame), self.stall_timeout_s)
-            except TimeoutError:
-                self.evicted = True
-                self.closed = True
-                return
-            self.sent += 1
-
-    def close(self) -> None:
-        self.closed = True
-        self._ready.set()
+    async def run(self, prepare: Callable[[bytes], bytes | None] | None = None) -> None:
+        await super().run(prepare or (lambda frame: with_dropped(frame, self.dropped) if self.dropped else frame))
 
 
 class LiveHub:
