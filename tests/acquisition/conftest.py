@@ -160,3 +160,23 @@ def protocol_bench():
 def linear_physics():
     """The stand-in physics class (for tests composing their own config)."""
     return LinearPhysics
+
+
+@pytest.fixture
+def break_compensation_once():
+    """``break_(bench, at_call)``: the bench's compensation raises FloatingPointError("compensation blew up")
+    on its ``at_call``-th batch, once (a bug in the acquisition path)."""
+
+    def break_(bench, at_call: int) -> None:
+        real_compensate = bench.compensate
+        calls = {"n": 0}
+
+        def flaky(raw, torque, t):
+            calls["n"] += 1
+            if calls["n"] == at_call:
+                raise FloatingPointError("compensation blew up")
+            return real_compensate(raw, torque, t)
+
+        bench.compensate = flaky
+
+    return break_

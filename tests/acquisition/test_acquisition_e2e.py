@@ -195,7 +195,8 @@ def test_tcms_run_without_the_simulators_is_a_one_line_error(tmp_path, capsys):
     assert err.startswith("tcms: error: test failed: ND 287: cannot open") and err.count("\n") == 1
 
 
-def test_a_failing_worker_thread_on_real_time_aborts_and_restarts(sim_serve, tmp_path, caplog):
+def test_a_failing_worker_thread_on_real_time_aborts_and_restarts(sim_serve, tmp_path, caplog,
+                                                                 break_compensation_once):
     """Real time over the protocols: the coordinator thread hits a bug once (compensation raising). The run
     aborts with the worker's error as the reason, the traceback is logged, the worker starts again, and the
     next test on the same acquisition completes (issue 10 item 8: no silent thread deaths)."""
@@ -205,16 +206,7 @@ def test_a_failing_worker_thread_on_real_time_aborts_and_restarts(sim_serve, tmp
     path = sim_serve.config_file(tmp_path, "modbus")
     bench = compose_bench(load_bench_config(path), config_dir=path.parent, speed=SPEED)
     bench.connect()
-    real_compensate = bench.compensate
-    calls = {"n": 0}
-
-    def flaky(raw, torque, t):
-        calls["n"] += 1
-        if calls["n"] == 60:
-            raise FloatingPointError("compensation blew up")
-        return real_compensate(raw, torque, t)
-
-    bench.compensate = flaky
+    break_compensation_once(bench, at_call=60)
     profile = continuous_profile(500.0, 1000.0, cycles=1, conditioning_loops=1, tip_dwell_s=0.1)
     acq = AcquisitionLoop(bench)
     try:

@@ -95,23 +95,14 @@ def test_the_cli_refuses_an_absurd_rate_with_one_line(capsys):
 
 
 
-def test_a_bug_in_the_acquisition_path_ends_the_run_with_the_reason(make_bench):
+def test_a_bug_in_the_acquisition_path_ends_the_run_with_the_reason(make_bench, break_compensation_once):
     """Compensation raising once (a bug) on the stepped clock: the run fails with the error as its reason and
     the next test on the same acquisition completes. (Real time, with worker threads: test_acquisition_e2e.)"""
     from tcms_daq.acquisition import AcquisitionLoop
 
     bench = make_bench()
     bench.connect()
-    real_compensate = bench.compensate
-    calls = {"n": 0}
-
-    def flaky(raw, torque, t):
-        calls["n"] += 1
-        if calls["n"] == 40:
-            raise FloatingPointError("compensation blew up")
-        return real_compensate(raw, torque, t)
-
-    bench.compensate = flaky
+    break_compensation_once(bench, at_call=40)
     profile = continuous_profile(300.0, 600.0, cycles=1, conditioning_loops=1, tip_dwell_s=0.05)
     acq = AcquisitionLoop(bench)
     try:
