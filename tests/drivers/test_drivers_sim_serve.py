@@ -9,7 +9,6 @@ import select
 import socket
 import subprocess
 import sys
-import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -19,6 +18,7 @@ from drivers.base import DeviceFault
 from drivers.cia402_canopen import CiA402Canopen
 from drivers.cia402_modbus import CiA402Modbus
 from drivers.nd287 import ND287
+from drivers.testing import wait_until
 
 
 @pytest.fixture(scope="module")
@@ -61,16 +61,6 @@ def _recv_until(sock: socket.socket, terminator: bytes, limit: int = 64) -> byte
     return data
 
 
-def _wait_for(condition, timeout_s: float = 20.0) -> bool:
-    """Poll ``condition`` until it holds or ``timeout_s`` passes: the served physics runs on its own clock."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return bool(condition())
-
-
 def _aed_msv_nm(port: int) -> float:
     """One raw ``MSV?`` over a fresh connection, in N·m (factory NOV over a 2000 N·m nominal torque)."""
     with socket.create_connection(("127.0.0.1", port), timeout=2) as sock:
@@ -108,13 +98,13 @@ def test_independent_client(served):
         def torque_actual_permille() -> int:
             return int(client.read_holding_registers(0x3C02, count=1, device_id=1).registers[0])
 
-        assert _wait_for(lambda: abs(torque_actual_permille() - 100) <= 2), torque_actual_permille()
+        assert wait_until(lambda: abs(torque_actual_permille() - 100) <= 2, timeout_s=20.0), torque_actual_permille()
         # ... and the shared physics: the AED follows to about 200 N·m (polled: the simulator's clock may lag
         # real time on a loaded machine, so no fixed delay is right)
-        assert _wait_for(lambda: abs(_aed_msv_nm(ports["aed"]) - 200.0) <= 5.0), _aed_msv_nm(ports["aed"])
+        assert wait_until(lambda: abs(_aed_msv_nm(ports["aed"]) - 200.0) <= 5.0, timeout_s=20.0), _aed_msv_nm(ports["aed"])
         # leave the bench at rest for the next test: back to 0 N·m before disabling
         client.write_register(0x3C00, 0, device_id=1)
-        assert _wait_for(lambda: abs(_aed_msv_nm(ports["aed"])) <= 2.0), _aed_msv_nm(ports["aed"])
+        assert wait_until(lambda: abs(_aed_msv_nm(ports["aed"])) <= 2.0, timeout_s=20.0), _aed_msv_nm(ports["aed"])
         client.write_register(0x3100, 0x00, device_id=1)
     finally:
         client.close()
@@ -125,11 +115,11 @@ def test_drivers_across_processes(served):
     with ND287(urls["angle"], timeout_s=1.0) as nd, AED(urls["torque"], timeout_s=1.0) as aed, \
             CiA402Canopen(urls["loader_canopen"], torque_slope_nm_per_s=5000.0) as drive:
         drive.enable()
-        assert _wait_for(lambda: abs(aed.read().value[0]) <= 2.0)  # at rest before the tare
+        assert wait_until(lambda: abs(aed.read().value[0]) <= 2.0, timeout_s=20.0)  # at rest before the tare
         aed.tare()
         drive.set_torque(500.0)
-        assert _wait_for(lambda: abs(drive.status().torque_actual_nm - 500.0) <= 4.0)
-        assert _wait_for(lambda: abs(aed.read().value[0] - 500.0) <= 10.0), aed.read().value[0]
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 500.0) <= 4.0, timeout_s=20.0)
+        assert wait_until(lambda: abs(aed.read().value[0] - 500.0) <= 10.0, timeout_s=20.0), aed.read().value[0]
         assert nd.read().value[0] > 10.0  # the reducer twists towards positive angle
         assert _control(served, cmd="inject", instrument="nd287", fault="encoder_fault") == {"ok": True}
         with pytest.raises(DeviceFault):
