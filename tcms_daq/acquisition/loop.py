@@ -11,13 +11,12 @@ Two ways time can move (see :mod:`tcms_daq.acquisition.clock`):
 
 Each step drains the new readings, aligns torque onto the angle stamps (:mod:`.align`), applies the
 compensator to the batch, publishes one :class:`~.fanout.DataMessage` (never blocking: see :mod:`.fanout`),
-and judges the interlocks. The first trip is kept in :attr:`trip`; :meth:`wait` raises
+and has the interlock monitor (:mod:`.monitor`) judge it. The first trip is kept in :attr:`trip`; :meth:`wait` raises
 :class:`InterlockTripped` so the procedure aborts.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import threading
 import time
@@ -38,14 +37,8 @@ from drivers.base import (
 from tcms_daq.acquisition.align import Aligner
 from tcms_daq.acquisition.bench import Bench
 from tcms_daq.acquisition.fanout import FanOut
-from tcms_daq.acquisition.interlocks import (
-    InterlockLimits,
-    TorqueRateMonitor,
-    Trip,
-    check_angle_window,
-    check_loader_status,
-    check_torque_limit,
-)
+from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
+from tcms_daq.acquisition.monitor import InterlockMonitor
 from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
 
@@ -106,7 +99,8 @@ class AcquisitionLoop:
                  read_interval_s: float = 0.002, status_period_s: float = 0.05, max_align_wait_s: float = 0.5):
         self.bench = bench
         self.clock = bench.clock
-        self.limits = limits or InterlockLimits(bench_torque_limit_nm=bench.max_torque_nm)
+        self.monitor = InterlockMonitor(limits or InterlockLimits(bench_torque_limit_nm=bench.max_torque_nm),
+                                        None if self.clock.stepped else getattr(self.clock, "speed", 1.0))
         self.period_s = float(period_s)
         self.read_interval_s = float(read_interval_s)
         self.status_period_s = float(status_period_s)
@@ -122,7 +116,6 @@ class AcquisitionLoop:
         # a run ended without confirming the loader disabled: the status poll disables it when it answers again
         self.disable_pending = False
         self._aligner = Aligner(max_wait_s=max_align_wait_s)
-        self._rate = TorqueRateMonitor(self._rate_limits(self.limits))
         now = self.clock.now()
         self._channels = {
             "angle": _Channel("angle", bench.angle.name, now),
@@ -198,19 +191,15 @@ class AcquisitionLoop:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _rate_limits(self, limits: InterlockLimits) -> InterlockLimits:
-        """On real time the rate window spans at least 0.2 s of real time: a faster-than-real-time simulator
-        that stalls for a moment and catches up must not look like a torque jump."""
-        if self.clock.stepped:
-            return limits
-        window = max(limits.rate_window_s, 0.2 * getattr(self.clock, "speed", 1.0))
-        return dataclasses.replace(limits, rate_window_s=window)
+    @property
+    def limits(self) -> InterlockLimits:
+        """The limits of the current run (judged by :attr:`monitor`)."""
+        return self.monitor.limits
 
     def set_limits(self, limits: InterlockLimits) -> None:
         """New limits (a new run); clears a previous trip and re-arms the watchdog: every channel counts from
         now, so a reading that went stale while a trip was set does not end the next run at once."""
-        self.limits = limits
-        self._rate = TorqueRateMonitor(self._rate_limits(limits))
+        self.monitor.rearm(limits)
         now = self.clock.now()
         for ch in self._channels.values():
             ch.last_arrival_s = now
@@ -255,7 +244,7 @@ class AcquisitionLoop:
             self.raise_trip(Trip(interlock, f"{ch.kind} instrument fault: {exc}", now))
         elif isinstance(exc, Disconnected):
             self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument: {exc}", now))
-        elif ch.errors_in_row >= self.limits.max_consecutive_errors:
+        elif ch.errors_in_row >= self.monitor.limits.max_consecutive_errors:
             what = "timeouts" if isinstance(exc, InstrumentTimeout) else "errors"
             self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument after {ch.errors_in_row} "
                                                     f"{what} in a row: {exc}", now))
@@ -348,36 +337,14 @@ class AcquisitionLoop:
         samples = Samples(t, torque, angle, {**(extra or {}), "encoder_arcsec": raw_angle})
         self.fanout.publish_data(samples)
         self.samples_published += len(t)
-        for trip in (check_torque_limit(t, torque, self.limits), check_angle_window(t, angle, self.limits),
-                     self._rate.check(t, torque)):
-            if trip is not None:
-                self.raise_trip(trip)
-                break
+        trip = self.monitor.judge_batch(t, torque, angle)
+        if trip is not None:
+            self.raise_trip(trip)
 
     def _check_stale(self, now: float) -> None:
-        """Watchdog: a channel without a new reading for ``stale_timeout_s`` trips. On real time the limit is
-        at least 0.5 s of real time (a faster-than-real-time simulator must not trip on scheduling jitter).
-        A channel whose recent reads failed is reported as lost, with its last error."""
-        timeout = self.limits.stale_timeout_s
-        if timeout is None:
-            return
-        if not self.clock.stepped:
-            timeout = max(timeout, 0.5 * getattr(self.clock, "speed", 1.0))
-        for ch in self._channels.values():
-            age = now - ch.last_arrival_s
-            busy = ch.busy_since
-            if age > timeout:
-                if busy is not None:
-                    self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s, "
-                                                            f"request to {ch.name} pending for {now - busy:.2f} s "
-                                                            f"(watchdog timeout {timeout:g} s)", now))
-                elif ch.errors_in_row and ch.last_error:
-                    self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s "
-                                                            f"({ch.last_error})", now))
-                else:
-                    self.raise_trip(Trip("stale_data", f"stale data: no {ch.kind} reading from {ch.name} for "
-                                                       f"{age:.2f} s (limit {timeout:g} s)", now))
-                return
+        trip = self.monitor.judge_freshness(self._channels.values(), now)
+        if trip is not None:
+            self.raise_trip(trip)
 
     def _root_cause(self, trip: Trip) -> Trip:
         """A torque/angle excursion is often the consequence of a drive fault (its fault reaction takes the
