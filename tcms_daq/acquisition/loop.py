@@ -1,13 +1,9 @@
 """The acquisition loop: read instruments, align, compensate, publish, judge interlocks.
 
-Two ways time can move (see :mod:`tcms_daq.acquisition.clock`):
-
-- **threaded** (real time; real instruments or protocol simulators in another process): one worker thread per
-  instrument calls its blocking ``read()`` (the driver stamps each reading), a status poller watches the
-  loader, and a coordinator thread runs :meth:`AcquisitionLoop.step` every ``period_s``.
-- **stepped** (simulated clock of the in-process virtual bench): time advances only in :meth:`wait`, which
-  advances the clock by ``period_s`` and runs :meth:`step` synchronously after each advance. The run is
-  deterministic and as fast as the physics allows.
+How time moves is the scheduler's business (:mod:`.schedulers`): **threaded** on real time (a reader thread per
+instrument, a status poller, a coordinator running :meth:`AcquisitionLoop.step` every ``period_s``) or
+**stepped** on the simulated clock (time advances only in :meth:`wait`, each advance followed by one synchronous
+step: deterministic, as fast as the physics allows). The clock chooses (:mod:`tcms_daq.acquisition.clock`).
 
 Each step drains the new readings, aligns torque onto the angle stamps (:mod:`.align`), applies the
 compensator to the batch, publishes one :class:`~.fanout.DataMessage` (never blocking: see :mod:`.fanout`),
@@ -19,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -39,13 +34,13 @@ from tcms_daq.acquisition.bench import Bench
 from tcms_daq.acquisition.fanout import FanOut
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
 from tcms_daq.acquisition.monitor import InterlockMonitor
+from tcms_daq.acquisition.schedulers import SteppedScheduler, ThreadedScheduler
 from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
 
 log = logging.getLogger(__name__)
 # CiA 402 states in which the drive can apply torque (a loader left in one after a run is disabled)
 POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
-WORKER_RESTART_S = 0.5  # pause before a failed acquisition worker starts again (real time)
 
 
 class InterlockTripped(TcmsError):
@@ -122,11 +117,9 @@ class AcquisitionLoop:
             "torque": _Channel("torque", bench.torque.name, now),
             "loader": _Channel("loader", bench.loader.name, now),
         }
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._tick = threading.Condition()
+        self.scheduler: SteppedScheduler | ThreadedScheduler = (
+            SteppedScheduler() if self.clock.stepped else ThreadedScheduler())
         self._step_lock = threading.Lock()
-        self._last_status_poll = -np.inf
         self.running = False
         self.samples_published = 0
 
@@ -135,46 +128,17 @@ class AcquisitionLoop:
         if self.running:
             return self
         self.running = True
-        self._stop.clear()
         now = self.clock.now()
         for ch in self._channels.values():
             ch.last_arrival_s = now
-        if not self.clock.stepped:
-            for kind in ("angle", "torque"):
-                self._spawn(self._reader, kind)
-            self._spawn(self._status_poller)
-            self._spawn(self._coordinator)
+        self.scheduler.start(self)
         return self
-
-    def _spawn(self, target: Callable, *args: Any) -> None:
-        name = f"tcms-acq-{target.__name__}-{args}"
-
-        def guarded() -> None:
-            """A worker that fails on a bug ends the run with the reason (a trip), is logged with its traceback
-            and starts again, so monitoring goes on for the next test; it never dies silently."""
-            while not self._stop.is_set():
-                try:
-                    target(*args)
-                    return
-                except Exception as exc:
-                    log.exception("%s failed; restarting it in %g s", name, WORKER_RESTART_S)
-                    self.raise_trip(Trip("internal_error", f"acquisition thread {target.__name__.strip('_')} "
-                                         f"failed: {type(exc).__name__}: {exc}", self.clock.now()))
-                    if self._stop.wait(WORKER_RESTART_S):
-                        return
-
-        t = threading.Thread(target=guarded, name=name, daemon=True)
-        t.start()
-        self._threads.append(t)
 
     def stop(self) -> None:
         """Stop the worker threads, then publish what is still held (aligner flush)."""
         if not self.running:
             return
-        self._stop.set()
-        for t in self._threads:
-            t.join(timeout=5.0)
-        self._threads.clear()
+        self.scheduler.stop(self)
         self.step()
         time_s, torque_nm, angle_arcsec = self._aligner.flush()
         if len(time_s):
@@ -211,7 +175,8 @@ class AcquisitionLoop:
     def _source(self, kind: str):
         return self.bench.angle if kind == "angle" else self.bench.torque
 
-    def _read_once(self, kind: str) -> int:
+    def read_once(self, kind: str) -> int:
+        """One blocking read of the angle or torque source into its channel; returns the readings taken."""
         ch = self._channels[kind]
         try:
             with self._io_locks[kind]:
@@ -248,16 +213,6 @@ class AcquisitionLoop:
             what = "timeouts" if isinstance(exc, InstrumentTimeout) else "errors"
             self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument after {ch.errors_in_row} "
                                                     f"{what} in a row: {exc}", now))
-
-    def _reader(self, kind: str) -> None:
-        while not self._stop.is_set():
-            started = time.monotonic()
-            n = self._read_once(kind)
-            rest = self.read_interval_s - (time.monotonic() - started)
-            if n == 0:
-                rest = max(rest, self.read_interval_s)
-            if rest > 0:
-                self._stop.wait(rest)
 
     def poll_status(self, *, wait_for_lock: bool = True) -> LoaderStatus | None:
         """Read the loader's status (under the loader lock); None when it failed, or when the lock is held and
@@ -299,28 +254,12 @@ class AcquisitionLoop:
         self.disable_pending = False
         return status
 
-    def _status_poller(self) -> None:
-        # Monitoring never stops, a trip or not (the bench view shows the drive's real state, and the next run
-        # starts from a fresh reading); while the procedure commands the loader (ramp down, disable, reconnect
-        # attempts) the poll is skipped rather than competing for the driver.
-        while not self._stop.wait(self.status_period_s):
-            self.poll_status(wait_for_lock=False)
-
-    def _coordinator(self) -> None:
-        while not self._stop.wait(self.period_s):
-            self.step()
-
     # -- one step ------------------------------------------------------------------------------------
     def step(self) -> None:
         """Drain new readings, align, compensate, publish, judge interlocks."""
         with self._step_lock:
             now = self.clock.now()
-            if self.clock.stepped:
-                self._read_once("angle")
-                self._read_once("torque")
-                if now - self._last_status_poll >= self.status_period_s - 1e-12:
-                    self._last_status_poll = now
-                    self.poll_status()
+            self.scheduler.before_step(self, now)
             ang, extra = self._channels["angle"].take()
             tq, _ = self._channels["torque"].take()
             t, torque, angle = self._aligner.push(ang.time_s, ang.value, tq.time_s, tq.value, now, extra)
@@ -328,8 +267,7 @@ class AcquisitionLoop:
                 self._publish(t, torque, angle, self._aligner.released_extra)
             if self.running:
                 self._check_stale(now)
-        with self._tick:
-            self._tick.notify_all()
+        self._wake()
 
     def _publish(self, t: np.ndarray, torque: np.ndarray, raw_angle: np.ndarray,
                  extra: dict[str, np.ndarray] | None = None) -> None:
@@ -371,8 +309,11 @@ class AcquisitionLoop:
         self.trip = trip
         self.trip_event.set()
         self.fanout.publish_event("interlock", trip.time_s, interlock=trip.interlock, reason=trip.reason)
-        with self._tick:
-            self._tick.notify_all()
+        self._wake()
+
+    def _wake(self) -> None:
+        if isinstance(self.scheduler, ThreadedScheduler):
+            self.scheduler.wake()
 
     # -- waiting (the procedure's only way to let time pass) ----------------------------------------
     def wait(self, duration_s: float, *, abort_event: threading.Event | None = None,
@@ -395,14 +336,7 @@ class AcquisitionLoop:
             if now >= deadline - 1e-9:
                 return False
             dt = min(self.period_s, deadline - now)
-            if self.clock.stepped:
-                self.clock.sleep(dt)
-                if self.clock.now() <= now:  # a clock that cannot move would spin here for ever
-                    raise TcmsError(f"the simulated clock did not advance from {now!r} s by {dt!r} s")
-                self.step()
-            else:
-                with self._tick:
-                    self._tick.wait(dt)
+            self.scheduler.pass_time(self, now, dt)
 
     def channel_stats(self) -> dict[str, dict]:
         return {k: {"instrument": c.name, "readings": c.readings, "errors": c.errors_total}

@@ -210,7 +210,7 @@ def test_a_failing_worker_thread_on_real_time_aborts_and_restarts(sim_serve, tmp
     profile = continuous_profile(500.0, 1000.0, cycles=1, conditioning_loops=1, tip_dwell_s=0.1)
     acq = AcquisitionLoop(bench)
     try:
-        with caplog.at_level(logging.ERROR, logger="tcms_daq.acquisition.loop"):
+        with caplog.at_level(logging.ERROR, logger="tcms_daq.acquisition.schedulers"):
             first = TestRun(bench, profile, acquisition=acq).run()
         assert first.state == "aborted", first.reason
         assert first.trip["interlock"] == "internal_error"
