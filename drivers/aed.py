@@ -20,6 +20,7 @@ import time
 import serial
 
 from drivers.base import Clock, CommandRejected, DeviceFault, MalformedReply
+from drivers.timebase import REAL_TIME, Timebase
 from drivers.transport import SerialInstrument, open_serial_url, require_terminated
 from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, MAX_NOV, MSV_RE, OVERFLOW_VALUE
 
@@ -56,6 +57,7 @@ class AED(SerialInstrument):
         reconnect_attempts: int = 3,
         reconnect_delay_s: float = 0.2,
         clock: Clock = time.monotonic,
+        timebase: Timebase = REAL_TIME,
         opener=open_serial_url,
     ):
         if not nominal_torque_nm > 0:
@@ -63,7 +65,8 @@ class AED(SerialInstrument):
         if not (isinstance(nominal_output, int) and 0 <= nominal_output <= MAX_NOV):
             raise ValueError(f"{name}: nominal_output (NOV) must be an integer 0…{MAX_NOV}, got {nominal_output!r}")
         super().__init__(url, name=name, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
-                         reconnect_delay_s=reconnect_delay_s, clock=clock, opener=opener, baudrate=baudrate,
+                         reconnect_delay_s=reconnect_delay_s, clock=clock, timebase=timebase, opener=opener,
+                         baudrate=baudrate,
                          bytesize=serial.EIGHTBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_ONE)
         self.nominal_torque_nm = float(nominal_torque_nm)
         self.nominal_output = nominal_output

@@ -3,7 +3,8 @@
 Three instrument kinds (DESIGN §1, §4): an angle source, a torque source and a loader. Drivers are synchronous
 and blocking with timeouts everywhere; the acquisition layer runs them in worker threads. Every reading is
 stamped at the driver with the driver's clock (``time.monotonic`` for real instruments, the simulated clock
-for in-process simulated ones).
+for in-process simulated ones); the driver's own waiting (deadlines, frame ages, retry delays) runs on a
+:class:`drivers.timebase.Timebase`, real time unless a test injects a manual one.
 
 Sign conventions: positive torque twists the output in the positive angle direction. Angles in arcsec,
 torque in N·m, times in s.

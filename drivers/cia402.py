@@ -8,11 +8,11 @@ ramp-down, status) that both transports share.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from typing import Any, Self
 
 from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, LoaderStatus
+from drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.protocols.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
@@ -81,7 +81,7 @@ class CiA402Loader:
     scaling: TorqueScaling | None
 
     def __init__(self, *, name: str, max_torque_nm: float | None, torque_slope_nm_per_s: float,
-                 state_timeout_s: float, clock: Clock):
+                 state_timeout_s: float, clock: Clock, timebase: Timebase = REAL_TIME):
         if not (isinstance(torque_slope_nm_per_s, int | float) and math.isfinite(torque_slope_nm_per_s)
                 and torque_slope_nm_per_s > 0):
             raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
@@ -90,6 +90,7 @@ class CiA402Loader:
         self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
         self.state_timeout_s = float(state_timeout_s)
         self.clock = clock
+        self.timebase = timebase
         self.scaling = None
         self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
 
@@ -222,9 +223,9 @@ class CiA402Loader:
             if degraded is None and state_from_statusword(self._read_statusword()) == "OPERATION ENABLED":
                 slope_nm_per_s = scaling.newton_metres(self._slope_permille or 1000)
                 actual_nm = abs(scaling.newton_metres(self._read_torque_permille()))
-                deadline = time.monotonic() + min(10.0, actual_nm / max(slope_nm_per_s, 1e-9) + 0.5)
-                while time.monotonic() < deadline and abs(self._read_torque_permille()) > 5:
-                    time.sleep(0.01)
+                deadline = self.timebase.now() + min(10.0, actual_nm / max(slope_nm_per_s, 1e-9) + 0.5)
+                while self.timebase.now() < deadline and abs(self._read_torque_permille()) > 5:
+                    self.timebase.sleep(0.01)
         finally:
             self._write_controlword(CW_DISABLE_VOLTAGE)
         self._raise_unconfirmed("disable", degraded)

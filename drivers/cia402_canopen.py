@@ -44,6 +44,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from drivers.base import Clock, CommandRejected, Disconnected, InstrumentTimeout, MalformedReply
 from drivers.cia402 import CiA402Loader
+from drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.cia402 import CW_DISABLE_VOLTAGE, drive_eds_path, to_int16
 
@@ -138,11 +139,12 @@ class CiA402Canopen(CiA402Loader):
         reconnect_attempts: int = 2,
         reconnect_timeout_s: float | None = None,
         clock: Clock = time.monotonic,
+        timebase: Timebase = REAL_TIME,
     ):
         if not 1 <= node_id <= 127 or not 1 <= master_node_id <= 127 or node_id == master_node_id:
             raise ValueError(f"{name}: node ids must be 1…127 and differ (drive {node_id}, master {master_node_id})")
         super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
-                         state_timeout_s=state_timeout_s, clock=clock)
+                         state_timeout_s=state_timeout_s, clock=clock, timebase=timebase)
         self.url = url
         self.bus_options = parse_can_url(url, bitrate)
         self.node_id = node_id
@@ -354,11 +356,11 @@ class CiA402Canopen(CiA402Loader):
         if first:
             log.warning("%s: CAN link lost (%s: %s); reconnecting on the next command", self.name,
                         type(exc).__name__, exc)
-        time.sleep(LINK_ERROR_BACKOFF_S)
+        time.sleep(LINK_ERROR_BACKOFF_S)  # throttles a real thread: real time
 
     def _on_heartbeat(self, state: int) -> None:
         with self._cond:
-            self._last_heartbeat = time.monotonic()
+            self._last_heartbeat = self.timebase.now()
             if state == 0:
                 self._booted = True  # boot-up: the drive lost its configuration
             self._cond.notify_all()
@@ -374,7 +376,7 @@ class CiA402Canopen(CiA402Loader):
             if len(data) != 8:
                 self._malformed = f"TPDO1 of {len(data)} bytes, expected 8: {bytes(data).hex(' ')}"
             else:
-                self._tpdo1 = (pdo_map[0x6041].raw, pdo_map[0x6077].raw, pdo_map[0x6064].raw, time.monotonic())
+                self._tpdo1 = (pdo_map[0x6041].raw, pdo_map[0x6077].raw, pdo_map[0x6064].raw, self.timebase.now())
             self._cond.notify_all()
 
     def _on_tpdo2(self, pdo_map) -> None:
@@ -390,22 +392,27 @@ class CiA402Canopen(CiA402Loader):
     def _heartbeat_alive(self) -> bool:
         with self._cond:
             last = self._last_heartbeat
-        return last is not None and time.monotonic() - last <= self.heartbeat_timeout_s
+        return last is not None and self.timebase.now() - last <= self.heartbeat_timeout_s
+
+    def _time_left(self, timeout_s: float) -> Callable[[], float]:
+        """s left of a wait for a frame: it ends ``timeout_s`` after now on the timebase or in real time,
+        whichever comes first (a manual timebase that nobody advances cannot make it wait forever)."""
+        on_timebase, in_real_time = self.timebase.now() + timeout_s, time.monotonic() + timeout_s
+        return lambda: min(on_timebase - self.timebase.now(), in_real_time - time.monotonic())
 
     def _wait_heartbeat(self, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
+        left = self._time_left(timeout_s)
         with self._cond:
             while True:
-                if self._last_heartbeat is not None and time.monotonic() - self._last_heartbeat <= self.heartbeat_timeout_s:
+                if self._last_heartbeat is not None and self.timebase.now() - self._last_heartbeat <= self.heartbeat_timeout_s:
                     return True
-                left = deadline - time.monotonic()
-                if left <= 0:
+                if left() <= 0:
                     return False
-                self._cond.wait(left)
+                self._cond.wait(min(left(), 0.05))
 
     def _wait_tpdo(self, predicate, timeout_s: float, after: float | None = None):
         """The first TPDO1 (newer than ``after``) whose statusword satisfies ``predicate``, or None."""
-        deadline = time.monotonic() + timeout_s
+        left = self._time_left(timeout_s)
         with self._cond:
             while True:
                 if self._malformed:
@@ -414,10 +421,9 @@ class CiA402Canopen(CiA402Loader):
                 tpdo = self._tpdo1
                 if tpdo is not None and (after is None or tpdo[3] > after) and predicate(tpdo[0]):
                     return tpdo
-                left = deadline - time.monotonic()
-                if left <= 0:
+                if left() <= 0:
                     return None
-                self._cond.wait(min(left, 0.05))
+                self._cond.wait(min(left(), 0.05))
 
     def _send_nmt(self, action) -> None:
         try:
@@ -453,7 +459,7 @@ class CiA402Canopen(CiA402Loader):
         rpdo = self._link().rpdo[1]
         rpdo[0x6040].raw = controlword
         rpdo[0x6071].raw = target_permille
-        sent_at = time.monotonic()
+        sent_at = self.timebase.now()
         try:
             rpdo.transmit()
         except (can.CanError, OSError, RuntimeError) as exc:
@@ -473,8 +479,8 @@ class CiA402Canopen(CiA402Loader):
         tpdo = self._wait_tpdo(lambda sw: True, self.state_timeout_s)
         if tpdo is None:
             raise InstrumentTimeout(self.name, "no TPDO1 from the drive")
-        if time.monotonic() - tpdo[3] > self.heartbeat_timeout_s:
-            raise InstrumentTimeout(self.name, f"TPDO1 stale for {time.monotonic() - tpdo[3]:.2f} s")
+        if self.timebase.now() - tpdo[3] > self.heartbeat_timeout_s:
+            raise InstrumentTimeout(self.name, f"TPDO1 stale for {self.timebase.now() - tpdo[3]:.2f} s")
         return tpdo
 
     # -- CiA402Loader primitives: SDO settings, RPDO1 commands, TPDO process data ------------------------

@@ -28,6 +28,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
 from drivers.cia402 import CiA402Loader
 from drivers.modbus_rtu import RtuSerialClient
+from drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.modbus_map import RegisterMap, load_register_map
 
@@ -41,7 +42,7 @@ EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal
 # -- the driver -------------------------------------------------------------------------------------------------
 
 def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trace_packet=None,
-                serial_line: bool = False):
+                serial_line: bool = False, timebase: Timebase = REAL_TIME):
     """A pymodbus sync client for ``url`` (see module doc); automatic background reconnect is off.
 
     ``serial_line``: a ``socket://`` URL gets the serial-line client too (t3.5 kept between frames), for a raw
@@ -55,7 +56,7 @@ def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trac
         # the RTU framer reads replies as they arrive, where the serial client polls the line for silence
         framer = FramerType.SOCKET if parsed.scheme == "tcp" else FramerType.RTU
         return ModbusTcpClient(parsed.hostname, port=parsed.port or 502, framer=framer, **common)
-    return RtuSerialClient(url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, **common)
+    return RtuSerialClient(url, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, timebase=timebase, **common)
 
 
 class CiA402Modbus(CiA402Loader):
@@ -77,11 +78,12 @@ class CiA402Modbus(CiA402Loader):
         reconnect_delay_s: float = 0.2,
         state_timeout_s: float = 2.0,
         clock: Clock = time.monotonic,
+        timebase: Timebase = REAL_TIME,
         trace_packet=None,
         serial_line: bool = False,
     ):
         super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
-                         state_timeout_s=state_timeout_s, clock=clock)
+                         state_timeout_s=state_timeout_s, clock=clock, timebase=timebase)
         self.url = url
         self.map = register_map if isinstance(register_map, RegisterMap) else load_register_map(register_map)
         self.device_id = self.map.device_id if device_id is None else int(device_id)
@@ -91,7 +93,7 @@ class CiA402Modbus(CiA402Loader):
         self._user_trace = trace_packet
         self._rx_seen = b""  # reply bytes seen during the current call (tells "garbage" from "silence")
         self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
-                                  trace_packet=self._trace, serial_line=serial_line)
+                                  trace_packet=self._trace, serial_line=serial_line, timebase=timebase)
         self.reconnects = 0
 
     # -- Modbus access with error mapping --------------------------------------------------------------
@@ -147,7 +149,7 @@ class CiA402Modbus(CiA402Loader):
         self.client.close()
         for attempt in range(self.reconnect_attempts):
             if attempt:
-                time.sleep(self.reconnect_delay_s)
+                self.timebase.sleep(self.reconnect_delay_s)
             if self.client.connect():
                 self.reconnects += 1
                 return
@@ -215,11 +217,11 @@ class CiA402Modbus(CiA402Loader):
     def _await_statusword(self, predicate: Callable[[int], bool], since: float | None,
                           timeout_s: float) -> tuple[int | None, int]:
         """Poll the statusword (a read after the write's reply always sees the write)."""
-        deadline = time.monotonic() + timeout_s
+        deadline = self.timebase.now() + timeout_s
         while True:
             sw = self.read_register("statusword")
             if predicate(sw):
                 return sw, sw
-            if time.monotonic() > deadline:
+            if self.timebase.now() > deadline:
                 return None, sw
-            time.sleep(0.005)
+            self.timebase.sleep(0.005)

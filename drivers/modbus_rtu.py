@@ -18,11 +18,13 @@ up to 19 200 Bd, 1.75 ms above, Modbus over serial line §2.5.1.1).
 
 from __future__ import annotations
 
-import time
+import math
 
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ConnectionException
+
+from drivers.timebase import REAL_TIME, Timebase
 
 RTU_HEAD_BYTES = 3
 FIXED_REPLY_BYTES = {5: 8, 6: 8, 15: 8, 16: 8}
@@ -49,17 +51,16 @@ class RtuSerialClient(ModbusSerialClient):
     """``ModbusSerialClient`` (RTU framing) that reads replies by length and keeps t3.5 before each request."""
 
     def __init__(self, port: str, *, baudrate: int = 19200, bytesize: int = 8, parity: str = "N",
-                 stopbits: int = 1, **kwargs):
+                 stopbits: int = 1, timebase: Timebase = REAL_TIME, **kwargs):
         super().__init__(port, framer=FramerType.RTU, baudrate=baudrate, bytesize=bytesize, parity=parity,
                          stopbits=stopbits, **kwargs)
         bits_per_char = 1 + bytesize + (parity != "N") + stopbits
         self.silence_s = inter_frame_silence_s(baudrate, bits_per_char)
-        self._quiet_from = 0.0  # time.monotonic() from which the line has been silent for t3.5
+        self.timebase = timebase
+        self._quiet_from = -math.inf  # the timebase's time from which the line has been silent for t3.5
 
     def send(self, request: bytes, addr: tuple | None = None) -> int:
-        wait_s = self._quiet_from - time.monotonic()
-        if wait_s > 0:
-            time.sleep(wait_s)
+        self.timebase.sleep(self._quiet_from - self.timebase.now())
         return super().send(request, addr)
 
     def recv(self, size: int | None) -> bytes:
@@ -76,5 +77,5 @@ class RtuSerialClient(ModbusSerialClient):
             self.close()
             raise ConnectionException(str(self)) from None
         if data:
-            self._quiet_from = time.monotonic() + self.silence_s
+            self._quiet_from = self.timebase.now() + self.silence_s
         return data

@@ -22,6 +22,7 @@ import time
 import serial
 
 from drivers.base import Clock, DeviceFault, MalformedReply
+from drivers.timebase import REAL_TIME, Timebase
 from drivers.transport import SerialInstrument, open_serial_url
 from tcms_daq.protocols.nd287 import FRAME_LENGTH, FRAME_RE, STX, value_to_arcsec
 
@@ -64,12 +65,14 @@ class ND287(SerialInstrument):
         reconnect_delay_s: float = 0.2,
         readings_per_read: int = 1,
         clock: Clock = time.monotonic,
+        timebase: Timebase = REAL_TIME,
         opener=open_serial_url,
     ):
         if readings_per_read < 1:
             raise ValueError(f"{name}: readings_per_read must be >= 1")
         super().__init__(url, name=name, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
-                         reconnect_delay_s=reconnect_delay_s, clock=clock, opener=opener, baudrate=baudrate,
+                         reconnect_delay_s=reconnect_delay_s, clock=clock, timebase=timebase, opener=opener,
+                         baudrate=baudrate,
                          bytesize=serial.SEVENBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO)
         self.readings_per_read = int(readings_per_read)
 

@@ -1,5 +1,5 @@
 """Testing aids for drivers: transcript testing of serial drivers (in the style of PyMeasure's
-``expected_protocol``) and ``wait_until`` for tests against live simulators.
+``expected_protocol``) and ``wait_until`` for tests against live simulators, ``ManualTime`` for a driver's own waiting without sleeps.
 
 ``ScriptedSerial`` stands in for a pyserial port: it holds a list of ``(expected_write, reply)`` pairs, checks
 that the driver writes exactly the expected bytes in order, and then offers the scripted reply for reading
@@ -26,6 +26,27 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float = 2.0, poll_s: fl
             return True
         time.sleep(poll_s)
     return False
+
+
+class ManualTime:
+    """A :class:`drivers.timebase.Timebase` that moves only when told: ``sleep`` and ``advance`` add to
+    ``now`` at once (no real waiting) and ``sleeps`` records each requested sleep in s."""
+
+    def __init__(self, start_s: float = 1000.0):
+        self._now_s = float(start_s)
+        self.sleeps: list[float] = []
+
+    def now(self) -> float:
+        return self._now_s
+
+    def sleep(self, duration_s: float) -> None:
+        if duration_s > 0:
+            self.sleeps.append(float(duration_s))
+            self.advance(duration_s)
+
+    def advance(self, duration_s: float) -> None:
+        if duration_s > 0:
+            self._now_s += float(duration_s)
 
 
 class TranscriptMismatch(AssertionError):

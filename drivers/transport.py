@@ -15,7 +15,6 @@ Failure mapping (one exception type per failure, the instrument always named):
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from typing import Any, Self, TypeVar
 
@@ -23,6 +22,7 @@ import numpy as np
 import serial
 
 from drivers.base import Batch, Clock, Disconnected, InstrumentTimeout, MalformedReply
+from drivers.timebase import REAL_TIME, Timebase
 
 # A function that reads one reply from an open port (e.g. ``lambda port: port.read_until(b"\r\n", 64)``).
 ReplyReader = Callable[[serial.SerialBase], bytes]
@@ -51,6 +51,7 @@ class SerialLink:
         reconnect_attempts: int = 3,
         reconnect_delay_s: float = 0.2,
         opener: Callable[..., serial.SerialBase] = open_serial_url,
+        timebase: Timebase = REAL_TIME,
         **serial_settings: Any,
     ):
         if timeout_s <= 0:
@@ -61,6 +62,7 @@ class SerialLink:
         self.reconnect_attempts = int(reconnect_attempts)
         self.reconnect_delay_s = float(reconnect_delay_s)
         self._opener = opener
+        self.timebase = timebase
         self._settings = dict(serial_settings, timeout=self.timeout_s, write_timeout=self.timeout_s)
         self._port: serial.SerialBase | None = None
         self.reconnects = 0  # successful re-opens after a broken link (for diagnostics)
@@ -92,7 +94,7 @@ class SerialLink:
         last: BaseException | str = reason
         for attempt in range(self.reconnect_attempts):
             if attempt:
-                time.sleep(self.reconnect_delay_s)
+                self.timebase.sleep(self.reconnect_delay_s)
             try:
                 self.open()
                 self.reconnects += 1
@@ -172,12 +174,14 @@ class SerialInstrument:
         reconnect_delay_s: float,
         clock: Clock,
         opener: Callable[..., serial.SerialBase],
+        timebase: Timebase = REAL_TIME,
         **serial_settings: Any,
     ):
         self.name = name
         self.clock = clock
         self.link = SerialLink(name, url, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
-                               reconnect_delay_s=reconnect_delay_s, opener=opener, xonxoff=False, **serial_settings)
+                               reconnect_delay_s=reconnect_delay_s, opener=opener, timebase=timebase,
+                               xonxoff=False, **serial_settings)
 
     def connect(self) -> None:
         self.link.open()

@@ -17,7 +17,7 @@ from drivers.base import (
 )
 from drivers.cia402_modbus import CiA402Modbus
 from drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
-from drivers.testing import wait_until
+from drivers.testing import ManualTime, wait_until
 from sim.instruments.proxy import FaultProxy
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.modbus_map import load_register_map
@@ -257,14 +257,50 @@ def test_serial_line_client_malformed_reply(drive_sims):
 
 
 def test_serial_line_client_keeps_the_inter_frame_silence(drive_sims):
-    """No request starts before t3.5 (1.75 ms at 115 200 Bd) after the last reply byte was read."""
-    with _serial_line(drive_sims) as drive:
+    """No request starts before t3.5 (1.75 ms at 115 200 Bd) after the last reply byte was read. On a manual
+    timebase the driver's wait is exact and costs no real time, whatever else loads the machine."""
+    timebase = ManualTime()
+    with _serial_line(drive_sims, timebase=timebase) as drive:
+        silence_s = drive.client.silence_s
+        assert silence_s == pytest.approx(1.75e-3)
         port = drive.client.socket
         events = []
         read, write = port.read, port.write
-        port.read = lambda n=1: (data := read(n), events.append(("rx", time.monotonic())), data)[2]
-        port.write = lambda data: (events.append(("tx", time.monotonic())), write(data))[1]
+        port.read = lambda n=1: (data := read(n), events.append(("rx", timebase.now())), data)[2]
+        port.write = lambda data: (events.append(("tx", timebase.now())), write(data))[1]
+        timebase.sleeps.clear()
         for _ in range(5):
             drive.read_register("statusword")
         gaps = [t - events[i - 1][1] for i, (kind, t) in enumerate(events) if kind == "tx" and i > 0]
-        assert len(gaps) == 4 and min(gaps) >= drive.client.silence_s == pytest.approx(1.75e-3)
+        assert gaps == pytest.approx([silence_s] * 4, abs=1e-12)  # exactly t3.5: time moved only in the waits
+        assert timebase.sleeps == pytest.approx([silence_s] * 5)  # the first request waits after connect's reply
+
+
+def test_state_change_that_never_comes_times_out_on_the_timebase(drive_sims, monkeypatch):
+    """A drive that ignores its controlword: enable() gives up after state_timeout_s of the driver's
+    timebase with the state it saw — measured on a manual timebase, so the bound is exact and no real 2 s pass."""
+    timebase = ManualTime()
+    monkeypatch.setattr(drive_sims.drive, "write_controlword", lambda cw: None)
+    with _tcp(drive_sims, timebase=timebase, state_timeout_s=2.0) as drive:
+        start_s, real_start_s = timebase.now(), time.monotonic()
+        with pytest.raises(InstrumentTimeout, match="did not reach READY TO SWITCH ON within 2 s.*SWITCH ON DISABLED"):
+            drive.enable()
+        assert 2.0 < timebase.now() - start_s <= 2.0 + 0.005 + 1e-9  # one poll interval past the deadline
+        assert time.monotonic() - real_start_s < 2.0
+
+
+def test_disable_waits_for_the_torque_at_most_its_ramp_time(drive_sims, monkeypatch):
+    """disable() ramps the target to 0 and waits for the torque to come down, at most |torque| / slope + 0.5 s,
+    then disables the voltage anyway (a drive whose torque reading sticks)."""
+    timebase = ManualTime()
+    with _tcp(drive_sims, timebase=timebase, torque_slope_nm_per_s=20000.0) as drive:
+        drive.enable()
+        drive.set_torque(400.0)
+        assert wait_until(lambda: abs(drive.status().torque_actual_nm - 400.0) <= 2.0)
+        stuck_permille = drive_sims.drive.torque_actual_permille()
+        monkeypatch.setattr(drive_sims.drive, "torque_actual_permille", lambda: stuck_permille)
+        start_s = timebase.now()
+        drive.disable()
+        bound_s = abs(drive.scaling.newton_metres(stuck_permille)) / 20000.0 + 0.5
+        assert bound_s <= timebase.now() - start_s <= bound_s + 0.01 + 1e-9
+        assert drive.status().state == "SWITCH ON DISABLED"
