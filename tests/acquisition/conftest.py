@@ -1,76 +1,26 @@
-"""Fixtures for the acquisition tests: a small stand-in physics with the SimulatedBench contract, virtual
-benches built on it, and a short GB-style profile."""
+"""Fixtures for the acquisition tests: virtual benches on the shared spring double (``sim.testing``), protocol
+benches, and a short GB-style profile."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
+from sim.testing import SpringBench
 from tcms_daq.acquisition import compose_bench
 from tcms_daq.procedure.profiles import continuous_profile
-from tcms_daq.samples import Samples
 
 RIGIDITY_NM_PER_ARCMIN = 300.0
 BACKLASH_ARCSEC = 10.0
 
 
-class LinearPhysics:
-    """Spring (RIGIDITY) plus a backlash step smoothed over ±20 N·m, drive lag, seeded sensor noise.
-
-    SimulatedBench contract: set_drive_enabled, set_torque_target(target, slope), advance(dt) -> Samples,
-    now_s. Sample rate 1 kHz.
-    """
-
-    def __init__(self, seed: int = 0, rate_hz: float = 1000.0, tau_s: float = 0.005,
-                 torque_noise_nm: float = 0.2, angle_noise_arcsec: float = 0.1):
-        self.rng = np.random.default_rng(seed)
-        self.rate_hz = rate_hz
-        self.tau_s = tau_s
-        self.torque_noise_nm = torque_noise_nm
-        self.angle_noise_arcsec = angle_noise_arcsec
-        self._n = 0  # samples produced; sample k is at k / rate
-        self._now_s = 0.0  # the clock moves by exactly what is asked, between samples too
-        self.enabled = False
-        self.target_nm = 0.0
-        self.slope_nm_per_s = 1e9
-        self.setpoint_nm = 0.0
-        self.applied_nm = 0.0
-
-    @property
-    def now_s(self) -> float:
-        return self._now_s
-
-    def set_drive_enabled(self, enabled: bool) -> None:
-        self.enabled = enabled
-        if not enabled:
-            self.target_nm = 0.0
-            self.setpoint_nm = 0.0
-
-    def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None:
-        self.target_nm = target_nm
-        self.slope_nm_per_s = slope_nm_per_s
-
-    def advance(self, duration_s: float) -> Samples:
-        self._now_s += duration_s
-        n_end = int(np.floor(self._now_s * self.rate_hz + 1e-9))
-        n = max(n_end - self._n, 0)
-        dt = 1.0 / self.rate_hz
-        t = (self._n + 1 + np.arange(n)) / self.rate_hz
-        applied = np.empty(n)
-        step = self.slope_nm_per_s * dt
-        alpha = dt / (self.tau_s + dt)
-        for i in range(n):  # fine for a test stand-in; the real sim is vectorised
-            if self.enabled:
-                self.setpoint_nm += float(np.clip(self.target_nm - self.setpoint_nm, -step, step))
-            self.applied_nm += alpha * (self.setpoint_nm - self.applied_nm)
-            applied[i] = self.applied_nm
-        self._n = n_end if n else self._n
-        angle = applied / RIGIDITY_NM_PER_ARCMIN * 60.0 + BACKLASH_ARCSEC / 2 * np.tanh(applied / 20.0)
-        torque = applied + self.rng.normal(0, self.torque_noise_nm, n)
-        angle = angle + self.rng.normal(0, self.angle_noise_arcsec, n)
-        return Samples(t, torque, angle, {"applied_torque_nm": applied})
+def spring_with_backlash(seed: int = 0, rate_hz: float = 1000.0, tau_s: float = 0.005, torque_noise_nm: float = 0.2,
+                  angle_noise_arcsec: float = 0.1) -> SpringBench:
+    """The acquisition tests' bench: the shared spring double with backlash and seeded sensor noise."""
+    return SpringBench(rigidity_nm_per_arcmin=RIGIDITY_NM_PER_ARCMIN, backlash_arcsec=BACKLASH_ARCSEC,
+                       lag_s=tau_s, sample_rate_hz=rate_hz, torque_noise_nm=torque_noise_nm,
+                       angle_noise_arcsec=angle_noise_arcsec, seed=seed)
 
 
 def virtual_config(max_torque_nm: float = 2000.0) -> dict:
@@ -84,7 +34,7 @@ def make_bench():
     def make(seed: int = 0, max_torque_nm: float = 2000.0, speed: float | None = None, **physics_kw):
         """speed: None runs the simulated clock as fast as possible (stepped); a number paces it (threads)."""
         return compose_bench(virtual_config(max_torque_nm), speed=speed,
-                             physics_factory=lambda _cfg: LinearPhysics(seed, **physics_kw))
+                             physics_factory=lambda _cfg: spring_with_backlash(seed, **physics_kw))
 
     return make
 
@@ -157,9 +107,9 @@ def protocol_bench():
 
 
 @pytest.fixture
-def linear_physics():
+def make_spring():
     """The stand-in physics class (for tests composing their own config)."""
-    return LinearPhysics
+    return spring_with_backlash
 
 
 @pytest.fixture

@@ -23,8 +23,8 @@ def config(**instruments):
     return {"bench": {"name": "b", "max_torque_nm": 500.0}, "instruments": inst}
 
 
-def test_virtual_instruments_share_one_bench_and_its_simulated_clock(linear_physics):
-    bench = compose_bench(config(), physics_factory=lambda _c: linear_physics())
+def test_virtual_instruments_share_one_bench_and_its_simulated_clock(make_spring):
+    bench = compose_bench(config(), physics_factory=lambda _c: make_spring())
     assert isinstance(bench.clock, SimulatedClock) and bench.clock.stepped
     assert bench.angle.bench is bench.torque.bench is bench.loader.bench
     assert bench.loader.max_torque_nm == 500.0  # the bench limit when the loader names none
@@ -37,7 +37,7 @@ def test_virtual_instruments_share_one_bench_and_its_simulated_clock(linear_phys
     bench.close()
 
 
-def test_composition_errors_are_one_line(linear_physics):
+def test_composition_errors_are_one_line(make_spring):
     with pytest.raises(ConfigError, match="unknown driver 'nd999'"):
         compose_bench(config(angle={"driver": "nd999", "url": "x"}))
     with pytest.raises(ConfigError, match=r"missing \[instruments\.torque\]"):
@@ -46,10 +46,10 @@ def test_composition_errors_are_one_line(linear_physics):
         compose_bench(cfg)
     with pytest.raises(ConfigError, match="cannot mix simulated"):
         compose_bench(config(angle={"driver": "nd287", "url": "socket://127.0.0.1:1"}),
-                      physics_factory=lambda _c: linear_physics())
+                      physics_factory=lambda _c: make_spring())
     with pytest.raises(ConfigError, match="share one bench"):
         compose_bench(config(angle={"driver": "virtual", "url": "virtual://other"}),
-                      physics_factory=lambda _c: linear_physics())
+                      physics_factory=lambda _c: make_spring())
     with pytest.raises(ConfigError, match="virtual://sim"):
         parse_virtual_url("socket://127.0.0.1:4001")
     with pytest.raises(ConfigError, match="no such file"):
@@ -67,8 +67,8 @@ def test_real_instruments_get_the_bench_clock():
     assert before <= stamp <= time.monotonic() * 8.0  # bracketed: no tolerance a preemption could exceed
 
 
-def test_simulated_clock_runs_free_or_paced(linear_physics, monkeypatch):
-    vb = VirtualBench(linear_physics())
+def test_simulated_clock_runs_free_or_paced(make_spring, monkeypatch):
+    vb = VirtualBench(make_spring())
     real_sleep = time.sleep
     slept: list[float] = []
     monkeypatch.setattr(time, "sleep", lambda s: (slept.append(s), real_sleep(s)))
@@ -84,8 +84,8 @@ def test_simulated_clock_runs_free_or_paced(linear_physics, monkeypatch):
         MonotonicClock(speed=math.inf)
 
 
-def test_virtual_loader_validates_before_touching_the_physics(linear_physics):
-    vb = VirtualBench(linear_physics())
+def test_virtual_loader_validates_before_touching_the_physics(make_spring):
+    vb = VirtualBench(make_spring())
     loader = VirtualLoader(vb, rated_torque_nm=300.0)
     loader.connect()
     with pytest.raises(CommandRejected, match="not in OPERATION ENABLED"):
@@ -109,8 +109,8 @@ def test_virtual_loader_validates_before_touching_the_physics(linear_physics):
         loader.status()
 
 
-def test_virtual_fault_hooks_fire_at_their_simulated_time(linear_physics):
-    vb = VirtualBench(linear_physics())
+def test_virtual_fault_hooks_fire_at_their_simulated_time(make_spring):
+    vb = VirtualBench(make_spring())
     fired = []
     vb.at(0.1234, lambda: fired.append(vb.now_s()))
     vb.advance(0.5)

@@ -87,14 +87,14 @@ def test_abort_request_ramps_down_and_keeps_data(make_bench, profile):
 
 
 
-def test_interlocks_table_of_the_config_sets_the_limits(profile, linear_physics):
+def test_interlocks_table_of_the_config_sets_the_limits(profile, make_spring):
     from tcms_daq.acquisition import compose_bench
     from tcms_daq.errors import ConfigError
 
     inst = {"driver": "virtual", "url": "virtual://sim"}
     cfg = {"bench": {"max_torque_nm": 2000.0}, "instruments": {"angle": inst, "torque": inst, "loader": inst},
            "interlocks": {"angle_max_arcsec": 40.0, "stale_timeout_s": 0.5}}
-    bench = compose_bench(cfg, physics_factory=lambda _c: linear_physics())
+    bench = compose_bench(cfg, physics_factory=lambda _c: make_spring())
     run = TestRun(bench, profile)
     assert run.limits.angle_max_arcsec == 40.0 and run.limits.stale_timeout_s == 0.5
     record = run.run()
