@@ -168,6 +168,8 @@ th{{background:#f3f3f3}} figure{{margin:1em 0}} figcaption{{font-size:.9em;color
 <p>Residual = measured − simulated angle. A constant offset ({_fmt(r.offset_arcsec)}″) is always fitted and is not an
 effect. Held-out errors are cross-validated over {groups['count']} {html.escape(groups['kind'])} (each left out in
 turn); the error after the workflow repeats the whole selection inside every outer fold (nested), so it is honest.</p>
+<h2>Verdict: {html.escape(r.verdict.verdict.replace("_", " "))}</h2>
+<p class="verdict">{html.escape(r.verdict.words())}</p>{_remainder_table(r)}
 <h2>Before and after</h2>{summary}
 <h2>Named effects</h2>{eff}{alias}{rej}
 <h2>Where the residual lives (before)</h2>{local}
@@ -176,13 +178,33 @@ turn); the error after the workflow repeats the whole selection inside every out
 """
 
 
+def _remainder_table(r) -> str:
+    """Where the structure that remains is (the verdict's ``unexplained`` block), as a table."""
+    v = r.verdict
+    rows = [["noise floor [″] (from the residual's second differences)", _fmt(v.noise_floor_arcsec)],
+            ["structure removed by the named effects", f"{v.removed_share:.0%}"]]
+    rest = v.unexplained
+    if rest is not None:
+        rows.append(["remaining structure RMS [″]", _fmt(rest["structured_rms_arcsec"])])
+        rows.append(["its shape", html.escape(rest["shape"].replace("_", " "))])
+        for s in rest["spans"]:
+            where = (f"{_fmt(s['from_time_s'])}…{_fmt(s['to_time_s'])} s" if "from_time_s" in s
+                     else f"samples {s['from_sample']:.0f}…{s['to_sample']:.0f}")
+            lo, hi = s["torque_range_nm"]
+            rows.append(["visible", f"{where}, torque {_fmt(lo)}…{_fmt(hi)} N·m, loading share "
+                                    f"{s['loading_share']:.0%}, mean {_fmt(s['mean_arcsec'])}″"])
+    return _table(rows, ["", ""])
+
+
 def format_text(result) -> str:
-    """The result as plain text lines: named effects, aliases, rejected candidates, RMS before → after."""
-    lines = []
+    """The result as plain text lines: the verdict, named effects, aliases, rejected candidates, RMS before →
+    after."""
+    lines = [f"verdict: {result.verdict.verdict} — {result.verdict.words()}"]
     if result.effects:
+        label = "named (provisional)" if result.verdict.provisional else "named"
         for e in result.effects:
             params = ", ".join(f"{k}={v:.4g}" for k, v in e.parameters.items())
-            lines.append(f"named: {e.name} ({params}); held-out RMS {e.cv_rms_before_arcsec:.3f}″ → "
+            lines.append(f"{label}: {e.name} ({params}); held-out RMS {e.cv_rms_before_arcsec:.3f}″ → "
                          f"{e.cv_rms_after_arcsec:.3f}″")
     else:
         lines.append("named: nothing (no catalogue effect improves the held-out error reliably)")

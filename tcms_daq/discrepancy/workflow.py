@@ -14,6 +14,9 @@
    selected in fewer than 80 % of the outer folds is not accepted.
 6. Accepted effects are fitted on all rows and added to the simulation; the re-simulated angle is compared
    again (RMS, max, per load direction).
+7. The verdict (``verdict``): is what remains noise, judged against a noise floor estimated without the model?
+   ``consistent`` / ``explained`` / ``partially_explained`` / ``unexplained``; when structure remains, where it
+   is and what shape it has, and the names are provisional.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import DesignData, build_design
 from tcms_daq.discrepancy.localise import localise
 from tcms_daq.discrepancy.selection import Columns, cv_score, fit_model, make_folds, nested_cv, select
+from tcms_daq.discrepancy.verdict import Verdict, judge
 from tcms_daq.samples import Samples
 
 STABILITY = 0.8
@@ -85,6 +89,7 @@ class DiscrepancyResult:
     localisation: dict[str, Any]
     groups: dict[str, Any]
     signal_period_arcsec: float
+    verdict: Verdict
     data: DesignData = field(repr=False)
     residual_before_arcsec: np.ndarray = field(repr=False)
     residual_after_arcsec: np.ndarray = field(repr=False)
@@ -96,8 +101,12 @@ class DiscrepancyResult:
         return [e.name for e in self.effects]
 
     def to_dict(self, *, localisation: bool = False) -> dict[str, Any]:
+        verdict = self.verdict.to_dict()
         out = {
-            "effects": [e.to_dict() for e in self.effects],
+            "verdict": verdict.pop("verdict"),
+            "verdict_words": verdict.pop("words"),
+            **verdict,
+            "effects": [{**e.to_dict(), "provisional": self.verdict.provisional} for e in self.effects],
             "aliases": [a.to_dict() for a in self.aliases],
             "rms_before_arcsec": self.rms_before_arcsec,
             "rms_after_arcsec": self.rms_after_arcsec,
@@ -231,6 +240,7 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
         groups={"kind": data.group_kind, "count": n_groups,
                 "nested_selections": [list(n) for n in nested.fold_names]},
         signal_period_arcsec=data.signal_period_arcsec,
+        verdict=judge(data, y, after, any_named=bool(model_names)),
         data=data,
         residual_before_arcsec=y,
         residual_after_arcsec=after,

@@ -193,6 +193,13 @@ class DiscrepancyAnalysis(BaseModel):
     created_at: str | None
     options: dict[str, Any]
     report_url: str
+    verdict: Literal["consistent", "explained", "partially_explained", "unexplained"] | None = Field(
+        None, description="is what remains noise? (None: stored before verdicts existed)")
+    verdict_words: str | None = None
+    noise_floor_arcsec: float | None = None
+    names_provisional: bool | None = None
+    unexplained: dict[str, Any] | None = Field(
+        None, description="where the remaining structure is, how large and what shape (None when none remains)")
     effects: list[dict[str, Any]]
     rms_before_arcsec: float | None = None
     rms_after_arcsec: float | None = None

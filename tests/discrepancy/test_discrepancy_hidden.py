@@ -1,6 +1,6 @@
 """Hidden-effect suite: every catalogue effect hidden in a simulated measurement is named exactly, its
-parameter recovered within 10 %, and the held-out RMS brought to within 30 % of the noise floor; null runs
-name nothing."""
+parameter recovered within 10 %, the held-out RMS brought to within 30 % of the noise floor and the verdict
+``explained``; null runs name nothing and are ``consistent``."""
 
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ def check(pair, table):
             assert e.parameters["period_arcsec"] == pytest.approx(table[e.name]["period_arcsec"], rel=0.02)
     assert result.cv_rms_after_arcsec <= 1.3 * floor
     assert result.cv_rms_after_arcsec <= result.cv_rms_before_arcsec * 1.001
+    assert result.verdict.verdict == "explained", result.verdict.to_dict()
     return result
 
 
@@ -40,6 +41,7 @@ def test_null_run_names_nothing(pair_cache, seed):
     result = run_discrepancy(measured, simulated)
     assert result.effects == []
     assert result.model_terms == []
+    assert result.verdict.verdict == "consistent", result.verdict.to_dict()
     assert result.cv_rms_after_arcsec == pytest.approx(result.cv_rms_before_arcsec)
     assert result.cv_rms_after_arcsec <= 1.3 * floor
 

@@ -58,11 +58,14 @@ def test_discrepancy_of_a_stored_run_over_http(settings_factory, sim_config, tmp
         # no hidden effect on the default bench: nothing is named, the residual is the encoder noise (0.2″)
         assert doc["effects"] == [] and doc["aliases"] == [], doc
         assert 0.15 < doc["rms_before_arcsec"] < 0.3 and doc["cv_rms_after_arcsec"] < 0.3
+        assert doc["verdict"] == "consistent" and doc["unexplained"] is None, doc["verdict_words"]
+        assert doc["verdict_words"].startswith("Measurement and simulation agree")
         assert c.get(f"/api/discrepancy/{doc['id']}").json() == doc
         assert [a["id"] for a in c.get("/api/discrepancy").json()] == [doc["id"]]
         report = c.get(doc["report_url"])
         assert report.status_code == 200 and report.headers["content-type"].startswith("text/html")
         assert report.text.count("data:image/png;base64,") >= 2 and run_id in report.text
+        assert "Verdict: consistent" in report.text
         model = c.get(f"/api/discrepancy/{doc['id']}/model")
         assert model.status_code == 200 and 'format = "tcms-discrepancy-model/1"' in model.text
         assert c.get("/api/discrepancy/20000101-000000-abcdef/report").status_code == 404
@@ -100,3 +103,4 @@ def test_discrepancy_names_an_effect_hidden_in_the_simulated_bench(settings_fact
             # wall clock at 20x and, on a loaded CI machine, its batches (and so the fit) vary more
             assert doc["effects"][0]["parameters"]["rate_arcsec_per_s"] == pytest.approx(0.05, rel=0.25)
             assert doc["cv_rms_after_arcsec"] < 0.3 < doc["cv_rms_before_arcsec"]
+            assert doc["verdict"] == "explained" and not doc["effects"][0]["provisional"], doc["verdict_words"]

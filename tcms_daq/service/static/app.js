@@ -296,7 +296,10 @@
         .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ")
       : "named: nothing (no catalogue effect improves the held-out error reliably)";
     const aliases = d.aliases.map((a) => "; cannot be told apart: " + a.names.join(" / ")).join("");
-    return `${named}${aliases}; held-out RMS ${rms(d.cv_rms_before_arcsec)} → ${rms(d.cv_rms_after_arcsec)}`;
+    const verdict = d.verdict_words ? d.verdict.replace(/_/g, " ") + ": " + d.verdict_words + " " : "";
+    const provisional = d.names_provisional && d.effects.length ? " (provisional)" : "";
+    return `${verdict}${named}${provisional}${aliases}; held-out RMS ${rms(d.cv_rms_before_arcsec)} → ` +
+      `${rms(d.cv_rms_after_arcsec)}`;
   }
 
   $("discrepancy").addEventListener("click", async () => {

@@ -1,0 +1,166 @@
+"""The verdict: is what remains noise? Catalogue effects are ``explained``, no effect is ``consistent``, and
+effects outside the catalogue are never ``explained`` — the ``unexplained`` block says where and what shape.
+
+Two sources of data: the project's simulated bench (``sim.trials`` with ``sim.unmodelled``) and, so the
+verdict is not only checked on data the project made, a small generator of its own here (a linear spring
+with white sensor noise, loops at two rates) written from the physics without the project's code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.trials import make_pair
+from sim.unmodelled import UNMODELLED
+from tcms_daq.discrepancy.verdict import noise_floor_arcsec
+from tcms_daq.discrepancy.workflow import run_discrepancy
+from tcms_daq.samples import Samples
+
+# -- an independent generator: spring, white noise, triangle loops at 200 and 600 N·m/s, 100 Hz -----------
+
+K_ARCSEC_PER_NM = 60.0 / 300.0  # 300 N·m/arcmin
+
+
+def spring_loops(seed: int, noise_arcsec: float = 0.2, rate_hz: float = 100.0):
+    """(time s, torque N·m, true twist ″, noisy reading ″) of ±600 N·m loops, three at each of two rates."""
+    rng = np.random.default_rng(seed)
+    legs, level = [], 0.0
+    for rate in (200.0, 600.0):
+        for target in [-600.0] + [600.0, -600.0] * 3:
+            n = int(abs(target - level) / rate * rate_hz)
+            legs.append(np.linspace(level, target, n, endpoint=False))
+            level = target
+    torque = np.concatenate(legs)
+    t = np.arange(len(torque)) / rate_hz
+    twist = K_ARCSEC_PER_NM * torque
+    return t, torque, twist, twist + rng.normal(0.0, noise_arcsec, len(t))
+
+
+def analyse(t, torque, measured, simulated):
+    return run_discrepancy(Samples(t, torque, measured), Samples(t, torque, simulated))
+
+
+def test_noise_floor_from_second_differences_ignores_smooth_structure_and_steps():
+    rng = np.random.default_rng(3)
+    t = np.arange(20000) / 100.0
+    smooth = 3.0 * np.sin(2 * np.pi * t / 40.0) + 2.0 * (t > 100.0)  # slow periodicity and one step
+    for sigma in (0.05, 0.2, 1.0):
+        assert noise_floor_arcsec(smooth + rng.normal(0, sigma, len(t))) == pytest.approx(sigma, rel=0.05)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_own_generator_noise_only_is_consistent(seed):
+    t, torque, twist, reading = spring_loops(seed)
+    result = analyse(t, torque, reading, twist)
+    assert result.verdict.verdict == "consistent", result.verdict.to_dict()
+    assert result.names == [] and result.verdict.unexplained is None
+    assert result.verdict.noise_floor_arcsec == pytest.approx(0.2, rel=0.1)
+
+
+def test_own_generator_a_step_is_not_explained_and_is_located():
+    t, torque, twist, reading = spring_loops(4)
+    t_step = 0.6 * t[-1]
+    result = analyse(t, torque, reading + 1.5 * (t >= t_step), twist)
+    v = result.verdict
+    assert v.verdict in ("partially_explained", "unexplained"), v.to_dict()
+    assert v.provisional and all(e["provisional"] for e in result.to_dict()["effects"])
+    assert v.unexplained["shape"] == "step", v.unexplained["shapes_considered"]
+    assert v.unexplained["shape_detail"]["at_time_s"] == pytest.approx(t_step, abs=0.02 * t[-1])
+    assert v.unexplained["shape_detail"]["height_arcsec"] == pytest.approx(1.5, rel=0.15)
+    assert "step" in result.to_dict()["verdict_words"]
+
+
+def test_own_generator_a_sensitivity_change_is_a_catalogue_effect_and_explained():
+    """On a pure spring an encoder scale error and a torsion of the measuring chain look alike (both ∝ T):
+    the workflow adds one of the look-alikes and says so, and the remainder is noise."""
+    t, torque, twist, reading = spring_loops(5)
+    result = analyse(t, torque, reading + 0.01 * twist, twist)  # encoder scale 1 % off
+    in_model = [a.names for a in result.aliases if a.in_model]
+    assert result.names == ["scale_error"] or any("scale_error" in names for names in in_model), result.to_dict()
+    assert result.verdict.verdict == "explained", result.verdict.to_dict()
+
+
+# -- the simulated bench: catalogue cases (incl. a 6 N·m torque offset) and out-of-catalogue ones ---------
+
+
+@pytest.mark.parametrize("table", [
+    {"torque_zero_offset": {"offset_nm": 6.0}},
+    {"torque_zero_offset": {"offset_nm": 6.0}, "thermal_drift": {"rate_arcsec_per_s": 0.03}},
+], ids=["torque_offset_6nm", "torque_offset_6nm+drift"])
+def test_a_6_nm_torque_offset_alone_and_paired_is_explained(table):
+    measured, simulated, _ = make_pair(table, 21)
+    result = run_discrepancy(measured, simulated)
+    assert sorted(result.names) == sorted(table)
+    assert result.verdict.verdict == "explained", result.verdict.to_dict()
+    offset = {e.name: e.parameters for e in result.effects}["torque_zero_offset"]["offset_nm"]
+    assert offset == pytest.approx(6.0, rel=0.10)
+
+
+@pytest.fixture(scope="module")
+def unmodelled_result():
+    cache: dict = {}
+
+    def get(case: str, seed: int = 11):
+        if (case, seed) not in cache:
+            measured, simulated, floor = make_pair({}, seed, unmodelled=UNMODELLED[case])
+            cache[case, seed] = (run_discrepancy(measured, simulated), measured, floor)
+        return cache[case, seed]
+
+    return get
+
+
+@pytest.mark.parametrize("case", sorted(UNMODELLED))
+@pytest.mark.parametrize("seed", [11, 12])
+def test_out_of_catalogue_is_never_explained(unmodelled_result, case, seed):
+    result, _, floor = unmodelled_result(case, seed)
+    v = result.verdict
+    assert v.verdict in ("partially_explained", "unexplained"), (case, result.names, v.to_dict())
+    assert v.noise_floor_arcsec == pytest.approx(floor, rel=0.15)
+    block = v.unexplained
+    assert block is not None and block["structured_rms_arcsec"] > 0.5 * floor and block["spans"]
+    assert result.to_dict()["names_provisional"] is True
+
+
+def _shape(result):
+    return result.verdict.unexplained["shape"], result.verdict.unexplained["shape_detail"]
+
+
+def test_encoder_slip_is_located_as_a_step_mid_test(unmodelled_result):
+    result, measured, _ = unmodelled_result("encoder_slip")
+    shape, detail = _shape(result)
+    t = measured.time_s
+    assert shape == "step"
+    assert detail["at_time_s"] == pytest.approx(t[0] + 0.5 * np.ptp(t), abs=0.02 * np.ptp(t))
+    assert detail["height_arcsec"] == pytest.approx(2.0, rel=0.15)
+
+
+def test_clipping_is_located_as_a_saturation_at_the_upper_end(unmodelled_result):
+    result, measured, _ = unmodelled_result("range_clipping")
+    shape, detail = _shape(result)
+    assert shape == "saturation" and detail["end"] == "upper"
+    # the knee is in simulated-angle coordinates: above it lie about as many samples as the reading clipped
+    clipped_share = np.mean(measured.angle_arcsec >= measured.angle_arcsec.max() - 1e-9)
+    above_knee = np.mean(result.data.sim_angle_arcsec >= detail["from_angle_arcsec"])
+    assert above_knee == pytest.approx(clipped_share, abs=0.05)
+    assert detail["slope_arcsec_per_arcsec"] == pytest.approx(-1.0, abs=0.2)
+
+
+def test_glitches_are_counted_as_spikes(unmodelled_result):
+    result, measured, _ = unmodelled_result("encoder_glitches")
+    shape, detail = _shape(result)
+    injected = max(1, int(0.005 * len(measured.time_s)))
+    assert shape == "spikes" and detail["count"] == pytest.approx(injected, abs=2)
+
+
+def test_creep_is_located_as_a_lagged_response(unmodelled_result):
+    result, _, _ = unmodelled_result("creep")
+    shape, detail = _shape(result)
+    assert shape == "lagged_response"
+    assert detail["time_constant_s"] == pytest.approx(4.0, rel=0.5)
+
+
+def test_a_wider_friction_loop_is_located_at_the_reversals(unmodelled_result):
+    result, _, _ = unmodelled_result("wider_friction_loop")
+    shape, _ = _shape(result)
+    assert shape.startswith("transition_after_reversal"), result.verdict.unexplained["shapes_considered"]
