@@ -200,6 +200,11 @@ def format_text(result) -> str:
     """The result as plain text lines: the verdict, named effects, aliases, rejected candidates, RMS before →
     after."""
     lines = [f"verdict: {result.verdict.verdict} — {result.verdict.words()}"]
+    if result.pairing is not None and result.pairing.mode != "same_rows":
+        how = result.pairing
+        offset = f", simulated clock offset {how.time_offset_s:+.4g} s" if how.time_offset_s is not None else ""
+        lines.append(f"pairing: the simulation put onto the measured rows ({how.mode.replace('_', ' ')}{offset}); "
+                     f"{how.rows_used} of {how.rows_measured} measured rows compared")
     if result.effects:
         label = "named (provisional)" if result.verdict.provisional else "named"
         for e in result.effects:

@@ -2,6 +2,8 @@
 
 :func:`run_discrepancy` is the one entry point (CLI, service, trials). Steps (DESIGN §8):
 
+0. The simulation is put onto the measured rows (``pairing``: same rows, its own time grid, or another torque
+   compared at equal torque).
 1. r = measured − simulated on aligned rows; baseline: RMS/max of r and the blocked-CV RMS of the
    offset-only model (groups: runs, else loops between torque minima, else contiguous blocks).
 2. Localisation of r (``localise``).
@@ -29,6 +31,7 @@ import numpy as np
 from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import DesignData, build_design
 from tcms_daq.discrepancy.localise import localise
+from tcms_daq.discrepancy.pairing import Pairing, pair
 from tcms_daq.discrepancy.selection import Columns, cv_score, fit_model, make_folds, nested_cv, select
 from tcms_daq.discrepancy.verdict import Verdict, judge
 from tcms_daq.samples import Samples
@@ -95,6 +98,8 @@ class DiscrepancyResult:
     residual_after_arcsec: np.ndarray = field(repr=False)
     resimulated_angle_arcsec: np.ndarray = field(repr=False)
     held_out_residual_arcsec: np.ndarray = field(repr=False)
+    pairing: Pairing | None = field(default=None, repr=False)
+    paired: tuple[Samples, Samples] | None = field(default=None, repr=False)  # (measured, simulated) rows used
 
     @property
     def names(self) -> list[str]:
@@ -122,6 +127,7 @@ class DiscrepancyResult:
             "groups": self.groups,
             "signal_period_arcsec": self.signal_period_arcsec,
             "strongest_signal": self.localisation.get("strongest_signal"),
+            "pairing": self.pairing.to_dict() if self.pairing is not None else None,
         }
         if localisation:
             out["localisation"] = self.localisation
@@ -144,13 +150,17 @@ def _per_direction(data: DesignData, before: np.ndarray, after: np.ndarray) -> d
 
 def run_discrepancy(measured: Samples, simulated: Samples, *, signal_period_arcsec: float = 72.0,
                     has_time: bool = True, effects: list[str] | None = None) -> DiscrepancyResult:
-    """Compare ``measured`` with ``simulated`` (same rows, same order), name the missing effects.
+    """Compare ``measured`` with ``simulated``, name the missing effects. ``simulated`` may have the measured
+    rows, its own time grid (offset in time) or another torque (e.g. the commanded one): see ``pairing``.
 
     ``has_time=False`` when the data carry no real time stamps (time-dependent effects are then not
     candidates). ``effects`` restricts the candidate catalogue (default: all of it).
     """
+    measured, simulated, pairing = pair(measured, simulated, has_time=has_time)
     data = build_design(measured, simulated, signal_period_arcsec=signal_period_arcsec, has_time=has_time)
-    return analyse(data, effects)
+    result = analyse(data, effects)
+    result.pairing, result.paired = pairing, (measured, simulated)
+    return result
 
 
 def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyResult:

@@ -74,5 +74,7 @@ def write_outputs(result: DiscrepancyResult, measured: Samples, simulated: Sampl
     paths = [out / "report.html", out / "model.toml", out / "resimulated.csv"]
     paths[0].write_text(render_html(result, title=title), encoding="utf-8")
     model_from_result(result).save(paths[1])
+    if result.paired is not None:  # the rows the analysis used (the simulation put onto the measured rows)
+        measured, simulated = result.paired
     write_csv(paths[2], resimulated_samples(result, simulated, measured))
     return paths

@@ -61,13 +61,17 @@ def test_cli_text_output(csv_pair, capsys):
     assert "named: time_skew" in text and "held-out RMS" in text
 
 
-def test_cli_misaligned_and_malformed(csv_pair, tmp_path, capsys):
+def test_cli_other_rows_and_malformed(csv_pair, tmp_path, capsys):
+    """A simulation on other rows (its clock one sample late) is put onto the measured rows and says how;
+    malformed and missing files are one-line errors."""
     sim = read_csv(csv_pair / "simulated.csv")
-    shifted = Samples(sim.time_s, np.roll(sim.torque_nm, 1), sim.angle_arcsec)
-    write_csv(tmp_path / "shifted.csv", shifted)
-    code = main(["discrepancy", str(csv_pair / "measured.csv"), str(tmp_path / "shifted.csv")])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and "not aligned" in err and "\n" not in err
+    step_s = float(np.median(np.diff(sim.time_s)))
+    write_csv(tmp_path / "late.csv", Samples(sim.time_s + step_s, sim.torque_nm, sim.angle_arcsec))
+    code = main(["discrepancy", str(csv_pair / "measured.csv"), str(tmp_path / "late.csv")])
+    out = capsys.readouterr().out
+    assert code == 0 and "pairing: the simulation put onto the measured rows (time grid" in out, out
+    offset = float(out.split("simulated clock offset ")[1].split(" s")[0])
+    assert offset == pytest.approx(-step_s, abs=0.1 * step_s)
     (tmp_path / "bad.csv").write_text("time_s,torque_nm,angle_arcsec\n0,1,x\n")
     code = main(["discrepancy", str(csv_pair / "measured.csv"), str(tmp_path / "bad.csv")])
     err = capsys.readouterr().err.strip()
