@@ -119,10 +119,20 @@ def bin_tests(data: DesignData, residual: np.ndarray, noise: float) -> list[BinT
     return [t for t in tests if t is not None]
 
 
-def isolated_spikes(residual: np.ndarray, noise: float) -> tuple[np.ndarray, np.ndarray]:
+def near_reversals(direction: np.ndarray, rows: int = 3) -> np.ndarray:
+    """Rows within ``rows`` samples of a load reversal (where backlash makes the angle jump legitimately)."""
+    n = len(direction)
+    mask = np.zeros(n, dtype=bool)
+    for i in np.flatnonzero(np.diff(direction) != 0) + 1:
+        mask[max(0, i - rows):i + rows + 1] = True
+    return mask
+
+
+def isolated_spikes(residual: np.ndarray, noise: float, direction: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """(mask of isolated spikes, each sample's distance from the mean of its neighbours ″): a spike is a
     sample farther than ``SPIKE_Z`` noise SDs from both neighbours' mean and a local peak of that distance
-    (a spike's neighbours see half of it)."""
+    (a spike's neighbours see half of it), away from the load reversals of ``direction``."""
     r = np.asarray(residual, dtype=float)
     n = len(r)
     local = np.zeros(n)
@@ -132,7 +142,10 @@ def isolated_spikes(residual: np.ndarray, noise: float) -> tuple[np.ndarray, np.
     size = np.abs(local)
     peak = np.zeros(n, dtype=bool)
     peak[1:-1] = (size[1:-1] >= size[:-2]) & (size[1:-1] >= size[2:])
-    return peak & (size > SPIKE_Z * noise * math.sqrt(1.5)), local
+    spikes = peak & (size > SPIKE_Z * noise * math.sqrt(1.5))
+    if direction is not None:
+        spikes &= ~near_reversals(direction)
+    return spikes, local
 
 
 @dataclass(frozen=True)
@@ -172,7 +185,7 @@ class Structure:
 
 def structure(data: DesignData, residual: np.ndarray, noise: float) -> Structure:
     r = np.asarray(residual, dtype=float) - float(np.mean(residual))
-    spikes, local = isolated_spikes(r, noise)
+    spikes, local = isolated_spikes(r, noise, data.direction)
     spike_rms = math.sqrt(float(np.sum(local[spikes] ** 2)) / len(r)) if len(r) else 0.0
     return Structure(float(np.sqrt(np.mean(r**2))), noise, bin_tests(data, r, noise), int(spikes.sum()), spike_rms)
 
@@ -330,7 +343,7 @@ def _shapes(data: DesignData, before: np.ndarray, after: np.ndarray, noise: floa
         i = int(np.argmax(amp))
         out.append({"shape": "periodic_in_time", "gain": float(amp[i] ** 2 / 2), "period_s": float(periods[i]),
                     "amplitude_arcsec": float(amp[i])})
-    spikes, local = isolated_spikes(r, noise)
+    spikes, local = isolated_spikes(r, noise, data.direction)
     if spikes.any():
         out.append({"shape": "spikes", "gain": float(np.sum(local[spikes] ** 2) / n), "count": int(spikes.sum()),
                     "largest_arcsec": float(np.max(np.abs(local[spikes])))})
