@@ -115,17 +115,24 @@ def bench_run(effects_table: dict, seed: int, design: TrialDesign = TrialDesign(
 
 def make_pair(effects_table: dict, seed: int, design: TrialDesign = TrialDesign(),
               unmodelled: Unmodelled | None = None) -> tuple[Samples, Samples, float]:
-    """(measured, simulated, noise floor RMS ″) for a case: simulated = the bench model on the measured torque;
+    """(measured, simulated, noise floor RMS ″) for a case: simulated = the bench model on the measured torque
+    (its applied-torque estimate, as for a stored run);
     ``unmodelled`` changes the measured run by an effect outside the catalogue."""
     from sim.physics import twist_arcsec
+    from tcms_daq.discrepancy.stored import applied_torque_estimate
 
     measured, physics = bench_run(effects_table, seed, design,
                                   unmodelled.physics_scale if unmodelled is not None else None)
     if unmodelled is not None and unmodelled.transform is not None:
         measured = unmodelled.transform(measured, np.random.default_rng([seed, 7]))
-    simulated = Samples(measured.time_s, measured.torque_nm, twist_arcsec(measured.torque_nm, physics)[0])
+    def model_angle(run: Samples) -> np.ndarray:
+        # driven, as the service drives it, by the torque the reducer felt: sensor noise on a hysteretic model
+        # would walk it along minor loops (arcseconds at kHz rates)
+        return twist_arcsec(applied_torque_estimate(run.time_s, run.torque_nm), physics)[0]
+
+    simulated = Samples(measured.time_s, measured.torque_nm, model_angle(measured))
     null, _ = bench_run({}, seed, design)
-    floor = float(np.std(null.angle_arcsec - twist_arcsec(null.torque_nm, physics)[0]))
+    floor = float(np.std(null.angle_arcsec - model_angle(null)))
     return measured, simulated, floor
 
 

@@ -25,18 +25,17 @@ def read_pair_file(path: str | Path) -> tuple[Samples, bool]:
 
 def run(args: argparse.Namespace) -> int:
     # imported here: the workflow, scipy and matplotlib would slow every `tcms` command's start by a second
-    from sim.physics import catalogue_model
     from tcms_daq.analysis.evaluation import jsonable
     from tcms_daq.discrepancy.report import format_text
     from tcms_daq.discrepancy.workflow import run_discrepancy
-    from tcms_daq.store.discrepancy import stored_pair, write_outputs
+    from tcms_daq.store.discrepancy import write_outputs
 
     if args.table4:
         return run_table4_report(args)
+    if args.apply and args.run is None:
+        raise DataFormatError("--apply adds the effects a stored run's analysis names: give --run ID")
     if args.run is not None:
-        measured, simulated = stored_pair(args.run, args.data_dir or read_settings().data_dir, catalogue_model)
-        has_time = True
-        title = f"Discrepancy report: stored run {args.run}"
+        return run_stored(args)
     else:
         if args.measured is None or args.simulated is None:
             raise DataFormatError("give MEASURED.csv and SIMULATED.csv (or --run ID)")
@@ -57,6 +56,45 @@ def run(args: argparse.Namespace) -> int:
         print(format_text(result))
         if args.out:
             print(f"wrote {Path(args.out) / 'report.html'}, model.toml, resimulated.csv")
+    return 0
+
+
+def run_stored(args: argparse.Namespace) -> int:
+    """``tcms discrepancy --run ID [--apply]``: the stored run against the bench model in use, kept in the
+    data directory's archive of analyses (as ``POST /api/discrepancy``); ``--apply`` adds what it names to the
+    bench model as its next version (as ``POST /api/discrepancy/{id}/apply``)."""
+    from sim.physics import catalogue_model
+    from tcms_daq.store import STORE_FILENAME, RunStore
+    from tcms_daq.store.discrepancy import ANALYSES_DIRNAME, AnalysisArchive
+
+    data_dir = Path(args.data_dir or read_settings().data_dir)
+    path = data_dir / STORE_FILENAME
+    if not path.exists():
+        raise DataFormatError(f"no run store at {path} (give --data-dir)")
+    archive = AnalysisArchive(data_dir / ANALYSES_DIRNAME)
+    store = RunStore(path, recover=False)  # a service may be running a test in it right now
+    try:
+        if store.get_run(args.run) is None:
+            raise DataFormatError(f"unknown run {args.run!r} in {path}")
+        doc = archive.analyse(store, args.run, catalogue_model, signal_period_arcsec=args.signal_period_arcsec)
+        added = archive.apply(store, doc["id"], accept_provisional=args.accept_provisional) if args.apply else None
+    finally:
+        store.close()
+    if args.out:
+        import shutil
+
+        shutil.copytree(archive.root / doc["id"], args.out, dirs_exist_ok=True)
+    if args.json:
+        print(json.dumps({**doc, "applied_version": added.version if added else None}, indent=1))
+        return 0
+    print(f"analysis {doc['id']} of run {args.run} against bench model version {doc['model_version']}")
+    print(f"verdict: {doc['verdict']} — {doc['verdict_words']}")
+    for e in doc["effects"]:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items())
+        print(f"named{' (provisional)' if e.get('provisional') else ''}: {e['name']} ({params})")
+    print(f"held-out RMS {doc['cv_rms_before_arcsec']:.3f}″ → {doc['cv_rms_after_arcsec']:.3f}″")
+    if added is not None:
+        print(f"bench model version {added.version}: {added.note}")
     return 0
 
 
@@ -109,6 +147,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the result as one JSON object")
     p.add_argument("--run", metavar="ID", help="a stored run against the bench model re-simulated on its torque")
     p.add_argument("--data-dir", metavar="DIR", help="data directory of the run store (with --run)")
+    p.add_argument("--apply", action="store_true",
+                   help="with --run: add the named effects to the bench model (its next version)")
+    p.add_argument("--accept-provisional", action="store_true",
+                   help="with --apply: add them even when the verdict leaves their names provisional")
     p.add_argument("--table4", action="store_true",
                    help="the paper's Table 4: autocollimator as measured, the paper's compensated encoder as "
                    "simulated (docs/discrepancy.md)")

@@ -63,6 +63,11 @@ class DiscrepancyModel:
     def save(self, path: str | Path) -> None:
         Path(path).write_text(self.to_toml(), encoding="utf-8")
 
+    def with_terms_of(self, other: DiscrepancyModel) -> DiscrepancyModel:
+        """This model with ``other``'s terms after its own. Signatures add, so a term found against this model
+        is exactly what it misses; the offset is not an effect and stays this model's."""
+        return DiscrepancyModel(self.offset_arcsec, self.signal_period_arcsec, [*self.terms, *other.terms])
+
 
 def model_from_result(result) -> DiscrepancyModel:
     """The model of a :class:`~tcms_daq.discrepancy.workflow.DiscrepancyResult` (accepted terms incl. alias

@@ -14,6 +14,7 @@ from scipy.signal import savgol_filter
 from tcms_daq.samples import Samples
 
 TORQUE_SMOOTHING_S = 0.05
+MIN_SMOOTHING_SAMPLES = 5
 
 
 def applied_torque_estimate(time_s: np.ndarray, torque_nm: np.ndarray,
@@ -31,8 +32,8 @@ def applied_torque_estimate(time_s: np.ndarray, torque_nm: np.ndarray,
     dt = np.diff(time_s)
     dt = dt[np.isfinite(dt) & (dt > 0)]
     n = int(round(window_s / float(np.median(dt)))) | 1 if len(dt) and window_s > 0 else 1
-    if n <= 1 or len(torque) < 2 * n:
-        return torque
+    if n < MIN_SMOOTHING_SAMPLES or len(torque) < 2 * n:
+        return torque  # sampled too slowly to smooth without rounding the reversals off (and noise matters less)
     smooth = savgol_filter(torque, n, 1, mode="interp")  # a moving average; straight-line fits at the ends
     noise_nm = 1.4826 * float(np.median(np.abs(torque - smooth)))
     return _play(smooth, 3.0 * noise_nm / np.sqrt(n))

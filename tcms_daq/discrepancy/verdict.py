@@ -17,7 +17,7 @@ numpy on the aligned design data and two residuals (″): before (measured − s
 * **Verdict**: ``consistent`` (nothing beyond noise before any effect), ``explained`` (effects named, what
   remains is noise), ``partially_explained`` (the names remove at least half of the structured variance,
   the rest is structured), ``unexplained`` (nothing named, or the names remove less than half). Names are
-  provisional unless the verdict is ``explained``.
+  provisional when structure remains (``partially_explained``, ``unexplained``).
 * **What remains** (``unexplained`` block): the time spans whose mean residual stands out, with their torque
   range and load direction; the size; and the shape that best describes it — a step or a ramp in time, a
   saturation at one end of the angle, a change of the loop's width (direction-odd), a periodicity in angle or
@@ -484,7 +484,8 @@ class Verdict:
 
     @property
     def provisional(self) -> bool:
-        return self.verdict != "explained"
+        """Names found here are provisional: structure remained that they do not explain."""
+        return self.verdict in ("partially_explained", "unexplained")
 
     def to_dict(self) -> dict[str, Any]:
         return {"verdict": self.verdict, "noise_floor_arcsec": self.noise_floor_arcsec,

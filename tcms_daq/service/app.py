@@ -34,11 +34,11 @@ from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
 from tcms_daq.service.settings import ServiceSettings
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
 from tcms_daq.store import STORE_FILENAME, RunStore
+from tcms_daq.store.discrepancy import ANALYSES_DIRNAME
 
 __all__ = ["ServiceSettings", "create_app"]
 
 COMPENSATION_FILENAME = "compensation-active.toml"  # where uploads were kept before versions: imported once
-DISCREPANCY_DIRNAME = "discrepancy"  # one folder per POST /api/discrepancy analysis
 
 
 def _one_line_validation_error(exc: RequestValidationError) -> str:
@@ -80,7 +80,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
             events.publish("test_state", id=run_id, status="interrupted", error="service restarted")
         app.state.store, app.state.runner, app.state.live = store, bench, live
         app.state.events, app.state.manager = events, manager
-        app.state.discrepancy = DiscrepancyRuns(store, settings.data_dir / DISCREPANCY_DIRNAME, events)
+        app.state.discrepancy = DiscrepancyRuns(store, settings.data_dir / ANALYSES_DIRNAME, events)
         app.state.metrics = make_registry(ServiceCollector(live, events, store, lambda: manager.active_id))
         framer = asyncio.create_task(live.run(), name="live-framer")
         await asyncio.to_thread(bench.open, live.publish)

@@ -178,6 +178,8 @@ class DiscrepancyListItem(BaseModel):
     run_id: str
     created_at: str | None
     report_url: str
+    verdict: str | None = None
+    model_version: int | None = None
     cv_rms_before_arcsec: float | None
     cv_rms_after_arcsec: float | None
     effects: list[str]
@@ -193,6 +195,7 @@ class DiscrepancyAnalysis(BaseModel):
     created_at: str | None
     options: dict[str, Any]
     report_url: str
+    model_version: int | None = Field(None, description="the bench model version it was compared against")
     verdict: Literal["consistent", "explained", "partially_explained", "unexplained"] | None = Field(
         None, description="is what remains noise? (None: stored before verdicts existed)")
     verdict_words: str | None = None
@@ -205,6 +208,39 @@ class DiscrepancyAnalysis(BaseModel):
     rms_after_arcsec: float | None = None
     cv_rms_before_arcsec: float | None = None
     cv_rms_after_arcsec: float | None = None
+
+
+class ApplyRequest(BaseModel):
+    """``POST /api/discrepancy/{id}/apply``: add the analysis's named effects to the bench model."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    accept_provisional: bool = Field(
+        False, description="add them even when the verdict left their names provisional (structure remained)")
+
+
+class BenchModelTerm(BaseModel):
+    name: str
+    parameters: dict[str, float]
+    aliased_with: list[str]
+
+
+class BenchModelVersionView(BaseModel):
+    version: int
+    created_at: str | None
+    note: str
+    sha256: str
+    analysis_id: str | None
+    run_id: str | None
+
+
+class BenchModelView(BaseModel):
+    """The bench model in use: the catalogue reducer's forward model plus the effects accepted into it."""
+
+    version: int = Field(description="0: the catalogue model alone")
+    terms: list[BenchModelTerm]
+    toml: str | None = Field(description="the accepted effects as a discrepancy model file (None at version 0)")
+    history: list[BenchModelVersionView] = Field(description="every version, newest first, with its provenance")
 
 
 class LiveClientView(BaseModel):

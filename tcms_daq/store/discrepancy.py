@@ -4,16 +4,27 @@ service; the forward model comes from the caller (``sim.physics.catalogue_model`
 
 from __future__ import annotations
 
+import json
+import re
+import time
 from collections.abc import Callable
+from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
-from tcms_daq.discrepancy.model_file import model_from_result, resimulated_samples
+from tcms_daq.discrepancy.model_file import (
+    DiscrepancyModel,
+    apply_model,
+    model_from_result,
+    parse_model,
+    resimulated_samples,
+)
 from tcms_daq.discrepancy.report import render_html
 from tcms_daq.discrepancy.stored import ForwardModel, resimulate
 from tcms_daq.discrepancy.workflow import DiscrepancyResult
-from tcms_daq.errors import DataFormatError
+from tcms_daq.errors import DataFormatError, TcmsError
 from tcms_daq.samples import Samples, write_csv
-from tcms_daq.store.sqlite_store import STORE_FILENAME, RunStore, StoredRun
+from tcms_daq.store.sqlite_store import BenchModelVersion, RunStore, StoredRun, new_run_id
 
 ModelForReducer = Callable[[str], ForwardModel]
 """Reducer name → its forward model; raises DataFormatError (one line) for an unknown reducer."""
@@ -32,11 +43,39 @@ def recorded_reducer(record: StoredRun) -> str | None:
     return None
 
 
-def pair_from_store(store: RunStore, run_id: str, model_for: ModelForReducer, where: str = ""
-                    ) -> tuple[Samples, Samples]:
+class StaleAnalysis(TcmsError):
+    """An analysis made against an older bench model version cannot be applied to the current one."""
+
+
+def bench_model(store: RunStore) -> tuple[int, DiscrepancyModel]:
+    """(version, model) of the bench model in use: the effects accepted so far (version 0: none)."""
+    latest = store.bench_model()
+    if latest is None:
+        return 0, DiscrepancyModel()
+    return latest[0].version, parse_model(latest[1], f"bench model version {latest[0].version}")
+
+
+def apply_analysis(store: RunStore, found: DiscrepancyModel, *, against_version: int, analysis_id: str,
+                   run_id: str, note: str = "") -> BenchModelVersion:
+    """Add the terms an analysis found to the bench model as its next version. The analysis must have been made
+    against the version in use (StaleAnalysis otherwise: its terms are what *that* version missed)."""
+    version, model = bench_model(store)
+    if version != against_version:
+        raise StaleAnalysis(f"analysis {analysis_id} was made against bench model version {against_version}; "
+                            f"the bench model is now version {version}: analyse the run again")
+    if not found.terms:
+        raise DataFormatError(f"analysis {analysis_id} named no effect: nothing to add to the bench model")
+    new = model.with_terms_of(DiscrepancyModel(0.0, model.signal_period_arcsec, found.terms))
+    names = ", ".join(t.name for t in found.terms)
+    return store.add_bench_model(new.to_toml(), note or f"added {names} from analysis {analysis_id} of run {run_id}",
+                                 analysis_id=analysis_id, run_id=run_id)
+
+
+def pair_from_store(store: RunStore, run_id: str, model_for: ModelForReducer, where: str = "",
+                    effects_model: DiscrepancyModel | None = None) -> tuple[Samples, Samples]:
     """(measured, simulated) of run ``run_id`` of an open store: the simulation is the recorded reducer's model
-    on the measured torque. Raises DataFormatError (one line) for an unknown run, too few samples or no recorded
-    reducer."""
+    on the measured torque, with the terms of ``effects_model`` (the bench model's accepted effects) added.
+    Raises DataFormatError (one line) for an unknown run, too few samples or no recorded reducer."""
     record = store.get_run(run_id)
     if record is None:
         raise DataFormatError(f"unknown run {run_id!r}{where}")
@@ -47,20 +86,11 @@ def pair_from_store(store: RunStore, run_id: str, model_for: ModelForReducer, wh
     if name is None:
         raise DataFormatError(f"run {run_id!r} does not record its reducer: cannot re-simulate it")
     measured = Samples(measured.time_s, measured.torque_nm, measured.angle_arcsec)
-    return measured, resimulate(measured, model_for(name))
-
-
-def stored_pair(run_id: str, data_dir: str | Path, model_for: ModelForReducer) -> tuple[Samples, Samples]:
-    """(measured, simulated) of a run in the store under ``data_dir`` (opened read-only for recovery: a service
-    may be running a test in it right now)."""
-    path = Path(data_dir) / STORE_FILENAME
-    if not path.exists():
-        raise DataFormatError(f"no run store at {path} (give --data-dir)")
-    store = RunStore(path, recover=False)
-    try:
-        return pair_from_store(store, run_id, model_for, where=f" in {path}")
-    finally:
-        store.close()
+    simulated = resimulate(measured, model_for(name))
+    if effects_model is not None and effects_model.terms:
+        simulated = apply_model(DiscrepancyModel(0.0, effects_model.signal_period_arcsec, effects_model.terms),
+                                simulated)
+    return measured, simulated
 
 
 def write_outputs(result: DiscrepancyResult, measured: Samples, simulated: Samples, out_dir: str | Path,
@@ -78,3 +108,101 @@ def write_outputs(result: DiscrepancyResult, measured: Samples, simulated: Sampl
         measured, simulated = result.paired
     write_csv(paths[2], resimulated_samples(result, simulated, measured))
     return paths
+
+
+# -- the archive of analyses: <data dir>/discrepancy/<id>/ ------------------------------------------------------
+
+ANALYSES_DIRNAME = "discrepancy"
+RESULT_FILENAME = "result.json"
+_ANALYSIS_ID = re.compile(r"^\d{8}-\d{6}-[0-9a-f]{6}$")  # new_run_id(); also keeps ids out of other paths
+
+
+class UnknownAnalysis(TcmsError):
+    """No finished analysis with that id."""
+
+
+class AnalysisArchive:
+    """Discrepancy analyses of stored runs, each in ``root/<id>/``: the files of ``tcms discrepancy --out``
+    (``report.html``, ``model.toml``, ``resimulated.csv``) and ``result.json`` (the ``--json`` object plus
+    ``id``, ``run_id``, ``created_at``, the options and the bench model version it was made against), written
+    last, so a folder without it is an analysis that did not finish. Shared by the CLI and the service."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+
+    def analyse(self, store: RunStore, run_id: str, model_for: ModelForReducer, *,
+                signal_period_arcsec: float = 72.0, effects: list[str] | None = None) -> dict[str, Any]:
+        """Analyse stored run ``run_id`` against the bench model in use and keep it; returns the document.
+        DataFormatError (one line) when the run cannot be compared."""
+        import numpy as np
+
+        from tcms_daq.analysis.evaluation import jsonable
+        from tcms_daq.discrepancy.workflow import run_discrepancy
+
+        version, model = bench_model(store)
+        measured, simulated = pair_from_store(store, run_id, model_for, effects_model=model)
+        try:
+            result = run_discrepancy(measured, simulated, signal_period_arcsec=signal_period_arcsec,
+                                     has_time=True, effects=effects)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise DataFormatError(f"run {run_id!r} cannot be compared with the model: {exc}") from None
+        analysis_id = new_run_id()
+        out = self.root / analysis_id
+        write_outputs(result, measured, simulated, out,
+                      f"Discrepancy report: stored run {run_id} against bench model version {version}")
+        doc = {
+            "id": analysis_id,
+            "run_id": run_id,
+            "created_at": datetime.fromtimestamp(time.time(), UTC).isoformat(timespec="milliseconds"),
+            "options": {"signal_period_arcsec": signal_period_arcsec, "effects": effects},
+            "report_url": f"/api/discrepancy/{analysis_id}/report",
+            "model_version": version,
+            **jsonable(result.to_dict()),
+        }
+        tmp = out / (RESULT_FILENAME + ".tmp")
+        tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")
+        tmp.replace(out / RESULT_FILENAME)
+        return doc
+
+    def apply(self, store: RunStore, analysis_id: str, *, accept_provisional: bool = False) -> BenchModelVersion:
+        """Add the effects analysis ``analysis_id`` named to the bench model (its next version). Provisional
+        names (the verdict was not ``explained``) only with ``accept_provisional``."""
+        doc = self.get(analysis_id)
+        if not doc.get("effects") and not any(a.get("in_model") for a in doc.get("aliases", [])):
+            raise DataFormatError(f"analysis {analysis_id} named no effect: nothing to add to the bench model")
+        if doc.get("names_provisional") and not accept_provisional:
+            raise ProvisionalNames(
+                f"analysis {analysis_id} is {doc.get('verdict')}: its names are provisional; accept them "
+                "explicitly (accept_provisional) or find what remains first")
+        found = parse_model(self.path(analysis_id, "model.toml").read_text(encoding="utf-8"),
+                            f"analysis {analysis_id} model.toml")
+        return apply_analysis(store, found, against_version=int(doc.get("model_version", 0)),
+                              analysis_id=analysis_id, run_id=str(doc["run_id"]))
+
+    def path(self, analysis_id: str, filename: str) -> Path:
+        """A file of a finished analysis; UnknownAnalysis when there is no such analysis."""
+        folder = self.root / analysis_id
+        if not _ANALYSIS_ID.match(analysis_id) or not (folder / RESULT_FILENAME).is_file():
+            raise UnknownAnalysis(f"no discrepancy analysis with id {analysis_id!r}")
+        return folder / filename
+
+    def get(self, analysis_id: str) -> dict[str, Any]:
+        return json.loads(self.path(analysis_id, RESULT_FILENAME).read_text(encoding="utf-8"))
+
+    def list(self, limit: int = 100) -> list[dict[str, Any]]:
+        """Finished analyses, newest first: id, run_id, created_at, verdict, named effects, held-out RMS."""
+        if not self.root.is_dir():
+            return []
+        ids = sorted((p.name for p in self.root.iterdir() if _ANALYSIS_ID.match(p.name)
+                      and (p / RESULT_FILENAME).is_file()), reverse=True)
+        out = []
+        for analysis_id in ids[:limit]:
+            doc = self.get(analysis_id)
+            out.append({k: doc.get(k) for k in ("id", "run_id", "created_at", "report_url", "verdict",
+                                                "model_version", "cv_rms_before_arcsec", "cv_rms_after_arcsec")}
+                       | {"effects": [e["name"] for e in doc.get("effects", [])]})
+        return out
+
+
+class ProvisionalNames(TcmsError):
+    """The analysis's names are provisional (structure remained) and were not accepted explicitly."""

@@ -59,6 +59,15 @@ CREATE TABLE IF NOT EXISTS compensations (
     toml TEXT NOT NULL,
     rollback_of INTEGER
 );
+CREATE TABLE IF NOT EXISTS bench_models (
+    version INTEGER PRIMARY KEY AUTOINCREMENT,
+    created_at REAL NOT NULL,
+    note TEXT NOT NULL,
+    sha256 TEXT NOT NULL,
+    toml TEXT NOT NULL,
+    analysis_id TEXT,
+    run_id TEXT
+);
 CREATE TABLE IF NOT EXISTS sample_batches (
     run_id TEXT NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
     batch_index INTEGER NOT NULL,
@@ -133,6 +142,23 @@ class CompensationVersion:
     def summary(self) -> dict[str, Any]:
         return {"version": self.version, "created_at": _iso(self.created_at), "note": self.note,
                 "sha256": self.sha256, "rollback_of": self.rollback_of}
+
+
+@dataclass(frozen=True)
+class BenchModelVersion:
+    """One version of the bench model: the effects accepted into it (a discrepancy model TOML) and where they
+    came from (the analysis of which run). Version 0, the catalogue reducer's model alone, is not stored."""
+
+    version: int
+    created_at: float
+    note: str
+    sha256: str
+    analysis_id: str | None = None
+    run_id: str | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {"version": self.version, "created_at": _iso(self.created_at), "note": self.note,
+                "sha256": self.sha256, "analysis_id": self.analysis_id, "run_id": self.run_id}
 
 
 def _iso(t: float | None) -> str | None:
@@ -325,6 +351,30 @@ class RunStore:
         row = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
                else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1")).fetchone()
         return None if row is None else (CompensationVersion(*row[:5]), row[5])
+
+    # -- bench model versions --------------------------------------------------------------------------------
+    def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                        run_id: str | None = None) -> BenchModelVersion:
+        """Keep the next version of the bench model (its whole discrepancy model TOML); returns it."""
+        created = time.time()
+        cur = self._write("INSERT INTO bench_models (created_at, note, sha256, toml, analysis_id, run_id) "
+                          "VALUES (?, ?, ?, ?, ?, ?)", (created, note, text_sha256(toml), toml, analysis_id, run_id))
+        version = cur.lastrowid
+        assert version is not None
+        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
+
+    def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
+        """Bench model versions, newest first."""
+        rows = self._conn().execute("SELECT version, created_at, note, sha256, analysis_id, run_id FROM bench_models "
+                                    "ORDER BY version DESC LIMIT ?", (limit,)).fetchall()
+        return [BenchModelVersion(*row) for row in rows]
+
+    def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
+        """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
+        sql = "SELECT version, created_at, note, sha256, analysis_id, run_id, toml FROM bench_models "
+        row = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
+               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1")).fetchone()
+        return None if row is None else (BenchModelVersion(*row[:6]), row[6])
 
     # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:

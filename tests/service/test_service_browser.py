@@ -84,8 +84,12 @@ def test_dashboard_starts_a_test_and_draws_the_loop(settings_factory, sim_config
             # the finished run against the bench model (POST /api/discrepancy), with a link to its report
             page.click("#discrepancy")
             page.wait_for_selector("#discrepancy-link:not([hidden])", timeout=60_000)
-            assert page.text_content("#discrepancy-result").startswith("named: ")
-            assert "held-out RMS" in page.text_content("#discrepancy-result")
+            said = page.text_content("#discrepancy-result")
+            # nothing hidden in the default bench: the verdict says so in words, against bench model v0
+            assert said.startswith("consistent: Measurement and simulation agree"), said
+            assert "named: nothing" in said and "held-out RMS" in said and "(against bench model v0)" in said
+            assert page.text_content("#model-version") == "v0"
+            assert page.is_hidden("#apply-effects")  # nothing named: nothing to add
             href = page.get_attribute("#discrepancy-link", "href")
             assert href.startswith("/api/discrepancy/") and href.split("?")[0].endswith("/report")
             assert errors == []

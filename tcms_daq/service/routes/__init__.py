@@ -6,4 +6,5 @@ with a response model of :mod:`tcms_daq.service.schemas`; ``create_app`` include
 
 from tcms_daq.service.routes import bench, compensation, discrepancy, live, service, tests
 
-ROUTERS = (service.router, bench.router, tests.router, compensation.router, discrepancy.router, live.router)
+ROUTERS = (service.router, bench.router, tests.router, compensation.router, discrepancy.router,
+           discrepancy.model_router, live.router)

@@ -9,10 +9,17 @@ from fastapi import APIRouter, Query, Response
 from fastapi.responses import FileResponse, HTMLResponse, PlainTextResponse
 
 from tcms_daq.service.deps import AUTH, Analyses, Manager, errors
-from tcms_daq.service.schemas import DiscrepancyAnalysis, DiscrepancyListItem, DiscrepancyRequest
+from tcms_daq.service.schemas import (
+    ApplyRequest,
+    BenchModelView,
+    DiscrepancyAnalysis,
+    DiscrepancyListItem,
+    DiscrepancyRequest,
+)
 from tcms_daq.service.testruns import Conflict
 
 router = APIRouter(prefix="/api/discrepancy", tags=["discrepancy"])
+model_router = APIRouter(prefix="/api/model", tags=["discrepancy"])
 
 
 @router.post("", status_code=201, response_model=DiscrepancyAnalysis, dependencies=AUTH,
@@ -57,3 +64,19 @@ def get_discrepancy_report(analysis_id: str, analyses: Analyses) -> FileResponse
 def get_discrepancy_model(analysis_id: str, analyses: Analyses) -> FileResponse:
     """The model file with the accepted terms (``tcms discrepancy`` model.toml)."""
     return FileResponse(analyses.path(analysis_id, "model.toml"), media_type="application/toml")
+
+
+@router.post("/{analysis_id}/apply", response_model=BenchModelView, dependencies=AUTH,
+             responses=errors(401, 404, 409, 413, 422))
+def apply_discrepancy(analysis_id: str, analyses: Analyses, body: ApplyRequest | None = None) -> dict[str, Any]:
+    """Add the effects an analysis named to the bench model, as its next version; the next analysis compares
+    against it. 404 unknown analysis; 409 when the analysis was made against an older version (analyse the run
+    again) or its names are provisional and ``accept_provisional`` is not set; 422 when it named nothing."""
+    return analyses.apply(analysis_id, accept_provisional=bool(body and body.accept_provisional))
+
+
+@model_router.get("", response_model=BenchModelView)
+def get_bench_model(analyses: Analyses) -> dict[str, Any]:
+    """The bench model in use (the catalogue reducer's model plus the accepted effects) and its versions with
+    their provenance (which analysis of which run added what)."""
+    return analyses.model()

@@ -286,6 +286,8 @@
     $("discrepancy").disabled = !(run.sample_count > 0) || ["queued", "running"].includes(run.status);
     $("discrepancy-link").hidden = true;
     $("discrepancy-result").textContent = "";
+    $("apply-effects").hidden = true;
+    state.analysis = null;
   }
 
   // ---- discrepancy: the shown run against the bench model (POST /api/discrepancy) ----
@@ -302,14 +304,49 @@
       `${rms(d.cv_rms_after_arcsec)}`;
   }
 
+  // ---- the bench model: its version, and "apply" after an analysis that named something ----
+  async function loadModel() {
+    try {
+      const m = await api("GET", "/api/model");
+      $("model-version").textContent = "v" + m.version;
+      $("model-version").title = m.terms.length
+        ? "accepted effects: " + m.terms.map((t) => t.name).join(", ") : "the catalogue reducer's model alone";
+    } catch (e) { /* shown as it was */ }
+  }
+
+  $("apply-effects").addEventListener("click", async () => {
+    const d = state.analysis;
+    if (!d) return;
+    let body = {};
+    if (d.names_provisional) {
+      if (!window.confirm("Structure remains that these effects do not explain: add them anyway?")) return;
+      body = { accept_provisional: true };
+    }
+    $("apply-effects").disabled = true;
+    try {
+      const m = await api("POST", "/api/discrepancy/" + d.id + "/apply", body);
+      message("bench model version " + m.version + ": " + m.history[0].note);
+      $("apply-effects").hidden = true;
+      await loadModel();
+    } catch (e) {
+      message("apply: " + e.message, true);
+      $("apply-effects").disabled = false;
+    }
+  });
+
   $("discrepancy").addEventListener("click", async () => {
     const id = state.resultId;
     if (!id) return;
     $("discrepancy").disabled = true;
+    $("apply-effects").hidden = true;
     $("discrepancy-result").textContent = "analysing run " + id + " …";
     try {
       const d = await api("POST", "/api/discrepancy", { run_id: id });
-      $("discrepancy-result").textContent = describeDiscrepancy(d);
+      state.analysis = d;
+      $("discrepancy-result").textContent = describeDiscrepancy(d) + " (against bench model v" + d.model_version + ")";
+      const named = d.effects.length > 0 || d.aliases.some((a) => a.in_model);
+      $("apply-effects").hidden = !named;
+      $("apply-effects").disabled = !named;
       const link = $("discrepancy-link");
       link.href = withToken(d.report_url);
       link.hidden = false;
@@ -423,4 +460,5 @@
   window.tcms = { state, loopPoints: () => state.loop.x.length };
   connectEvents();
   loadHistory();
+  loadModel();
 })();
