@@ -205,6 +205,10 @@ def format_text(result) -> str:
         offset = f", simulated clock offset {how.time_offset_s:+.4g} s" if how.time_offset_s is not None else ""
         lines.append(f"pairing: the simulation put onto the measured rows ({how.mode.replace('_', ' ')}{offset}); "
                      f"{how.rows_used} of {how.rows_measured} measured rows compared")
+    if result.pairing is not None and result.pairing.block_samples > 1:
+        how = result.pairing
+        lines.append(f"averaged: {how.rows_used} rows in blocks of {how.block_samples} consecutive samples "
+                     f"({how.rows_analysed} analysed rows; none across a reversal or a gap)")
     if result.effects:
         label = "named (provisional)" if result.verdict.provisional else "named"
         for e in result.effects:
