@@ -5,12 +5,19 @@ Format ``tcms-discrepancy-model/1``::
     format = "tcms-discrepancy-model/1"
     signal_period_arcsec = 72.0
     offset_arcsec = -0.41            # constant offset (always fitted, not an effect)
+    drift_reference_time_s = 12.5    # t0 of a thermal drift r·(t − t0): the first fitted sample's time
+    [fit_range]                      # the data the terms were fitted on (outside it they are extrapolations)
+    time_s = [12.5, 85.2]
+    torque_nm = [-800.4, 800.1]
+    angle_arcsec = [-175.0, 171.2]
 
     [[terms]]                        # in order of addition
     name = "time_skew"               # a catalogue name (tcms_daq.discrepancy.catalogue)
     aliased_with = []                # other catalogue effects that fit these data equally well
     [terms.parameters]
     skew_s = 0.0201
+    [terms.standard_uncertainty]     # k = 1, delete-one-loop jackknife (absent: not estimated)
+    skew_s = 0.0003
 
 The re-simulated angle is θ_sim + offset + Σ signature(term). The compensator's term registry
 (``tcms_daq.compensation.terms``) models encoder errors as functions of (θ, T, t) only; ``time_skew``,
@@ -24,6 +31,7 @@ from __future__ import annotations
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import tomli_w
@@ -41,6 +49,7 @@ class ModelTerm:
     name: str
     parameters: dict[str, float]
     aliased_with: list[str] = field(default_factory=list)
+    standard_uncertainty: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -48,15 +57,23 @@ class DiscrepancyModel:
     offset_arcsec: float = 0.0
     signal_period_arcsec: float = 72.0
     terms: list[ModelTerm] = field(default_factory=list)
+    fit_range: dict[str, list[float]] = field(default_factory=dict)
+    drift_reference_time_s: float | None = None
 
     def to_toml(self) -> str:
-        doc = {
+        doc: dict[str, Any] = {
             "format": FORMAT,
             "signal_period_arcsec": float(self.signal_period_arcsec),
             "offset_arcsec": float(self.offset_arcsec),
-            "terms": [{"name": t.name, "aliased_with": list(t.aliased_with),
-                       "parameters": {k: float(v) for k, v in t.parameters.items()}} for t in self.terms],
         }
+        if self.drift_reference_time_s is not None:
+            doc["drift_reference_time_s"] = float(self.drift_reference_time_s)
+        if self.fit_range:
+            doc["fit_range"] = {k: [float(x) for x in v] for k, v in self.fit_range.items()}
+        doc["terms"] = [{"name": t.name, "aliased_with": list(t.aliased_with),
+                         "parameters": {k: float(v) for k, v in t.parameters.items()},
+                         **({"standard_uncertainty": {k: float(v) for k, v in t.standard_uncertainty.items()}}
+                            if t.standard_uncertainty else {})} for t in self.terms]
         head = "# TCMS-DAQ discrepancy model: terms added to the simulated angle (arcsec), see docs/discrepancy.md\n"
         return head + tomli_w.dumps(doc)
 
@@ -65,8 +82,12 @@ class DiscrepancyModel:
 
     def with_terms_of(self, other: DiscrepancyModel) -> DiscrepancyModel:
         """This model with ``other``'s terms after its own. Signatures add, so a term found against this model
-        is exactly what it misses; the offset is not an effect and stays this model's."""
-        return DiscrepancyModel(self.offset_arcsec, self.signal_period_arcsec, [*self.terms, *other.terms])
+        is exactly what it misses; the offset is not an effect and stays this model's (the fit range and drift
+        reference are the latest analysis's)."""
+        return DiscrepancyModel(self.offset_arcsec, self.signal_period_arcsec, [*self.terms, *other.terms],
+                                dict(other.fit_range or self.fit_range),
+                                other.drift_reference_time_s if other.drift_reference_time_s is not None
+                                else self.drift_reference_time_s)
 
 
 def model_from_result(result) -> DiscrepancyModel:
@@ -74,8 +95,11 @@ def model_from_result(result) -> DiscrepancyModel:
     representatives)."""
     alias_of = {a.representative: [n for n in a.names if n != a.representative] for a in result.aliases
                 if a.in_model}
-    terms = [ModelTerm(name, dict(params), alias_of.get(name, [])) for name, params in result.model_terms]
-    return DiscrepancyModel(result.offset_arcsec, result.signal_period_arcsec, terms)
+    terms = [ModelTerm(name, dict(params), alias_of.get(name, []), dict(result.uncertainties.get(name, {})))
+             for name, params in result.model_terms]
+    fit_range = {k: list(v) for k, v in result.fit_range.items() if v is not None}
+    return DiscrepancyModel(result.offset_arcsec, result.signal_period_arcsec, terms, fit_range,
+                            result.drift_reference_time_s)
 
 
 def parse_model(text: str, source: str = "<model>") -> DiscrepancyModel:
@@ -95,8 +119,12 @@ def parse_model(text: str, source: str = "<model>") -> DiscrepancyModel:
         missing = [p for p in cat.CATALOGUE[name].parameters if p not in params]
         if missing:
             raise DataFormatError(f"{source}: terms[{i}] ({name}): missing parameter {missing[0]!r}")
-        terms.append(ModelTerm(name, {k: float(v) for k, v in params.items()}, list(t.get("aliased_with", []))))
-    return DiscrepancyModel(float(doc.get("offset_arcsec", 0.0)), float(doc.get("signal_period_arcsec", 72.0)), terms)
+        terms.append(ModelTerm(name, {k: float(v) for k, v in params.items()}, list(t.get("aliased_with", [])),
+                               {k: float(v) for k, v in t.get("standard_uncertainty", {}).items()}))
+    fit_range = {k: [float(x) for x in v] for k, v in doc.get("fit_range", {}).items()}
+    t0 = doc.get("drift_reference_time_s")
+    return DiscrepancyModel(float(doc.get("offset_arcsec", 0.0)), float(doc.get("signal_period_arcsec", 72.0)), terms,
+                            fit_range, None if t0 is None else float(t0))
 
 
 def load_model(path: str | Path) -> DiscrepancyModel:

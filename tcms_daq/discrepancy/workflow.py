@@ -46,11 +46,13 @@ class NamedEffect:
     cv_rms_before_arcsec: float
     cv_rms_after_arcsec: float
     inclusion: float  # share of outer folds whose selection included it
+    standard_uncertainty: dict[str, float] = field(default_factory=dict)  # k = 1, jackknife over the groups
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "parameters": dict(self.parameters),
+            "standard_uncertainty": dict(self.standard_uncertainty),
             "cv_rms_before_arcsec": self.cv_rms_before_arcsec,
             "cv_rms_after_arcsec": self.cv_rms_after_arcsec,
             "inclusion": self.inclusion,
@@ -93,6 +95,8 @@ class DiscrepancyResult:
     groups: dict[str, Any]
     signal_period_arcsec: float
     verdict: Verdict
+    uncertainties: dict[str, dict[str, float]]  # per model term: standard uncertainty of each parameter (k = 1)
+    fit_range: dict[str, list[float] | None]  # the data the terms were fitted on: time, torque, angle spans
     data: DesignData = field(repr=False)
     residual_before_arcsec: np.ndarray = field(repr=False)
     residual_after_arcsec: np.ndarray = field(repr=False)
@@ -104,6 +108,11 @@ class DiscrepancyResult:
     @property
     def names(self) -> list[str]:
         return [e.name for e in self.effects]
+
+    @property
+    def drift_reference_time_s(self) -> float | None:
+        """t0 of the drift term r·(t − t0): the first analysed sample's time (None without time)."""
+        return float(self.data.time_s[0]) if self.data.has_time and len(self.data) else None
 
     def to_dict(self, *, localisation: bool = False) -> dict[str, Any]:
         verdict = self.verdict.to_dict()
@@ -128,6 +137,8 @@ class DiscrepancyResult:
             "signal_period_arcsec": self.signal_period_arcsec,
             "strongest_signal": self.localisation.get("strongest_signal"),
             "pairing": self.pairing.to_dict() if self.pairing is not None else None,
+            "fit_range": self.fit_range,
+            "drift_reference_time_s": self.drift_reference_time_s,
         }
         if localisation:
             out["localisation"] = self.localisation
@@ -161,6 +172,28 @@ def run_discrepancy(measured: Samples, simulated: Samples, *, signal_period_arcs
     result = analyse(data, effects)
     result.pairing, result.paired = pairing, (measured, simulated)
     return result
+
+
+def jackknife_uncertainties(cols: Columns, y: np.ndarray, groups: np.ndarray, names: list[str],
+                            params: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Standard uncertainty (k = 1) of every parameter of ``names``: the delete-one-group jackknife over the
+    groups (runs, loops or blocks), so the serial correlation inside a loop does not make it look smaller.
+    Fewer than three groups: no estimate (empty)."""
+    labels = np.unique(groups)
+    if not names or len(labels) < 3:
+        return {}
+    rows = np.arange(len(y))
+    fits = [fit_model(cols, y, rows[groups != g], names, rescan=tuple(names)).parameters() for g in labels]
+    g = len(labels)
+    out: dict[str, dict[str, float]] = {}
+    for name in names:
+        out[name] = {}
+        for key in params[name]:
+            values = np.array([f[name][key] for f in fits])
+            if key.endswith("_rad"):  # a phase: spread around the full-data value, not across ±π
+                values = params[name][key] + np.angle(np.exp(1j * (values - params[name][key])))
+            out[name][key] = float(np.sqrt((g - 1) / g * np.sum((values - values.mean()) ** 2)))
+    return out
 
 
 def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyResult:
@@ -204,6 +237,7 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
     if len(model_names) != len(params):
         final = fit_model(cols, y, rows, model_names, rescan=tuple(model_names))
         params = final.parameters()
+    uncertainties = jackknife_uncertainties(cols, y, data.groups, model_names, params)
     path = sel.path()
     index = {s.name: i for i, s in enumerate(sel.steps)}
     named: list[NamedEffect] = []
@@ -216,7 +250,7 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
                                       True))
         else:
             named.append(NamedEffect(step.name, params[step.name], path[i].rms, path[i + 1].rms,
-                                     nested.inclusion.get(step.name, 0.0)))
+                                     nested.inclusion.get(step.name, 0.0), uncertainties.get(step.name, {})))
     # aliases among candidates that were not accepted are still worth reporting when they tied at a step
     for step in sel.steps[sel.chosen:]:
         if step.aliases:
@@ -251,6 +285,10 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
                 "nested_selections": [list(n) for n in nested.fold_names]},
         signal_period_arcsec=data.signal_period_arcsec,
         verdict=judge(data, y, after, any_named=bool(model_names)),
+        uncertainties=uncertainties,
+        fit_range={"time_s": [float(data.time_s[0]), float(data.time_s[-1])] if data.has_time else None,
+                   "torque_nm": [float(data.torque_nm.min()), float(data.torque_nm.max())],
+                   "angle_arcsec": [float(data.sim_angle_arcsec.min()), float(data.sim_angle_arcsec.max())]},
         data=data,
         residual_before_arcsec=y,
         residual_after_arcsec=after,

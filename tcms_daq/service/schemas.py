@@ -223,6 +223,7 @@ class BenchModelTerm(BaseModel):
     name: str
     parameters: dict[str, float]
     aliased_with: list[str]
+    standard_uncertainty: dict[str, float] = Field(default_factory=dict, description="k = 1 (jackknife over loops)")
 
 
 class BenchModelVersionView(BaseModel):

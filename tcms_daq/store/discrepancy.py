@@ -65,7 +65,8 @@ def apply_analysis(store: RunStore, found: DiscrepancyModel, *, against_version:
                             f"the bench model is now version {version}: analyse the run again")
     if not found.terms:
         raise DataFormatError(f"analysis {analysis_id} named no effect: nothing to add to the bench model")
-    new = model.with_terms_of(DiscrepancyModel(0.0, model.signal_period_arcsec, found.terms))
+    new = model.with_terms_of(DiscrepancyModel(0.0, model.signal_period_arcsec, found.terms, found.fit_range,
+                                               found.drift_reference_time_s))
     names = ", ".join(t.name for t in found.terms)
     return store.add_bench_model(new.to_toml(), note or f"added {names} from analysis {analysis_id} of run {run_id}",
                                  analysis_id=analysis_id, run_id=run_id)

@@ -189,3 +189,29 @@ def test_a_million_samples_at_the_same_noise_density_name_the_hidden_pair():
     assert found["time_skew"]["skew_s"] == pytest.approx(0.02, rel=0.10)
     assert found["interpolation_error"]["amplitude_arcsec"] == pytest.approx(0.6, rel=0.10)
     assert result.verdict.verdict == "explained", result.verdict.to_dict()
+
+
+@pytest.mark.parametrize("case", ["thermal_drift", "scale_error", "backlash", "torque_zero_offset",
+                                  "interpolation_error", "thermal_drift+backlash"])
+def test_parameter_uncertainties_cover_the_hidden_values(case):
+    """The standard uncertainty (k = 1, jackknife over loops) is reported per parameter, in the JSON and in
+    model.toml with the fit range and the drift's reference time; over seeds the truth lies within 3 u.
+    (Not for time_skew: its estimate is biased high by 0.5–1 %, more than its statistical uncertainty — a
+    limit of the re-evaluated simulation, stated in docs/discrepancy.md.)"""
+    from sim.trials import CASES, PRIMARY
+    from tcms_daq.discrepancy.model_file import model_from_result, parse_model
+
+    table = CASES[case]
+    for seed in (11, 12, 13):
+        measured, simulated, _ = make_pair(table, seed)
+        result = run_discrepancy(measured, simulated)
+        for e in result.effects:
+            key = PRIMARY[e.name]
+            u = e.standard_uncertainty[key]
+            assert 0 < u < 0.05 * abs(table[e.name][key])
+            assert abs(e.parameters[key] - table[e.name][key]) <= 3 * u, (seed, e.name, e.parameters, u)
+    model = parse_model(model_from_result(result).to_toml())
+    assert model.drift_reference_time_s == pytest.approx(measured.time_s[0])
+    assert model.fit_range["time_s"] == pytest.approx([measured.time_s[0], measured.time_s[-1]])
+    assert {t.name: t.standard_uncertainty for t in model.terms} == result.uncertainties
+    assert result.to_dict()["effects"][0]["standard_uncertainty"]
