@@ -56,6 +56,10 @@ def run(quick: bool = False) -> dict:
             "cv_rms_before_arcsec": result.cv_rms_before_arcsec,
             "cv_rms_after_arcsec": result.cv_rms_after_arcsec,
             "noise_floor_arcsec": floor,
+            # the analysed rows are the samples averaged in blocks (pairing): their noise floor is lower
+            "block_samples": result.pairing.block_samples if result.pairing else 1,
+            "noise_floor_analysed_arcsec": result.verdict.noise_floor_arcsec,
+            "verdict": result.verdict.verdict,
         },
         "targets": {"workflow_s": {"limit": 30.0, "met": seconds < 30.0}},
         "notes": f"full catalogue ({len(cat.EFFECT_NAMES)} effects), nested leave-one-loop-out CV over "
