@@ -1,7 +1,7 @@
 """Switchable hidden effects of the simulated bench (all off by default): material for hidden-effect tests.
 
-The effects use the forms of the discrepancy catalogue (``tcms_daq.discrepancy.catalogue``) and its contract
-names and parameters, so the workflow can be checked to name them:
+The effects are the discrepancy catalogue's (``tcms_daq.discrepancy.catalogue.CATALOGUE``: the one list of
+effect names, parameters and units), in its forms, so the workflow can be checked to name them:
 
 * ``time_skew`` (``skew_s`` ≥ 0): the torque signal lags the true torque by τ (the torque reading at t is the
   applied torque at t − τ), so a simulation driven by the reading is the true angle taken τ late.
@@ -11,6 +11,7 @@ names and parameters, so the workflow can be checked to name them:
 * ``interpolation_error`` / ``periodic_error`` (``period_arcsec``, ``amplitude_arcsec``, ``phase_rad``):
   A·sin(2π·θ/P + ψ) of the angle signal.
 * ``backlash`` (``backlash_arcsec``): −(b/2)·d with d = +1 while the applied torque rises, −1 while it falls.
+* ``nonlinear_stiffness`` (``coef_arcsec_per_nm3``): c·T³.
 * ``torque_zero_offset`` (``offset_nm``): the catalogue's first-order form −T0·dθ/dT, with dθ/dT the slope of
   the true twist along the trace (central differences of the noise-free signals). A physical zero offset of
   the torque reading is the bench's own ``torque_offset_nm``; on a history-dependent (hysteresis) model it
@@ -37,104 +38,72 @@ from typing import Any
 
 import numpy as np
 
+from tcms_daq.discrepancy.catalogue import CATALOGUE
 from tcms_daq.errors import ConfigError
+
+# Defaults of parameters a [sim.effects] table may leave out (the others are required).
+_DEFAULTS: dict[str, dict[str, float]] = {
+    "interpolation_error": {"period_arcsec": 72.0, "phase_rad": 0.0},
+    "periodic_error": {"period_arcsec": 100.0, "phase_rad": 0.0},
+}
 
 
 @dataclass(frozen=True)
 class HiddenEffects:
-    """Effect parameters in contract units; zero means off."""
+    """The effects switched on: catalogue name → parameters, in the catalogue's names and units
+    (``tcms_daq.discrepancy.catalogue.CATALOGUE``: one vocabulary for the simulator, the workflow and the
+    model file). An effect whose primary parameter is 0 is off."""
 
-    skew_s: float = 0.0
-    drift_rate_arcsec_per_s: float = 0.0
-    bending_coef_arcsec_per_nm2: float = 0.0
-    torsion_coef_arcsec_per_nm: float = 0.0
-    scale_ratio: float = 0.0
-    interpolation: tuple[float, float, float] = (72.0, 0.0, 0.0)  # period, amplitude, phase
-    periodic: tuple[float, float, float] = (100.0, 0.0, 0.0)
-    backlash_arcsec: float = 0.0
-    torque_zero_offset_nm: float = 0.0
+    table: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.skew_s < 0:
-            raise ConfigError(f"sim.effects.time_skew.skew_s must be >= 0 (a torque lag), got {self.skew_s}")
-        for name, (period, _amp, _ph) in (("interpolation_error", self.interpolation),
-                                          ("periodic_error", self.periodic)):
-            if not period > 0:
-                raise ConfigError(f"sim.effects.{name}.period_arcsec must be > 0, got {period}")
+        for name, params in self.table.items():
+            if name not in CATALOGUE:
+                raise ConfigError(f"sim.effects: unknown effect {name!r} (known: {', '.join(CATALOGUE)})")
+            unknown = set(params) - set(CATALOGUE[name].parameters)
+            if unknown:
+                raise ConfigError(f"sim.effects.{name}: unknown key {sorted(unknown)[0]!r} "
+                                  f"(parameters: {', '.join(CATALOGUE[name].parameters)})")
+            missing = [k for k in CATALOGUE[name].parameters if k not in params]
+            if missing:
+                raise ConfigError(f"sim.effects.{name}: missing parameter {missing[0]!r}")
+        if self.value("time_skew", "skew_s") < 0:
+            raise ConfigError(f"sim.effects.time_skew.skew_s must be >= 0 (a torque lag), got "
+                              f"{self.value('time_skew', 'skew_s')}")
+        for name in ("interpolation_error", "periodic_error"):
+            if name in self.table and not self.table[name]["period_arcsec"] > 0:
+                raise ConfigError(f"sim.effects.{name}.period_arcsec must be > 0, got "
+                                  f"{self.table[name]['period_arcsec']}")
+
+    def value(self, name: str, key: str) -> float:
+        return float(self.table.get(name, {}).get(key, 0.0))
 
     @property
     def active(self) -> list[str]:
-        """Contract names of the effects that are on."""
-        on = {
-            "time_skew": self.skew_s, "thermal_drift": self.drift_rate_arcsec_per_s,
-            "bending_deformation": self.bending_coef_arcsec_per_nm2,
-            "torsion_offset": self.torsion_coef_arcsec_per_nm, "scale_error": self.scale_ratio,
-            "interpolation_error": self.interpolation[1], "periodic_error": self.periodic[1],
-            "backlash": self.backlash_arcsec, "torque_zero_offset": self.torque_zero_offset_nm,
-        }
-        return [k for k, v in on.items() if v != 0.0]
-
-
-_TABLE_KEYS: dict[str, tuple[str, ...]] = {
-    "time_skew": ("skew_s",),
-    "thermal_drift": ("rate_arcsec_per_s",),
-    "bending_deformation": ("coef_arcsec_per_nm2",),
-    "torsion_offset": ("coef_arcsec_per_nm",),
-    "scale_error": ("ratio",),
-    "interpolation_error": ("period_arcsec", "amplitude_arcsec", "phase_rad"),
-    "periodic_error": ("period_arcsec", "amplitude_arcsec", "phase_rad"),
-    "backlash": ("backlash_arcsec",),
-    "torque_zero_offset": ("offset_nm",),
-}
+        """Names of the effects that are on (primary parameter ≠ 0: the amplitude of a periodic one)."""
+        return [n for n, params in self.table.items()
+                if params.get("amplitude_arcsec", params[CATALOGUE[n].parameters[0]]) != 0.0]
 
 
 def effects_from_table(table: dict[str, Any]) -> HiddenEffects:
-    """Parse a ``[sim.effects]`` table (contract names and parameters). Raises ConfigError (one line)."""
-    kw: dict[str, Any] = {}
+    """Parse a ``[sim.effects]`` table (catalogue names and parameters). Raises ConfigError (one line)."""
+    parsed: dict[str, dict[str, float]] = {}
     for name, sub in (table or {}).items():
-        if name not in _TABLE_KEYS:
-            raise ConfigError(f"sim.effects: unknown effect {name!r} (known: {', '.join(_TABLE_KEYS)})")
         if not isinstance(sub, dict):
             raise ConfigError(f"sim.effects.{name}: expected a table of parameters")
         sub = dict(sub)
         if not sub.pop("enabled", True):
             continue
-        unknown = set(sub) - set(_TABLE_KEYS[name])
-        if unknown:
-            raise ConfigError(f"sim.effects.{name}: unknown key {sorted(unknown)[0]!r}")
         try:
-            vals = {k: float(v) for k, v in sub.items()}
+            parsed[name] = {**_DEFAULTS.get(name, {}), **{k: float(v) for k, v in sub.items()}}
         except (TypeError, ValueError):
             raise ConfigError(f"sim.effects.{name}: parameters must be numbers") from None
-        if name in ("interpolation_error", "periodic_error"):
-            default_period = 72.0 if name == "interpolation_error" else 100.0
-            kw["interpolation" if name == "interpolation_error" else "periodic"] = (
-                vals.get("period_arcsec", default_period), vals.get("amplitude_arcsec", 0.0),
-                vals.get("phase_rad", 0.0))
-            continue
-        value = next(iter(vals.values()), 0.0)
-        kw[{"time_skew": "skew_s", "thermal_drift": "drift_rate_arcsec_per_s",
-            "bending_deformation": "bending_coef_arcsec_per_nm2", "torsion_offset": "torsion_coef_arcsec_per_nm",
-            "scale_error": "scale_ratio", "backlash": "backlash_arcsec",
-            "torque_zero_offset": "torque_zero_offset_nm"}[name]] = value
-    return HiddenEffects(**kw)
+    return HiddenEffects(parsed)
 
 
 def effects_to_table(effects: HiddenEffects) -> dict[str, dict[str, float]]:
     """The ``[sim.effects]`` table of the active effects (inverse of :func:`effects_from_table`)."""
-    out: dict[str, dict[str, float]] = {}
-    e = effects
-    simple = {"time_skew": e.skew_s, "thermal_drift": e.drift_rate_arcsec_per_s,
-              "bending_deformation": e.bending_coef_arcsec_per_nm2, "torsion_offset": e.torsion_coef_arcsec_per_nm,
-              "scale_error": e.scale_ratio, "backlash": e.backlash_arcsec,
-              "torque_zero_offset": e.torque_zero_offset_nm}
-    for name, v in simple.items():
-        if v != 0.0:
-            out[name] = {_TABLE_KEYS[name][0]: float(v)}
-    for name, (p, a, ph) in (("interpolation_error", e.interpolation), ("periodic_error", e.periodic)):
-        if a != 0.0:
-            out[name] = {"period_arcsec": p, "amplitude_arcsec": a, "phase_rad": ph}
-    return out
+    return {name: dict(effects.table[name]) for name in effects.active}
 
 
 @dataclass
@@ -156,29 +125,31 @@ class EffectsHook:
         angle = np.asarray(cols["angle_signal_arcsec"], dtype=float)
         if len(t) == 0:
             return cols
-        if e.skew_s > 0:
+        skew_s = e.value("time_skew", "skew_s")
+        if skew_s > 0:
             ht = np.concatenate((self._hist_t, t))
             hq = np.concatenate((self._hist_torque, torque))
-            torque = np.interp(t - e.skew_s, ht, hq)
-            keep = ht >= t[-1] - e.skew_s - 1.0
+            torque = np.interp(t - skew_s, ht, hq)
+            keep = ht >= t[-1] - skew_s - 1.0
             self._hist_t, self._hist_torque = ht[keep], hq[keep]
         base = angle
         add = np.zeros_like(angle)
-        if e.scale_ratio:
-            add += e.scale_ratio * base
-        if e.drift_rate_arcsec_per_s:
-            add += e.drift_rate_arcsec_per_s * t
-        if e.bending_coef_arcsec_per_nm2:
-            add += e.bending_coef_arcsec_per_nm2 * applied ** 2
-        if e.torsion_coef_arcsec_per_nm:
-            add += e.torsion_coef_arcsec_per_nm * applied
-        for period, amp, phase in (e.interpolation, e.periodic):
-            if amp:
-                add += amp * np.sin(2.0 * math.pi * base / period + phase)
-        if e.torque_zero_offset_nm:
-            add += -e.torque_zero_offset_nm * self._slope(applied, np.asarray(cols["true_angle_arcsec"], float))
-        if e.backlash_arcsec:
-            add += -0.5 * e.backlash_arcsec * self._directions(applied)
+        add += e.value("scale_error", "ratio") * base
+        add += e.value("thermal_drift", "rate_arcsec_per_s") * t
+        add += e.value("bending_deformation", "coef_arcsec_per_nm2") * applied ** 2
+        add += e.value("torsion_offset", "coef_arcsec_per_nm") * applied
+        add += e.value("nonlinear_stiffness", "coef_arcsec_per_nm3") * applied ** 3
+        for name in ("interpolation_error", "periodic_error"):
+            if e.value(name, "amplitude_arcsec"):
+                params = e.table[name]
+                add += params["amplitude_arcsec"] * np.sin(2.0 * math.pi * base / params["period_arcsec"]
+                                                           + params["phase_rad"])
+        offset_nm = e.value("torque_zero_offset", "offset_nm")
+        if offset_nm:
+            add += -offset_nm * self._slope(applied, np.asarray(cols["true_angle_arcsec"], float))
+        backlash_arcsec = e.value("backlash", "backlash_arcsec")
+        if backlash_arcsec:
+            add += -0.5 * backlash_arcsec * self._directions(applied)
         out = dict(cols)
         out["torque_signal_nm"] = torque
         out["angle_signal_arcsec"] = angle + add

@@ -66,7 +66,14 @@ def test_sim_effects_table_round_trip_and_errors():
     with pytest.raises(ConfigError, match="unknown key"):
         effects_from_table({"backlash": {"width": 1.0}})
     with pytest.raises(ConfigError, match="torque lag"):
-        HiddenEffects(skew_s=-0.1)
+        HiddenEffects({"time_skew": {"skew_s": -0.1}})
+    with pytest.raises(ConfigError, match="missing parameter 'amplitude_arcsec'"):
+        effects_from_table({"periodic_error": {"period_arcsec": 90.0}})
+    # one vocabulary: the simulator takes exactly the catalogue's names and parameters
+    from tcms_daq.discrepancy.catalogue import CATALOGUE
+
+    every = {name: {k: 0.5 for k in effect.parameters} for name, effect in CATALOGUE.items()}
+    assert sorted(effects_from_table(every).active) == sorted(CATALOGUE)
 
 
 def test_sim_effects_batches_equal_one_piece():
