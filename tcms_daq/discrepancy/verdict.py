@@ -298,7 +298,8 @@ def _shapes(data: DesignData, before: np.ndarray, after: np.ndarray, noise: floa
     cut = _step_break(t, after)
     if cut is not None:
         gain, coef = fit.gain((t >= cut).astype(float))
-        out.append({"shape": "step", "gain": gain, at: cut, "height_arcsec": float(coef[0])})
+        out.append({"shape": "step", "gain": gain, at: cut, "height_arcsec": float(coef[0]),
+                    **({"at_s_after_start": cut - float(t[0])} if data.has_time else {})})
     gain, coef = fit.gain(t - t.mean())
     out.append({"shape": "ramp", "gain": gain,
                 f"slope_arcsec_per_{'s' if data.has_time else 'sample'}": float(coef[0])})
@@ -376,6 +377,8 @@ def _spans(data: DesignData, r: np.ndarray, noise: float, limit: int = 3) -> lis
         spans.append((weight, {
             ("from_time_s" if data.has_time else "from_sample"): float(t[rows].min()),
             ("to_time_s" if data.has_time else "to_sample"): float(t[rows].max()),
+            "from_s_after_start": float(t[rows].min() - t[0]) if data.has_time else None,
+            "to_s_after_start": float(t[rows].max() - t[0]) if data.has_time else None,
             "torque_range_nm": [float(data.torque_nm[rows].min()), float(data.torque_nm[rows].max())],
             "loading_share": float(np.mean(data.direction[rows] > 0)),
             "mean_arcsec": float(r[rows].mean()),
@@ -441,8 +444,9 @@ def _summary(best: dict[str, Any] | None, spans: list[dict[str, Any]], structure
     else:
         share = f"{best['share_of_remainder']:.0%} of it"
         shape = {
-            "step": lambda b: f"a step of {b['height_arcsec']:+.3g}″ at "
-                              + (f"t = {b['at_time_s']:.4g} s" if "at_time_s" in b else f"sample {b['at_sample']:.0f}"),
+            "step": lambda b: f"a step of {b['height_arcsec']:+.3g}″ "
+                              + (f"{b['at_s_after_start']:.4g} s after the start" if "at_time_s" in b
+                                 else f"at sample {b['at_sample']:.0f}"),
             "ramp": lambda b: "a ramp in time",
             "loop_width_change": lambda b: f"a change of the loop's half-width by {b['half_width_change_arcsec']:+.3g}″",
             "saturation": lambda b: f"a saturation at the {b['end']} end of the angle from {b['from_angle_arcsec']:.4g}″",
@@ -466,7 +470,7 @@ def _summary(best: dict[str, Any] | None, spans: list[dict[str, Any]], structure
         s = spans[0]
         lo, hi = s["torque_range_nm"]
         if has_time:
-            where = (f"; most visible from {s['from_time_s']:.4g} s to {s['to_time_s']:.4g} s, "
+            where = (f"; most visible {s['from_s_after_start']:.4g}…{s['to_s_after_start']:.4g} s after the start, "
                      f"torque {lo:.4g}…{hi:.4g} N·m, {_direction_words(s['loading_share'])}")
         else:
             where = f"; most visible at torque {lo:.4g}…{hi:.4g} N·m, {_direction_words(s['loading_share'])}"
