@@ -329,52 +329,59 @@ class RunStore:
         if cur.rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
-    # -- compensation versions -------------------------------------------------------------------------------
+    # -- versioned TOML documents: compensations and bench models ------------------------------------------
+    # Both tables hold (version, created_at, note, sha256, toml, <provenance columns>); one way to add and read.
+    _VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",),
+                                              "bench_models": ("analysis_id", "run_id")}
+
+    def _add_version(self, table: str, toml: str, note: str, provenance: Sequence[Any]) -> tuple[int, float]:
+        columns = ("created_at", "note", "sha256", "toml", *self._VERSIONED[table])
+        created = time.time()
+        cur = self._write(f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})",
+                          (created, note, text_sha256(toml), toml, *provenance))
+        assert cur.lastrowid is not None  # an INSERT into a rowid table always has one
+        return cur.lastrowid, created
+
+    def _history(self, table: str, limit: int) -> list[tuple[Any, ...]]:
+        columns = ("version", "created_at", "note", "sha256", *self._VERSIONED[table])
+        return self._conn().execute(f"SELECT {', '.join(columns)} FROM {table} ORDER BY version DESC LIMIT ?",
+                                    (limit,)).fetchall()
+
+    def _version(self, table: str, version: int | None) -> tuple[Any, ...] | None:
+        """The row (header columns…, toml) of ``version`` (default: the latest)."""
+        sql = f"SELECT {', '.join(('version', 'created_at', 'note', 'sha256', *self._VERSIONED[table]))}, toml FROM {table} "
+        cur = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
+               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1"))
+        return cur.fetchone()
+
     def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
         """Keep an accepted compensation (the TOML as applied) as the next version; returns it."""
-        created = time.time()
-        cur = self._write("INSERT INTO compensations (created_at, note, sha256, toml, rollback_of) "
-                          "VALUES (?, ?, ?, ?, ?)", (created, note, text_sha256(toml), toml, rollback_of))
-        version = cur.lastrowid
-        assert version is not None  # an INSERT into a rowid table always has one
+        version, created = self._add_version("compensations", toml, note, (rollback_of,))
         return CompensationVersion(version, created, note, text_sha256(toml), rollback_of)
 
     def compensation_history(self, limit: int = 100) -> list[CompensationVersion]:
         """Accepted compensations, newest first."""
-        rows = self._conn().execute("SELECT version, created_at, note, sha256, rollback_of FROM compensations "
-                                    "ORDER BY version DESC LIMIT ?", (limit,)).fetchall()
-        return [CompensationVersion(*row) for row in rows]
+        return [CompensationVersion(*row) for row in self._history("compensations", limit)]
 
     def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None:
         """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
-        sql = "SELECT version, created_at, note, sha256, rollback_of, toml FROM compensations "
-        row = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
-               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1")).fetchone()
-        return None if row is None else (CompensationVersion(*row[:5]), row[5])
+        row = self._version("compensations", version)
+        return None if row is None else (CompensationVersion(*row[:-1]), row[-1])
 
-    # -- bench model versions --------------------------------------------------------------------------------
     def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
                         run_id: str | None = None) -> BenchModelVersion:
         """Keep the next version of the bench model (its whole discrepancy model TOML); returns it."""
-        created = time.time()
-        cur = self._write("INSERT INTO bench_models (created_at, note, sha256, toml, analysis_id, run_id) "
-                          "VALUES (?, ?, ?, ?, ?, ?)", (created, note, text_sha256(toml), toml, analysis_id, run_id))
-        version = cur.lastrowid
-        assert version is not None
+        version, created = self._add_version("bench_models", toml, note, (analysis_id, run_id))
         return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
 
     def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
         """Bench model versions, newest first."""
-        rows = self._conn().execute("SELECT version, created_at, note, sha256, analysis_id, run_id FROM bench_models "
-                                    "ORDER BY version DESC LIMIT ?", (limit,)).fetchall()
-        return [BenchModelVersion(*row) for row in rows]
+        return [BenchModelVersion(*row) for row in self._history("bench_models", limit)]
 
     def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
         """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
-        sql = "SELECT version, created_at, note, sha256, analysis_id, run_id, toml FROM bench_models "
-        row = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
-               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1")).fetchone()
-        return None if row is None else (BenchModelVersion(*row[:6]), row[6])
+        row = self._version("bench_models", version)
+        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
 
     # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:
