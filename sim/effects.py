@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from tcms_daq.discrepancy.catalogue import CATALOGUE
+from tcms_daq.discrepancy.catalogue import BUILT_IN, CATALOGUE
 from tcms_daq.errors import ConfigError
 
 # Defaults of parameters a [sim.effects] table may leave out (the others are required).
@@ -58,8 +58,8 @@ class HiddenEffects:
 
     def __post_init__(self) -> None:
         for name, params in self.table.items():
-            if name not in CATALOGUE:
-                raise ConfigError(f"sim.effects: unknown effect {name!r} (known: {', '.join(CATALOGUE)})")
+            if name not in BUILT_IN:
+                raise ConfigError(f"sim.effects: unknown effect {name!r} (the simulator has: {', '.join(BUILT_IN)})")
             unknown = set(params) - set(CATALOGUE[name].parameters)
             if unknown:
                 raise ConfigError(f"sim.effects.{name}: unknown key {sorted(unknown)[0]!r} "

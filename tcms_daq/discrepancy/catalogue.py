@@ -27,16 +27,18 @@ training fold and refines by parabolic interpolation. ``signature`` evaluates an
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from tcms_daq.discrepancy.design import DesignData
 
-EFFECT_NAMES: tuple[str, ...] = (
+BUILT_IN: tuple[str, ...] = (
     "time_skew", "thermal_drift", "bending_deformation", "torsion_offset", "scale_error",
     "interpolation_error", "periodic_error", "backlash", "torque_zero_offset", "nonlinear_stiffness",
 )
+EFFECT_NAMES: list[str] = list(BUILT_IN)  # built-in, then declared ones (register_effect, entry points)
 
 MAX_SKEW_S = 0.25
 PERIOD_EXCLUSION = 0.04  # periodic_error keeps 4 % away from the signal period and its half
@@ -87,6 +89,78 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            "stiffness that changes with torque, odd in torque (c·T³)", "even", False, False, None, False,
            "|c·T_max³| ≤ 20 % of the simulated angle span"),
 )}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Effects a user declares (without editing this module)
+
+ENTRY_POINT_GROUP = "tcms_daq.effects"
+
+
+@dataclass(frozen=True)
+class DeclaredEffect:
+    """An effect in declared form: one parameter times a column computed from the aligned design data
+    (``DesignData``: time, torque, simulated angle, load direction, slope …), in arcsec per unit of the
+    parameter. It is a candidate like the built-in ones (selection, aliases, verdict, model file, apply).
+
+    Register it with :func:`register_effect`, or from an installed package through an entry point of the group
+    ``tcms_daq.effects`` whose object is a ``DeclaredEffect`` (loaded by :func:`load_entry_point_effects`).
+    """
+
+    name: str
+    parameter: str
+    unit: str
+    description: str
+    column: Callable[[DesignData], np.ndarray]
+    max_abs: float  # plausible |parameter|
+    needs_time: bool = False
+    parity: str = "even"
+
+
+DECLARED: dict[str, DeclaredEffect] = {}
+
+
+def register_effect(effect: DeclaredEffect) -> None:
+    """Add a declared effect to the catalogue (ValueError for a name the built-in catalogue has)."""
+    if not effect.name.isidentifier() or not effect.parameter.isidentifier():
+        raise ValueError(f"effect and parameter names must be identifiers: {effect.name!r}, {effect.parameter!r}")
+    if effect.name in BUILT_IN:
+        raise ValueError(f"{effect.name!r} is a built-in effect")
+    if not effect.max_abs > 0:
+        raise ValueError(f"{effect.name}: max_abs must be > 0")
+    DECLARED[effect.name] = effect
+    CATALOGUE[effect.name] = Effect(effect.name, (effect.parameter,), (effect.unit,), effect.description,
+                                    effect.parity, False, effect.needs_time, None, False,
+                                    f"|{effect.parameter}| ≤ {effect.max_abs:g}")
+    if effect.name not in EFFECT_NAMES:
+        EFFECT_NAMES.append(effect.name)
+
+
+def unregister_effect(name: str) -> None:
+    if DECLARED.pop(name, None) is not None:
+        CATALOGUE.pop(name, None)
+        EFFECT_NAMES.remove(name)
+
+
+_ENTRY_POINTS_LOADED = False
+
+
+def load_entry_point_effects() -> list[str]:
+    """Register the declared effects of installed packages (group ``tcms_daq.effects``), once; their names."""
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return []
+    _ENTRY_POINTS_LOADED = True
+    from importlib.metadata import entry_points
+
+    added = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        effect = ep.load()
+        if not isinstance(effect, DeclaredEffect):
+            raise TypeError(f"entry point {ep.name!r} of {ENTRY_POINT_GROUP} is not a DeclaredEffect")
+        register_effect(effect)
+        added.append(effect.name)
+    return added
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -201,6 +275,11 @@ def columns(name: str, data: DesignData, nl: float | None = None) -> np.ndarray:
         return (-data.slope_arcsec_per_nm)[:, None]
     if name == "nonlinear_stiffness":
         return (data.torque_nm ** 3)[:, None]
+    if name in DECLARED:
+        column = np.asarray(DECLARED[name].column(data), dtype=float)
+        if column.shape != (len(data),) or not np.all(np.isfinite(column)):
+            raise ValueError(f"declared effect {name!r}: its column must be {len(data)} finite values")
+        return column[:, None]
     raise KeyError(name)
 
 
@@ -237,6 +316,9 @@ def signature(name: str, data: DesignData, params: dict[str, float]) -> np.ndarr
 
 def plausibility(name: str, params: dict[str, float], data: DesignData) -> str | None:
     """None if the fitted value is physically plausible, else the reason in one line."""
+    if name in DECLARED:
+        d = DECLARED[name]
+        return f"|{d.parameter}| above {d.max_abs:g}" if abs(params[d.parameter]) > d.max_abs else None
     span = float(np.ptp(data.sim_angle_arcsec)) or 1.0
     tmax = float(np.max(np.abs(data.torque_nm))) or 1.0
     tspan = float(np.ptp(data.torque_nm)) or 1.0

@@ -198,6 +198,7 @@ def jackknife_uncertainties(cols: Columns, y: np.ndarray, groups: np.ndarray, na
 
 def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyResult:
     y = data.residual_arcsec
+    cat.load_entry_point_effects()
     wanted = list(effects) if effects is not None else list(cat.EFFECT_NAMES)
     for name in wanted:
         if name not in cat.CATALOGUE:

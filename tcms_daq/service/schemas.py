@@ -76,7 +76,9 @@ class DiscrepancyRequest(BaseModel):
 
     @model_validator(mode="after")
     def _known_effects(self) -> DiscrepancyRequest:
-        from tcms_daq.discrepancy.catalogue import EFFECT_NAMES
+        from tcms_daq.discrepancy.catalogue import EFFECT_NAMES, load_entry_point_effects
+
+        load_entry_point_effects()
 
         unknown = [e for e in self.effects or () if e not in EFFECT_NAMES]
         if unknown:
