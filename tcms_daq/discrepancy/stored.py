@@ -75,7 +75,8 @@ def resimulate(measured: Samples, model: ForwardModel) -> Samples:
     start of a stored run is unknown: it depends on the tests run before it, and after a larger test it takes
     several loops to settle (a model started virgin is off by arcseconds for the whole run). The model's angle is
     linear in that state, so the state is fitted by least squares (one number within the physical ±hysteresis
-    half-width; its influence decays over the first load reversals). The returned torque column is the measured
+    half-width; its influence decays over the first load reversals), beside nuisance terms in time, torque and
+    angle that keep a drift, a torsion or a scale error out of it. The returned torque column is the measured
     one.
     """
     torque = applied_torque_estimate(measured.time_s, measured.torque_nm)
@@ -85,9 +86,11 @@ def resimulate(measured: Samples, model: ForwardModel) -> Samples:
     half_width = model.hysteresis_half_width_arcsec
     angle = virgin
     if half_width > 0 and np.any(unit):
-        # with a linear time term beside it, so a thermal drift is not taken for the settling state
+        # with nuisance columns beside it — time (a thermal drift), torque (a torsion of the chain) and the
+        # model's own angle (a scale error) — so an effect the workflow is to find is not taken for the
+        # settling state (it would leave a decaying transition after the reversals instead of a clean term)
         t = measured.time_s - float(np.mean(measured.time_s))
-        design = np.column_stack([unit, np.ones_like(unit), t])
-        (z0, _, _), *_ = np.linalg.lstsq(design, measured.angle_arcsec - virgin, rcond=None)
+        design = np.column_stack([unit, np.ones_like(unit), t, torque, virgin])
+        z0 = float(np.linalg.lstsq(design, measured.angle_arcsec - virgin, rcond=None)[0][0])
         angle = virgin + float(np.clip(z0, -half_width, half_width)) * unit
     return Samples(measured.time_s, measured.torque_nm, angle)

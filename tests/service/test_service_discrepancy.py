@@ -132,3 +132,41 @@ def test_discrepancy_names_an_effect_hidden_in_the_simulated_bench(settings_fact
         listed = c.get("/api/discrepancy").json()
         assert [(a["id"], a["model_version"], a["verdict"]) for a in listed] == [
             (second["id"], 1, "consistent"), (first["id"], 0, "explained")]
+
+
+@pytest.mark.timeout(180)
+def test_a_measuring_chain_effect_moves_from_the_bench_model_into_the_compensator(settings_factory, sim_config,
+                                                                                tmp_path):
+    """A torsion of the measuring chain (0.004″/N·m) hidden in the bench: named, applied to the bench model, then moved to the
+    compensator as its own version (POST /api/compensation/from-model); the bench model drops it and the next
+    run, now compensated, is consistent with the model."""
+    data = tomllib.loads(sim_config.read_text(encoding="utf-8"))
+    for key in ("compensation", "reducers"):
+        data["bench"][key] = str(sim_config.parent / data["bench"][key])
+    data["sim"]["geometry"] = str(sim_config.parent / data["sim"]["geometry"])
+    data["sim"]["effects"] = {"torsion_offset": {"coef_arcsec_per_nm": 0.004}}
+    config = tmp_path / "bench-torsion.toml"
+    config.write_text(tomli_w.dumps(data), encoding="utf-8")
+    with serve(settings_factory(config_path=config, sim_speed=20.0)) as srv, srv.client() as c:
+        r = c.post("/api/compensation/from-model")
+        assert r.status_code == 422 and "no measuring-chain effect" in r.json()["detail"]
+        run_1 = c.post("/api/tests", json=REQUEST).json()["id"]
+        assert _finished(c, run_1)["status"] == "completed"
+        first = c.post("/api/discrepancy", json={"run_id": run_1}).json()
+        assert [e["name"] for e in first["effects"]] == ["torsion_offset"], (first["verdict_words"], first["aliases"])
+        assert first["effects"][0]["parameters"]["coef_arcsec_per_nm"] == pytest.approx(0.004, rel=0.15)
+        assert c.post(f"/api/discrepancy/{first['id']}/apply").status_code == 200
+        r = c.post("/api/compensation/from-model")
+        assert r.status_code == 200, r.text
+        assert 'type = "torsion"' in r.text
+        version = int(r.headers["X-Compensation-Version"])
+        history = c.get("/api/compensation/history").json()
+        assert history[0]["version"] == version and "from bench model version 1" in history[0]["note"]
+        model = c.get("/api/model").json()
+        assert model["version"] == 2 and model["terms"] == [] and "moved torsion_offset" in model["history"][0]["note"]
+        run_2 = c.post("/api/tests", json=REQUEST).json()["id"]
+        assert _finished(c, run_2)["status"] == "completed"
+        assert c.get(f"/api/tests/{run_2}").json()["compensation_version"] == version
+        second = c.post("/api/discrepancy", json={"run_id": run_2}).json()
+        assert second["model_version"] == 2
+        assert second["verdict"] == "consistent" and second["effects"] == [], second["verdict_words"]

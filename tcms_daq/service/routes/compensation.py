@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
@@ -72,3 +73,32 @@ async def rollback_compensation(version: Annotated[int, PathParam(ge=1, le=2**31
     if found is None:
         raise UnknownRun(f"no compensation version {version}")
     return await _activate(bench, manager, store, events, found[1], f"rollback to version {version}", version)
+
+
+@router.post("/from-model", response_class=PlainTextResponse, dependencies=AUTH,
+             responses={**TOML_ANSWER, **errors(401, 409, 422)})
+async def compensation_from_model(bench: Bench, manager: Manager, store: Store, events: Events) -> PlainTextResponse:
+    """The bench model's measuring-chain effects (scale, torsion) added to the compensator in use, kept as a new
+    compensation version (an explicit step; the effects that cannot be compensator terms stay in the bench
+    model and are named in the version's note). 422 when the bench model has none; 409 during a test."""
+    from tcms_daq.compensation.compensator import Compensator
+    from tcms_daq.discrepancy.to_compensation import compensator_terms
+    from tcms_daq.store.discrepancy import bench_model
+
+    version, model = bench_model(store)
+    terms, left = compensator_terms(model)
+    if not terms:
+        raise RequestRejected(f"bench model version {version} has no measuring-chain effect a compensator term "
+                              f"can take (left in the model: {', '.join(left) or 'nothing'})")
+    current = Compensator.loads(bench.compensator_toml(), "the compensation in use")
+    note = (f"added {', '.join(t.type_name for t in terms)} from bench model version {version}"
+            + (f"; left in the model: {', '.join(left)}" if left else ""))
+    answer = await _activate(bench, manager, store, events, current.with_terms(*terms).to_toml(), note[:200])
+    # the moved effects are corrected in the measurement from now on: the bench model must not add them again
+    kept = replace(model, terms=[t for t in model.terms if t.name in left])
+    moved = await asyncio.to_thread(
+        store.add_bench_model, kept.to_toml(),
+        f"moved {', '.join(sorted(set(t.name for t in model.terms) - set(left)))} to compensation version "
+        f"{answer.headers['X-Compensation-Version']}")
+    events.publish("bench_model", version=moved.version)
+    return answer
