@@ -171,7 +171,7 @@ turn); the error after the workflow repeats the whole selection inside every out
 <h2>Verdict: {html.escape(r.verdict.verdict.replace("_", " "))}</h2>
 <p class="verdict">{html.escape(r.verdict.words())}</p>{_remainder_table(r)}
 <h2>Before and after</h2>{summary}
-<h2>Named effects</h2>{eff}{alias}{rej}
+<h2>Named effects{" (provisional: structure remains that they do not explain)" if r.verdict.provisional and r.effects else ""}</h2>{eff}{alias}{rej}
 <h2>Where the residual lives (before)</h2>{local}
 <h2>Plots</h2>{figs}
 </body></html>
@@ -188,12 +188,13 @@ def _remainder_table(r) -> str:
         rows.append(["remaining structure RMS [″]", _fmt(rest["structured_rms_arcsec"])])
         rows.append(["its shape", html.escape(rest["shape"].replace("_", " "))])
         for s in rest["spans"]:
-            where = (f"{_fmt(s['from_time_s'])}…{_fmt(s['to_time_s'])} s" if "from_time_s" in s
+            where = (f"{_fmt(s['from_s_after_start'])}…{_fmt(s['to_s_after_start'])} s after the start"
+                     if s.get("from_s_after_start") is not None
                      else f"samples {s['from_sample']:.0f}…{s['to_sample']:.0f}")
             lo, hi = s["torque_range_nm"]
             rows.append(["visible", f"{where}, torque {_fmt(lo)}…{_fmt(hi)} N·m, loading share "
                                     f"{s['loading_share']:.0%}, mean {_fmt(s['mean_arcsec'])}″"])
-    return _table(rows, ["", ""])
+    return _table(rows, ["what remains", ""])
 
 
 def format_text(result) -> str:
