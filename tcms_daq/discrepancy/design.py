@@ -74,6 +74,16 @@ def load_direction(torque_nm: np.ndarray, threshold_nm: float | None = None) -> 
     return out
 
 
+def reversals(direction: np.ndarray) -> np.ndarray:
+    """Row indices where the load direction changes (the first row of each new branch)."""
+    return np.flatnonzero(np.diff(direction) != 0) + 1
+
+
+def branch_starts(direction: np.ndarray) -> np.ndarray:
+    """First row of every load branch, 0 included."""
+    return np.concatenate(([0], reversals(direction)))
+
+
 def _moving_sum(x: np.ndarray, w: int) -> np.ndarray:
     c = np.concatenate(([0.0], np.cumsum(x)))
     n = len(x)

@@ -17,16 +17,23 @@ from tcms_daq.discrepancy.design import DesignData
 N_BINS = 24
 
 
+def equal_count_bins(x: np.ndarray, n_bins: int) -> np.ndarray:
+    """Bin index (0…) of each sample in about-equal-count bins of ``x``."""
+    edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, n_bins + 1)))
+    if len(edges) < 2:
+        return np.zeros(len(x), dtype=int)
+    return np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+
+
 def _binned(x: np.ndarray, r: np.ndarray, n_bins: int = N_BINS) -> tuple[np.ndarray, np.ndarray, float]:
     """(bin centres, bin means, η²) of r in equal-count bins of x."""
     if np.ptp(x) <= 0 or len(x) < 2 * n_bins:
         return np.zeros(0), np.zeros(0), 0.0
-    edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
-    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
-    cnt = np.bincount(k, minlength=len(edges) - 1).astype(float)
+    k = equal_count_bins(x, n_bins)
+    cnt = np.bincount(k).astype(float)
     ok = cnt > 0
-    mean = np.bincount(k, weights=r, minlength=len(edges) - 1)[ok] / cnt[ok]
-    centre = np.bincount(k, weights=x, minlength=len(edges) - 1)[ok] / cnt[ok]
+    mean = np.bincount(k, weights=r)[ok] / cnt[ok]
+    centre = np.bincount(k, weights=x)[ok] / cnt[ok]
     var = float(np.var(r))
     eta2 = float(np.sum(cnt[ok] * (mean - r.mean()) ** 2) / (len(r) * var)) if var > 0 else 0.0
     return centre, mean, eta2

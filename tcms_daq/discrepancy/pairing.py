@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from tcms_daq.discrepancy.design import load_direction
+from tcms_daq.discrepancy.design import branch_starts, load_direction, reversals
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples
 
@@ -125,7 +125,10 @@ def _refine_offset(t_m: np.ndarray, torque_m: np.ndarray, t_s: np.ndarray, torqu
 
 
 def _branches(direction: np.ndarray) -> np.ndarray:
-    return np.concatenate(([0], np.cumsum(np.diff(direction) != 0))).astype(int)
+    """Branch number of every row (0, 1, … from one load reversal to the next)."""
+    labels = np.zeros(len(direction), dtype=int)
+    labels[reversals(direction)] = 1
+    return np.cumsum(labels)
 
 
 def _equal_torque(measured: Samples, simulated: Samples, offset_s: float | None) -> np.ndarray:
@@ -155,7 +158,7 @@ def _equal_torque(measured: Samples, simulated: Samples, offset_s: float | None)
             if overlap(best) <= 0:
                 continue
         else:
-            rank = int(np.sum(dir_m[np.r_[0, np.flatnonzero(np.diff(br_m)) + 1]][:k] == direction))
+            rank = int(np.sum(dir_m[branch_starts(dir_m)][:k] == direction))
             if rank >= len(same):
                 continue
             best = same[rank]
@@ -174,7 +177,7 @@ def average_blocks(measured: Samples, simulated: Samples, block: int) -> tuple[S
     gap (> 10 median steps) or a change of ``run_id``; a side's last, shorter block is averaged as it is."""
     n = len(measured)
     bounds = [np.array([0, n])]
-    bounds.append(np.flatnonzero(np.diff(load_direction(measured.torque_nm)) != 0) + 1)
+    bounds.append(reversals(load_direction(measured.torque_nm)))
     dt = np.diff(measured.time_s)
     if np.any(dt > 0):
         bounds.append(np.flatnonzero(dt > 10 * float(np.median(dt[dt > 0]))) + 1)

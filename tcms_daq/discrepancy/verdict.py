@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 from scipy.signal import lfilter
 
-from tcms_daq.discrepancy.design import DesignData
-from tcms_daq.discrepancy.localise import angle_rate, periodogram
+from tcms_daq.discrepancy.design import DesignData, branch_starts, reversals
+from tcms_daq.discrepancy.localise import angle_rate, equal_count_bins, periodogram
 
 SIGNIFICANCE_Z = 5.0  # χ² excess in standard deviations, per bin set
 MATERIAL_FRACTION = 0.35  # structured RMS / noise floor below which structure is immaterial (adds < 6 % RMS)
@@ -54,14 +54,6 @@ def noise_floor_arcsec(residual_arcsec: np.ndarray) -> float:
     d2 = r[2:] - 2.0 * r[1:-1] + r[:-2]
     mad = float(np.median(np.abs(d2 - np.median(d2))))
     return 1.4826 * mad / math.sqrt(6.0)
-
-
-def _equal_count_bins(x: np.ndarray, n_bins: int) -> np.ndarray:
-    """Bin index (0…) of each sample in about-equal-count bins of ``x``."""
-    edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, n_bins + 1)))
-    if len(edges) < 2:
-        return np.zeros(len(x), dtype=int)
-    return np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
 
 
 @dataclass(frozen=True)
@@ -104,14 +96,14 @@ def bin_tests(data: DesignData, residual: np.ndarray, noise: float) -> list[BinT
     r = np.asarray(residual, dtype=float)
     n = len(r)
     order_axis = data.time_s if data.has_time else np.arange(n, dtype=float)
-    sets: list[tuple[str, np.ndarray]] = [("time" if data.has_time else "sample", _equal_count_bins(order_axis, _time_bins(n)))]
+    sets: list[tuple[str, np.ndarray]] = [("time" if data.has_time else "sample", equal_count_bins(order_axis, _time_bins(n)))]
     up = data.direction > 0
-    torque_bins = _equal_count_bins(data.torque_nm, 12)
+    torque_bins = equal_count_bins(data.torque_nm, 12)
     sets.append(("torque_by_direction", torque_bins * 2 + up.astype(int)))
-    sets.append(("angle", _equal_count_bins(data.sim_angle_arcsec, 24)))
+    sets.append(("angle", equal_count_bins(data.sim_angle_arcsec, 24)))
     if data.signal_period_arcsec > 0:
         sets.append(("angle_in_signal_period",
-                     _equal_count_bins(np.mod(data.sim_angle_arcsec, data.signal_period_arcsec), 16)))
+                     equal_count_bins(np.mod(data.sim_angle_arcsec, data.signal_period_arcsec), 16)))
     _, groups = np.unique(data.groups, return_inverse=True)
     if groups.max(initial=0) >= 1:
         sets.append((f"per_{data.group_kind.rstrip('s')}", groups))
@@ -123,7 +115,7 @@ def near_reversals(direction: np.ndarray, rows: int = 3) -> np.ndarray:
     """Rows within ``rows`` samples of a load reversal (where backlash makes the angle jump legitimately)."""
     n = len(direction)
     mask = np.zeros(n, dtype=bool)
-    for i in np.flatnonzero(np.diff(direction) != 0) + 1:
+    for i in reversals(direction):
         mask[max(0, i - rows):i + rows + 1] = True
     return mask
 
@@ -239,7 +231,7 @@ def _after_reversal(data: DesignData, fit: _ShapeFit) -> list[dict[str, Any]]:
     """A direction-odd transition that decays after each load reversal — over torque travelled (a friction
     loop of another shape or width) or over time (creep, relaxation) — at the best of a few scales."""
     n = len(data.direction)
-    starts = np.concatenate(([0], np.flatnonzero(np.diff(data.direction) != 0) + 1))
+    starts = branch_starts(data.direction)
     last = starts[np.searchsorted(starts, np.arange(n), side="right") - 1]
     sign = data.direction.astype(float)
     torque_span = float(np.ptp(data.torque_nm))
@@ -355,7 +347,7 @@ def _spans(data: DesignData, r: np.ndarray, noise: float, limit: int = 3) -> lis
     """The time spans whose mean residual stands out (≥ 4 standard errors and ≥ ¼ of the noise)."""
     n = len(r)
     t = data.time_s if data.has_time else np.arange(n, dtype=float)
-    index = _equal_count_bins(t, _time_bins(n))
+    index = equal_count_bins(t, _time_bins(n))
     counts = np.bincount(index).astype(float)
     means = np.bincount(index, weights=r) / np.maximum(counts, 1)
     flagged = (np.abs(means) >= 4 * noise / np.sqrt(np.maximum(counts, 1))) & (np.abs(means) >= 0.25 * noise)

@@ -7,6 +7,7 @@ so a handler states its collaborators in its signature; ``StoredRunDep`` resolve
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
@@ -22,41 +23,23 @@ from tcms_daq.service.testruns import TestManager, UnknownRun
 from tcms_daq.store import RunStore, StoredRun
 
 
-def _store(request: Request) -> RunStore:
-    return request.app.state.store
+def _state(name: str) -> Callable[[Request], Any]:
+    """A dependency that hands out the collaborator the app keeps as ``app.state.<name>``."""
+
+    def get(request: Request) -> Any:
+        return getattr(request.app.state, name)
+
+    get.__name__ = f"_{name}"
+    return get
 
 
-def _bench(request: Request) -> Runner:
-    return request.app.state.runner
-
-
-def _manager(request: Request) -> TestManager:
-    return request.app.state.manager
-
-
-def _live(request: Request) -> LiveHub:
-    return request.app.state.live
-
-
-def _events(request: Request) -> EventHub:
-    return request.app.state.events
-
-
-def _analyses(request: Request) -> DiscrepancyRuns:
-    return request.app.state.discrepancy
-
-
-def _settings(request: Request) -> ServiceSettings:
-    return request.app.state.settings
-
-
-Store = Annotated[RunStore, Depends(_store)]
-Bench = Annotated[Runner, Depends(_bench)]
-Manager = Annotated[TestManager, Depends(_manager)]
-Live = Annotated[LiveHub, Depends(_live)]
-Events = Annotated[EventHub, Depends(_events)]
-Analyses = Annotated[DiscrepancyRuns, Depends(_analyses)]
-Settings = Annotated[ServiceSettings, Depends(_settings)]
+Store = Annotated[RunStore, Depends(_state("store"))]
+Bench = Annotated[Runner, Depends(_state("runner"))]
+Manager = Annotated[TestManager, Depends(_state("manager"))]
+Live = Annotated[LiveHub, Depends(_state("live"))]
+Events = Annotated[EventHub, Depends(_state("events"))]
+Analyses = Annotated[DiscrepancyRuns, Depends(_state("discrepancy"))]
+Settings = Annotated[ServiceSettings, Depends(_state("settings"))]
 
 
 def _stored_run(run_id: str, store: Store) -> StoredRun:

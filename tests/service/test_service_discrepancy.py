@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,18 +85,24 @@ def test_discrepancy_of_a_stored_run_over_http(settings_factory, sim_config, tmp
                 == {k: v for k, v in cli_doc.items() if k not in PER_ANALYSIS_KEYS | {"applied_version"}})
 
 
+def bench_with_hidden_effects(sim_config, tmp_path, effects: dict) -> Path:
+    """A copy of the default simulated bench config (paths made absolute) with ``[sim.effects]`` switched on."""
+    data = tomllib.loads(sim_config.read_text(encoding="utf-8"))
+    for key in ("compensation", "reducers"):
+        data["bench"][key] = str(sim_config.parent / data["bench"][key])
+    data["sim"]["geometry"] = str(sim_config.parent / data["sim"]["geometry"])
+    data["sim"]["effects"] = effects
+    config = tmp_path / f"bench-{'-'.join(effects)}.toml"
+    config.write_text(tomli_w.dumps(data), encoding="utf-8")
+    return config
+
+
 @pytest.mark.timeout(120)
 def test_discrepancy_names_an_effect_hidden_in_the_simulated_bench(settings_factory, sim_config, tmp_path):
     """[sim.effects] thermal_drift hidden in the bench: run 1 is analysed and the drift named; applied, it is
     the bench model's version 1; run 2 (new data) compared against version 1 is consistent (the gap is closed
     on data that did not choose the effect)."""
-    data = tomllib.loads(sim_config.read_text(encoding="utf-8"))
-    for key in ("compensation", "reducers"):
-        data["bench"][key] = str(sim_config.parent / data["bench"][key])
-    data["sim"]["geometry"] = str(sim_config.parent / data["sim"]["geometry"])
-    data["sim"]["effects"] = {"thermal_drift": {"rate_arcsec_per_s": 0.05}}
-    config = tmp_path / "bench-drift.toml"
-    config.write_text(tomli_w.dumps(data), encoding="utf-8")
+    config = bench_with_hidden_effects(sim_config, tmp_path, {"thermal_drift": {"rate_arcsec_per_s": 0.05}})
     with serve(settings_factory(config_path=config, sim_speed=20.0)) as srv, srv.client() as c, \
             srv.client(None) as anon:
         assert c.get("/api/model").json() == {"version": 0, "terms": [], "toml": None, "history": []}
@@ -140,13 +147,7 @@ def test_a_measuring_chain_effect_moves_from_the_bench_model_into_the_compensato
     """A torsion of the measuring chain (0.004″/N·m) hidden in the bench: named, applied to the bench model, then moved to the
     compensator as its own version (POST /api/compensation/from-model); the bench model drops it and the next
     run, now compensated, is consistent with the model."""
-    data = tomllib.loads(sim_config.read_text(encoding="utf-8"))
-    for key in ("compensation", "reducers"):
-        data["bench"][key] = str(sim_config.parent / data["bench"][key])
-    data["sim"]["geometry"] = str(sim_config.parent / data["sim"]["geometry"])
-    data["sim"]["effects"] = {"torsion_offset": {"coef_arcsec_per_nm": 0.004}}
-    config = tmp_path / "bench-torsion.toml"
-    config.write_text(tomli_w.dumps(data), encoding="utf-8")
+    config = bench_with_hidden_effects(sim_config, tmp_path, {"torsion_offset": {"coef_arcsec_per_nm": 0.004}})
     with serve(settings_factory(config_path=config, sim_speed=20.0)) as srv, srv.client() as c:
         r = c.post("/api/compensation/from-model")
         assert r.status_code == 422 and "no measuring-chain effect" in r.json()["detail"]
