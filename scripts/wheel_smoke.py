@@ -139,6 +139,13 @@ def main() -> int:
         out = step("tcms run (in-process simulated bench)", [str(tcms), "run", "--max-torque", "300", "--cycles",
                                                               "1", "--conditioning", "1", "--json"], elsewhere, env=env)
         print(f"wheel-smoke: tcms run rigidity {json.loads(out)['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
+        out = step("python -m tcms_daq.discrepancy.trials (one hidden effect, one out of the catalogue)",
+                   [str(work / "venv" / "bin" / "python"), "-m", "tcms_daq.discrepancy.trials", "--seeds", "1",
+                    "--case", "thermal_drift", "--case", "encoder_slip", "--json"], elsewhere, env=env)
+        trials = json.loads(out)["summary"]
+        if trials["naming_accuracy"] != 1.0 or trials["out_of_catalogue"]["honesty_rate"] != 1.0:
+            sys.exit(f"wheel-smoke: FAILED: discrepancy trials from the wheel: {trials}")
+        print("wheel-smoke: discrepancy trials named the hidden drift and did not explain the slip")
         serve_one_test(tcms, elsewhere, env)
         loopback_run(tcms, elsewhere, env)
         print("wheel-smoke: ok", flush=True)

@@ -9,10 +9,10 @@ held-out (nested CV) RMS after the workflow is within 30 % of the noise floor an
 The null case must name nothing and be ``consistent``.
 
 Out-of-catalogue cases (``sim.unmodelled``: a slip, creep, a wider friction loop, clipping, glitches, thermal
-wander) hide an effect the catalogue has no term for. Whatever they name, they pass only when the verdict is
+wander, a housing that bulges in proportion to |T|) hide an effect the catalogue has no term for. Whatever they name, they pass only when the verdict is
 not ``explained``: the honesty rate is the share of them that pass.
 
-    python -m sim.trials [--seeds 5] [--json]
+    python -m tcms_daq.discrepancy.trials [--seeds 5] [--json]      (or python -m sim.trials)
 
 prints the naming accuracy (cases named exactly right), the false-naming rate (null runs that name
 anything), the parameter errors and the out-of-catalogue honesty rate.
@@ -255,8 +255,8 @@ def summarise(outcomes: list[TrialOutcome]) -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sim.trials", description=__doc__.split("\n")[0])
+def main(argv: list[str] | None = None, prog: str = "python -m sim.trials") -> int:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument("--first-seed", type=int, default=100)
     parser.add_argument("--case", action="append", choices=sorted(CASES) + sorted(UNMODELLED),

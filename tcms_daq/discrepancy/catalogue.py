@@ -43,6 +43,9 @@ EFFECT_NAMES: list[str] = list(BUILT_IN)  # built-in, then declared ones (regist
 MAX_SKEW_S = 0.25
 PERIOD_EXCLUSION = 0.04  # periodic_error keeps 4 % away from the signal period and its half
 MAX_PERIOD_GRID = 240
+# A periodic term with fewer cycles than this inside the angle span is fitted, but cannot be told from a smooth
+# shape the catalogue does not have (c·|T| was fitted within the noise by bending + 1.8 cycles of a sine).
+MIN_IDENTIFIED_CYCLES = 2.5
 
 
 @dataclass(frozen=True)
@@ -312,6 +315,19 @@ def signature(name: str, data: DesignData, params: dict[str, float]) -> np.ndarr
         return params["amplitude_arcsec"] * np.sin(x)
     key = CATALOGUE[name].parameters[0]
     return columns(name, data)[:, 0] * params[key]
+
+
+def identification_limit(name: str, params: dict[str, float], data: DesignData) -> str | None:
+    """None if a fitted term is identified by its form, else why it may stand in for another shape.
+
+    A plausible term can still be a look-alike of something outside the catalogue: a free-period sine over
+    fewer than ``MIN_IDENTIFIED_CYCLES`` cycles bends like any smooth curve. Such a name is provisional."""
+    if name == "periodic_error":
+        cycles = float(np.ptp(data.sim_angle_arcsec)) / params["period_arcsec"]
+        if cycles < MIN_IDENTIFIED_CYCLES:
+            return (f"{cycles:.1f} cycles of its {params['period_arcsec']:.4g}″ period inside the angle span "
+                    f"(< {MIN_IDENTIFIED_CYCLES}): it cannot be told from a smooth shape outside the catalogue")
+    return None
 
 
 def plausibility(name: str, params: dict[str, float], data: DesignData) -> str | None:

@@ -27,7 +27,7 @@ numpy on the aligned design data and two residuals (″): before (measured − s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -477,6 +477,7 @@ class Verdict:
     after: Structure
     removed_share: float  # share of the structured variance the named effects removed (0…1)
     unexplained: dict[str, Any] | None
+    not_identified: dict[str, str] = field(default_factory=dict)  # name → why it may stand in for another shape
 
     @property
     def provisional(self) -> bool:
@@ -487,7 +488,8 @@ class Verdict:
         return {"verdict": self.verdict, "noise_floor_arcsec": self.noise_floor_arcsec,
                 "names_provisional": self.provisional, "structure_removed_share": self.removed_share,
                 "structure_before": self.before.to_dict(), "structure_after": self.after.to_dict(),
-                "unexplained": self.unexplained, "words": self.words()}
+                "names_not_identified": self.not_identified, "unexplained": self.unexplained,
+                "words": self.words()}
 
     def words(self) -> str:
         sentences = {
@@ -501,14 +503,24 @@ class Verdict:
                                else "") + "."),
         }
         text = sentences[self.verdict]
+        for name, why in self.not_identified.items():
+            text += f" {name} takes up part of it, but is not identified: {why}."
         if self.unexplained is not None:
             text += " What remains: " + self.unexplained["summary"] + "."
         return text
 
 
-def judge(data: DesignData, before: np.ndarray, after: np.ndarray, *, any_named: bool) -> Verdict:
-    """The verdict on a workflow's residuals before and after adding the named effects."""
+def judge(data: DesignData, before: np.ndarray, after: np.ndarray, *, any_named: bool,
+          not_identified: dict[str, str] | None = None, after_identified: np.ndarray | None = None) -> Verdict:
+    """The verdict on a workflow's residuals before and after adding the named effects.
+
+    ``not_identified`` names fitted terms that may stand in for a shape outside the catalogue (their reason),
+    and ``after_identified`` is the residual after the other names alone. Such names never make the
+    discrepancy ``explained``: the structure is judged on what the identified names leave."""
     noise = noise_floor_arcsec(before)
+    not_identified = dict(not_identified or {})
+    if not_identified and after_identified is not None:
+        after = after_identified
     s_before = structure(data, before, noise)
     s_after = structure(data, after, noise)
     removed = (1.0 - s_after.excess_variance / s_before.excess_variance) if s_before.excess_variance > 0 else 0.0
@@ -521,5 +533,7 @@ def judge(data: DesignData, before: np.ndarray, after: np.ndarray, *, any_named:
         verdict = "explained"
     else:
         verdict = "partially_explained" if removed >= SHARE_FOR_PARTIAL else "unexplained"
+    if verdict == "explained" and not_identified:
+        verdict = "partially_explained"
     remainder = describe_remainder(data, before, after, noise) if s_after.present else None
-    return Verdict(verdict, noise, s_before, s_after, removed, remainder)
+    return Verdict(verdict, noise, s_before, s_after, removed, remainder, not_identified)

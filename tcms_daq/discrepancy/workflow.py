@@ -259,6 +259,10 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
             aliases.append(AliasGroup(members, cat.separating_experiment(members), step.name, {}, False))
     fitted = final.predict(cols, rows)
     after = y - fitted
+    not_identified = {n: why for n in model_names if (why := cat.identification_limit(n, params[n], data))}
+    identified = [n for n in model_names if n not in not_identified]
+    after_identified = (y - fit_model(cols, y, rows, identified, rescan=tuple(identified)).predict(cols, rows)
+                        if not_identified else after)
     if not model_names:
         cv_after = sel.base.rms
     elif model_names == sel.names:
@@ -285,7 +289,8 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
         groups={"kind": data.group_kind, "count": n_groups,
                 "nested_selections": [list(n) for n in nested.fold_names]},
         signal_period_arcsec=data.signal_period_arcsec,
-        verdict=judge(data, y, after, any_named=bool(model_names)),
+        verdict=judge(data, y, after, any_named=bool(model_names), not_identified=not_identified,
+                      after_identified=after_identified),
         uncertainties=uncertainties,
         fit_range={"time_s": [float(data.time_s[0]), float(data.time_s[-1])] if data.has_time else None,
                    "torque_nm": [float(data.torque_nm.min()), float(data.torque_nm.max())],

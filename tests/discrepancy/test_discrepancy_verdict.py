@@ -166,6 +166,17 @@ def test_a_wider_friction_loop_is_located_at_the_reversals(unmodelled_result):
     assert shape.startswith("transition_after_reversal"), result.verdict.unexplained["shapes_considered"]
 
 
+def test_a_v_in_torque_fitted_by_look_alikes_is_not_called_explained(unmodelled_result):
+    """c·|T| is fitted within the noise by bending + under two cycles of a free-period sine: the sine is
+    reported as not identified and the verdict is judged on what the identified names leave."""
+    result, _, _ = unmodelled_result("housing_bulge")
+    v = result.verdict
+    assert v.verdict == "partially_explained"
+    assert "periodic_error" in result.names and "periodic_error" in v.not_identified
+    assert "cannot be told from a smooth shape" in v.words()
+    assert result.to_dict()["names_not_identified"] == v.not_identified
+
+
 def test_a_million_samples_at_the_same_noise_density_name_the_hidden_pair():
     """13.75 kHz for 73 s (1.0 M samples), sensor noise scaled to the same density as the 50 Hz trials: the
     pair is averaged in blocks (reported) and the hidden time skew + interpolation error are named, not a
@@ -215,3 +226,16 @@ def test_parameter_uncertainties_cover_the_hidden_values(case):
     assert model.fit_range["time_s"] == pytest.approx([measured.time_s[0], measured.time_s[-1]])
     assert {t.name: t.standard_uncertainty for t in model.terms} == result.uncertainties
     assert result.to_dict()["effects"][0]["standard_uncertainty"]
+
+
+def test_the_trials_run_as_the_workflow_module_names_them():
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "tcms_daq.discrepancy.trials", "--seeds", "1", "--case", "null",
+                          "--case", "housing_bulge", "--json"], capture_output=True, text=True, timeout=300,
+                         check=True).stdout
+    summary = json.loads(out)["summary"]
+    assert summary["false_naming_rate_null"] == 0.0
+    assert summary["out_of_catalogue"]["runs"] == 1 and summary["out_of_catalogue"]["honesty_rate"] == 1.0
