@@ -10,6 +10,12 @@ every sample to the store. Ten asyncio WebSocket clients in this process read ``
 * phase 2 (stalled): one more client that never reads (small receive buffer) for ``duration_s / 2`` — the
   healthy clients' frame rate against phase 1, the stalled client's dropped frames / eviction from the server.
 
+Then the threaded real-instrument path (issue 16 item 4): ``tcms sim serve`` in one process and ``tcms serve
+--config bench-loopback.toml`` over the protocols (ND 287 and AED polled over TCP, the CiA 402 drive over
+CANopen) in another, the same ten clients; latency from the instrument reading's stamp (``time.monotonic`` in
+the service at the request) to the client's receipt. Its sample rate is what the polled links deliver (each
+reading is one request and reply), not 10 kHz.
+
 Latency: the service reports the ``time.monotonic()`` at which its sample clock read 0 (CLOCK_MONOTONIC is
 system-wide), so a sample stamped ``t`` was due at ``mono0 + t``; the latency of a frame is its receipt time
 minus the due time of its OLDEST sample (the worst sample of the frame). CPU: the service process's user+system
@@ -57,11 +63,12 @@ def _bench_config(directory: Path, rate_hz: float) -> Path:
     return path
 
 
-def _start_service(config: Path, data_dir: Path, sim_speed: float = 1.0) -> tuple[subprocess.Popen, str]:
+def _start_service(config: Path | str, data_dir: Path, sim_speed: float = 1.0, overrides: tuple[str, ...] = ()
+                   ) -> tuple[subprocess.Popen, str]:
     env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(
         [sys.executable, "-m", "tcms_daq.cli", "serve", "--port", "0", "--config", str(config),
-         "--data-dir", str(data_dir), "--sim-speed", str(sim_speed)],
+         "--data-dir", str(data_dir), "--sim-speed", str(sim_speed), *(a for o in overrides for a in ("--set", o))],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=REPO,
     )
     deadline = time.monotonic() + 60
@@ -200,6 +207,43 @@ async def _measure(hostport: str, duration_s: float, mono0: float) -> dict:
 def _one_rate(rate_hz: float, duration_s: float, workdir: Path) -> dict:
     config = _bench_config(workdir, rate_hz)
     proc, hostport = _start_service(config, workdir / f"data-{int(rate_hz)}")
+    return _measure_service(proc, hostport, duration_s)
+
+
+def _start_instrument_simulators() -> tuple[subprocess.Popen, dict[str, str]]:
+    """``tcms sim serve`` (ND 287, AED, CiA 402 over CANopen and Modbus) on free loopback ports."""
+    import json
+
+    sim = subprocess.Popen([sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", "bench-loopback.toml",
+                            "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+    assert sim.stdout is not None
+    info = json.loads(sim.stdout.readline() or "{}")
+    if "urls" not in info:
+        sim.kill()
+        raise RuntimeError("tcms sim serve did not report its ports")
+    return sim, info["urls"]
+
+
+def _one_protocol_run(duration_s: float, workdir: Path) -> dict:
+    """The threaded real-instrument path: ``tcms sim serve`` in one process, ``tcms serve`` over the protocols
+    (ND 287 and AED polled over TCP, the drive over CANopen) in another; latency from the instrument reading's
+    stamp (the service's ``time.monotonic``) to the client's receipt."""
+    sim, urls = _start_instrument_simulators()
+    try:
+        proc, hostport = _start_service("bench-loopback.toml", workdir / "data-protocols", overrides=(
+            f"instruments.angle.url={urls['angle']}", f"instruments.torque.url={urls['torque']}",
+            f"instruments.loader.url={urls['loader_canopen']}"))
+        return _measure_service(proc, hostport, duration_s)
+    finally:
+        sim.terminate()
+        try:
+            sim.wait(15)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+
+
+def _measure_service(proc: subprocess.Popen, hostport: str, duration_s: float) -> dict:
     try:
         with httpx.Client(base_url=f"http://{hostport}", headers={"Authorization": f"Bearer {TOKEN}"},
                           timeout=10) as c:
@@ -248,6 +292,15 @@ def run(quick: bool = False) -> dict:
                 targets[f"{k}_service_cpu_cores"] = {"limit": CPU_LIMIT_CORES_AT_10KHZ,
                                                      "met": r["service_cpu_cores"] < CPU_LIMIT_CORES_AT_10KHZ}
             notes.append(f"{k}: test {r['test_status_during_measurement']} during the measurement")
+        r = _one_protocol_run(duration_s, Path(tmp))
+        for key in ("frames_lost_by_healthy_clients", "frame_rate_per_client_hz", "p50_latency_ms", "p99_latency_ms",
+                    "max_latency_ms", "service_cpu_cores", "samples_per_client_per_s", "recorded_samples"):
+            metrics[f"protocols_{key}"] = r[key]
+        targets["protocols_p99_latency_ms"] = {"limit": P99_LIMIT_S * 1e3, "met": r["p99_latency_ms"] < P99_LIMIT_S * 1e3}
+        targets["protocols_frames_lost_by_healthy_clients"] = {"limit": 0, "met": r["frames_lost_by_healthy_clients"] == 0}
+        notes.append(f"protocols: tcms sim serve + tcms serve over ND 287/AED/CANopen on loopback, test "
+                     f"{r['test_status_during_measurement']} during the measurement; the sample rate is what the "
+                     "polled ND 287 and AED links deliver")
     return {
         "name": "live_pipeline",
         "metrics": metrics,

@@ -14,6 +14,7 @@ and has the interlock monitor (:mod:`.monitor`) judge it. The first trip is kept
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -40,6 +41,7 @@ from tcms_daq.samples import Samples
 
 log = logging.getLogger(__name__)
 # CiA 402 states in which the drive can apply torque (a loader left in one after a run is disabled)
+REAL_STEP_S = 0.02  # a paced simulated clock steps about 50 times per real second
 POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
 
 
@@ -86,7 +88,10 @@ class _Channel:
 class AcquisitionLoop:
     """Reads a :class:`Bench` continuously and fans the compensated, aligned batches out.
 
-    period_s: step period (clock time); read_interval_s: minimum time between two polls of one instrument in
+    period_s: step period (clock time); on a paced simulated clock at least ``REAL_STEP_S`` of real time (the step
+    grows with the speed: about 50 steps per real second whatever the speed, so the cost follows real time, and
+    the interlocks judge each step's batch: their response is one step, ≤ 20 ms real = speed × 20 ms simulated,
+    ``step_real_s`` / ``period_s``); read_interval_s: minimum time between two polls of one instrument in
     threaded mode (bounds the request rate of polled instruments); status_period_s: loader status poll period.
     """
 
@@ -96,7 +101,13 @@ class AcquisitionLoop:
         self.clock = bench.clock
         self.monitor = InterlockMonitor(limits or InterlockLimits(bench_torque_limit_nm=bench.max_torque_nm),
                                         None if self.clock.stepped else getattr(self.clock, "speed", 1.0))
-        self.period_s = float(period_s)
+        speed = getattr(self.clock, "speed", math.inf)
+        paced = self.clock.stepped and math.isfinite(speed)
+        self.period_s = max(float(period_s), speed * REAL_STEP_S) if paced else float(period_s)
+        self.condition_period_s = float(period_s)  # a wait for a condition checks it at the configured step
+        # real seconds per step: the threaded scheduler's coordinator steps every period_s of real time
+        self.step_real_s: float | None = (self.period_s / speed if paced else
+                                          None if self.clock.stepped else self.period_s)
         self.read_interval_s = float(read_interval_s)
         self.status_period_s = float(status_period_s)
         self.fanout = FanOut()
@@ -320,7 +331,8 @@ class AcquisitionLoop:
              until: Callable[[], bool] | None = None, check_trips: bool = True) -> bool:
         """Let ``duration_s`` of clock time pass while acquiring; returns early (True) when ``until()`` holds.
 
-        Raises InterlockTripped on a trip and AbortRequested when ``abort_event`` is set (unless
+        A wait for a condition (``until``) steps at the configured period even on a fast paced clock, so a test
+        does not hold at each setpoint for a long step. Raises InterlockTripped on a trip and AbortRequested when ``abort_event`` is set (unless
         ``check_trips`` is False: used while ramping down after a trip).
         """
         deadline = self.clock.now() + duration_s
@@ -335,7 +347,7 @@ class AcquisitionLoop:
             now = self.clock.now()
             if now >= deadline - 1e-9:
                 return False
-            dt = min(self.period_s, deadline - now)
+            dt = min(self.period_s if until is None else self.condition_period_s, deadline - now)
             self.scheduler.pass_time(self, now, dt)
 
     def channel_stats(self) -> dict[str, dict]:

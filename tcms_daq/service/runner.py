@@ -96,13 +96,14 @@ class BenchRunner:
 
     On a simulated clock, time only moves when someone waits on the loop: an idle pump thread waits in short
     steps between tests, and a test holds ``_clock_lock`` for its whole run so exactly one thread drives the
-    clock. ``sim_speed`` sets simulated seconds per real second.
+    clock. ``sim_speed`` sets simulated seconds per real second; the idle pump lets one loop step pass at a time
+    (``idle_step_s``, default the loop's step, which on a paced clock is about 20 ms of real time).
     """
 
     channels = RUN_CHANNELS
 
     def __init__(self, config: Any, config_path: Path, bench: Any, reducers: Mapping[str, Any],
-                 sim_speed: float = 1.0, idle_step_s: float = 0.02):
+                 sim_speed: float = 1.0, idle_step_s: float | None = None):
         self.config = config
         self.config_path = config_path
         self.bench = bench
@@ -171,7 +172,7 @@ class BenchRunner:
             if not self._clock_lock.acquire(timeout=0.1):
                 continue
             try:
-                self.acq.wait(self.idle_step_s, check_trips=False)
+                self.acq.wait(self.idle_step_s or self.acq.period_s, check_trips=False)
             except TcmsError:
                 pass
             finally:
@@ -209,6 +210,8 @@ class BenchRunner:
                           "max_test_torque_nm": min(r.rated_torque_nm, self.bench.max_torque_nm)}
                          for r in self.reducers.values()],
             "test_bounds": self.test_bounds(),
+            "acquisition_step": ({"clock_s": self.acq.period_s, "real_s": self.acq.step_real_s}
+                                 if self.acq is not None else None),
         }
 
     def test_bounds(self) -> dict[str, float]:

@@ -147,6 +147,13 @@ class LiveRates(BaseModel):
     clients: int
 
 
+class AcquisitionStep(BaseModel):
+    """One acquisition step: the interlocks judge each step's batch, so their response time is one step."""
+
+    clock_s: float = Field(description="clock time per step (simulated seconds on a simulated bench)")
+    real_s: float | None = Field(description="real seconds per step (None: an unpaced simulated clock)")
+
+
 class BenchStatus(BaseModel):
     """``GET /api/bench``."""
 
@@ -163,6 +170,7 @@ class BenchStatus(BaseModel):
     samples_published: int = 0
     reducers: list[ReducerView]
     test_bounds: TestBounds | None = None
+    acquisition_step: AcquisitionStep | None = None
     active_test: str | None
     live: LiveRates
 

@@ -195,7 +195,12 @@ class RunStore:
     by a lock so batches of one run keep their order.
     """
 
-    def __init__(self, path: str | Path, *, recover: bool = True):
+    def __init__(self, path: str | Path, *, recover: bool = True, synchronous: str = "NORMAL"):
+        """``synchronous``: SQLite's durability level in WAL mode — ``NORMAL`` (a commit survives a crash of the
+        process) or ``FULL`` (also a power cut: every commit is synced to the disk)."""
+        if synchronous not in ("NORMAL", "FULL"):
+            raise ValueError(f"synchronous must be NORMAL or FULL, got {synchronous!r}")
+        self.synchronous = synchronous
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
@@ -218,7 +223,7 @@ class RunStore:
         if conn is None:
             conn = sqlite3.connect(self.path, timeout=30.0, check_same_thread=False, isolation_level=None)
             conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=NORMAL")
+            conn.execute(f"PRAGMA synchronous={self.synchronous}")
             conn.execute("PRAGMA foreign_keys=ON")
             self._local.conn = conn
             with self._conn_lock:

@@ -115,3 +115,24 @@ def test_virtual_fault_hooks_fire_at_their_simulated_time(make_spring):
     vb.at(0.1234, lambda: fired.append(vb.now_s()))
     vb.advance(0.5)
     assert fired == [pytest.approx(0.123, abs=0.0011)]
+
+
+def test_a_paced_simulated_clock_steps_by_real_time_and_waits_for_conditions_finely(make_bench, monkeypatch):
+    """The step grows with the speed (about 50 steps per real second: the cost follows real time) and is
+    stated in both times; a wait for a condition still checks it at the configured step."""
+    from tcms_daq.acquisition import AcquisitionLoop
+    from tcms_daq.acquisition.loop import REAL_STEP_S
+
+    free = AcquisitionLoop(make_bench())
+    assert free.period_s == 0.02 and free.step_real_s is None
+    bench = make_bench(speed=100.0)
+    acq = AcquisitionLoop(bench)
+    assert acq.period_s == pytest.approx(100.0 * REAL_STEP_S) and acq.step_real_s == pytest.approx(REAL_STEP_S)
+    passed: list[float] = []
+    monkeypatch.setattr(acq.scheduler, "pass_time", lambda loop, now, dt: (passed.append(dt), bench.clock.sleep(dt)))
+    acq.wait(5.0, check_trips=False)
+    assert passed == pytest.approx([2.0, 2.0, 1.0])
+    passed.clear()
+    start = bench.clock.now()
+    assert acq.wait(5.0, check_trips=False, until=lambda: bench.clock.now() >= start + 0.1)
+    assert passed and max(passed) == pytest.approx(0.02)
