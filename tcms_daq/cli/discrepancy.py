@@ -1,7 +1,9 @@
 """``tcms discrepancy MEASURED.csv SIMULATED.csv``: name the effects missing from the simulation.
 
-Both files are canonical sample CSVs (DESIGN §9) with the same rows in the same order; an optional ``run_id``
-column groups runs. Without ``time_s`` the time-dependent effects are not candidates. ``--out DIR`` writes
+Both files are canonical sample CSVs (DESIGN §9). The simulation may have the measured rows, its own time grid
+(put onto the measured stamps in the common span), a clock offset (estimated and reported) or another torque
+trace such as the commanded one (compared branch by branch at equal torque); what cannot be compared is refused
+with the reason. An optional ``run_id`` column groups runs. Without ``time_s`` the time-dependent effects are not candidates. ``--out DIR`` writes
 ``report.html``, ``model.toml`` and ``resimulated.csv``; ``--json`` prints the result object.
 """
 
@@ -140,7 +142,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__.split("\n\n")[0].replace("``", ""),
     )
     p.add_argument("measured", nargs="?", metavar="MEASURED.csv", help="measured samples (canonical CSV)")
-    p.add_argument("simulated", nargs="?", metavar="SIMULATED.csv", help="simulated samples, same rows")
+    p.add_argument("simulated", nargs="?", metavar="SIMULATED.csv", help="simulated samples: the same rows, or its own time grid, clock offset or torque trace")
     p.add_argument("--signal-period-arcsec", type=float, default=72.0,
                    help="encoder signal period (72 for the RON 786)")
     p.add_argument("--out", metavar="DIR", help="write report.html, model.toml and resimulated.csv here")
