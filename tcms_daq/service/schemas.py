@@ -27,6 +27,9 @@ class TestRequest(BaseModel):
     dwell_s: float | None = Field(default=None, ge=0, le=600, description="dwell at each step, s")
     serial_number: str | None = Field(default=None, max_length=64)
     operator: str | None = Field(default=None, max_length=64)
+    decision_rule: Literal["simple", "guarded"] | None = Field(
+        default=None, description="ISO 14253-1 decision: 'guarded' (guard bands of U: pass / fail / undecided) or "
+        "'simple' acceptance; default: the bench config's [bench] decision_rule")
 
     @model_validator(mode="after")
     def _stepped_fields(self) -> TestRequest:
