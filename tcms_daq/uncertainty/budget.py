@@ -117,15 +117,26 @@ def loop_values(ev: Evaluation, name: str) -> list[float]:
     return out
 
 
+@dataclass(frozen=True)
+class Contribution:
+    """A Type B input of a budget with its sensitivity: ``line`` groups inputs reported together."""
+
+    source: str
+    unit: str
+    u: float
+    sensitivity: float
+    line: str = ""
+
+
 def combine(value: float, unit: str, type_a_u: float | None, type_a_dof: float | None, type_a_source: str,
-            type_b: list[tuple[Input, float]]) -> Budget:
+            type_b: list[Contribution]) -> Budget:
     """Combine a Type A component (u, dof; None = none) and Type B inputs with their sensitivities (GTC), then
     report them one line per budget line (phase components of one periodic error merged root-sum-square)."""
     terms: list[Any] = []
     if type_a_u is not None:
         terms.append(ureal(0.0, type_a_u, math.inf if type_a_dof is None else type_a_dof, label=type_a_source))
-    for inp, c in type_b:
-        terms.append(c * ureal(0.0, inp.u, label=inp.name))
+    for b in type_b:
+        terms.append(b.sensitivity * ureal(0.0, b.u, label=b.source))
     if not terms:
         return Budget(value, 0.0, float(reporting.k_factor(math.inf, COVERAGE_PROBABILITY)), None, unit)
     y = value + sum(terms[1:], terms[0])
@@ -135,14 +146,14 @@ def combine(value: float, unit: str, type_a_u: float | None, type_a_dof: float |
     lines: dict[str, BudgetLine] = {}
     if type_a_u is not None:
         lines[type_a_source] = BudgetLine(type_a_source, "A", type_a_u, unit, 1.0, type_a_u, type_a_dof)
-    for inp, c in type_b:
-        line = inp.budget_line
+    for b in type_b:
+        line = b.line or b.source
         before = lines.get(line)
         if before is None:
-            lines[line] = BudgetLine(line, "B", inp.u, inp.unit, c, abs(c) * inp.u, None)
+            lines[line] = BudgetLine(line, "B", b.u, b.unit, b.sensitivity, abs(b.sensitivity) * b.u, None)
         else:  # another phase component of the same error: root-sum-square sensitivity
-            s = math.hypot(before.sensitivity, c)
-            lines[line] = replace(before, sensitivity=s, contribution=s * inp.u)
+            s = math.hypot(before.sensitivity, b.sensitivity)
+            lines[line] = replace(before, sensitivity=s, contribution=s * b.u)
     ordered = sorted(lines.values(), key=lambda ln: -ln.contribution)
     return Budget(value, u, k, dof, unit, ordered)
 
@@ -153,9 +164,9 @@ def _evaluate(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarra
 
 
 def _sensitivities(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, settings: EvaluationSettings,
-                   inputs: list[Input], names: list[str]) -> dict[str, list[tuple[Input, float]]]:
+                   inputs: list[Input], names: list[str]) -> dict[str, list[Contribution]]:
     """c_i per result by central differences through the evaluation."""
-    out: dict[str, list[tuple[Input, float]]] = {name: [] for name in names}
+    out: dict[str, list[Contribution]] = {name: [] for name in names}
     for inp in inputs:
         results = []
         for x in (inp.step, -inp.step):
@@ -171,7 +182,8 @@ def _sensitivities(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.n
             if name not in plus or name not in minus:
                 raise EvaluationError(f"uncertainty budget: {name} is not evaluated with {inp.name} moved by "
                                       f"±{inp.step:.3g} {inp.unit}")
-            out[name].append((inp, (plus[name] - minus[name]) / (2.0 * inp.step)))
+            c = (plus[name] - minus[name]) / (2.0 * inp.step)
+            out[name].append(Contribution(inp.name, inp.unit, inp.u, c, inp.budget_line))
     return out
 
 
