@@ -158,7 +158,7 @@ def _results_html(results: Mapping[str, Any]) -> str:
                 dominant = f"dominant: {entry.get('dominant')}" if isinstance(entry, Mapping) else ""
             else:
                 shown, dominant = _fmt(float(value)), ""
-            scatter = f"std over loops {_fmt(float(spread))}" if isinstance(spread, int | float) else ""
+            scatter = f"std over loops {float(spread):.2g}" if isinstance(spread, int | float) else ""
             rows.append(f"<tr><th>{html.escape(label)}</th><td>{html.escape(shown)}</td>"
                         f"<td class='muted'>{html.escape(dominant)}</td><td class='muted'>{scatter}</td></tr>")
     if rows:

@@ -287,7 +287,8 @@
         rows.push([c.label || `${c.quantity} ${c.comparison} ${fmt(c.limit)}`, DECISION_WORD[d] + " (" + fmt(c.value) + guard + ")", d]);
       }
       const d = decisionOf(verdict);
-      rows.push(["decision" + (verdict.rule ? " (ISO 14253-1, " + verdict.rule + ")" : ""), DECISION_WORD[d], d]);
+      // the decision first: it is what the operator looks for
+      rows.unshift(["decision", DECISION_WORD[d] + (verdict.rule ? " (ISO 14253-1, " + verdict.rule + " rule)" : ""), d]);
     }
     for (const w of res.warnings || []) rows.push(["warning", String(w), "warning"]);
     if (!rows.length) {
