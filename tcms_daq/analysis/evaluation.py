@@ -7,8 +7,7 @@ Per full loop (a B↑ and a B↓ branch):
 - midline m(T) = [θ_B↑(T) + θ_B↓(T)]/2; lost motion = m(+p·T_rated) − m(−p·T_rated);
 - torsional rigidity per direction = secant ΔT/Δm over [lo, hi]·T_test on that side, averaged over both sides;
   the upper end is at most the torque the loop actually reached (its turning point, where the branches meet
-  and the midline is the tip angle), so a loop that stops a little short of T_test is still evaluated; an
-  interval ending at T_test ends at the turning point when that is within 2 % of T_test on either side;
+  and the midline is the tip angle), so a loop that stops a little short of T_test is still evaluated;
 - optional Harmonic Drive K1/K2/K3: least-squares lines of the midline per region, per direction;
 - loop energy ∮T dθ (J per cycle): the loop width integrated over the torque range of both branches.
 Results are reported per loop, per direction and as mean ± std over the evaluated loops.
@@ -599,10 +598,6 @@ def _upper_ends(index: int, loop: Loop, ctx: LoopContext, warnings: list[str]) -
                 f"the {name} side, the evaluation needs beyond {sign * need:+.4g} Nm"
             )
         hi = min(ctx.hi_nm, reached)
-        if ctx.settings.rigidity_interval[1] == 1.0 and abs(reached - ctx.hi_nm) <= SNAP_TO_RATED * ctx.hi_nm:
-            # an interval that ends at the test torque ends at the turning point whichever side of the test torque
-            # the reading of it lies (a torque scale error must not decide whether the tip is in the secant)
-            hi = reached
         if hi < ctx.hi_nm * (1.0 - CLIP_WARNING):
             warnings.append(
                 f"rigidity interval clipped on the {name} side: torque reached {reached:.4g} Nm, "

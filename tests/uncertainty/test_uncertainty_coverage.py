@@ -61,8 +61,8 @@ def test_type_a_only_without_declaration_says_so_and_undercovers_systematics():
 
 @pytest.mark.parametrize("case", [
     {"chain": Chain(), "reducer": Reducer()},  # the declared chain of the coverage test
-    {"chain": Chain(torque_u_rel=0.005, torque_u_zero_nm=0.2, angle_u_rel=0.0005, interpolation_u_arcsec=0.1),
-     "reducer": Reducer(rigidity_nm_per_arcmin=500.0)},  # torque scale dominates
+    {"chain": Chain(torque_u_rel=0.001, torque_u_zero_nm=2.0, angle_u_rel=0.003, interpolation_u_arcsec=0.1),
+     "reducer": Reducer(rigidity_nm_per_arcmin=500.0)},  # angle scale and torque zero dominate
     {"chain": Chain(torque_u_rel=0.0005, torque_u_zero_nm=1.0, angle_u_rel=0.001, interpolation_u_arcsec=0.4),
      "reducer": Reducer(friction_width_arcsec=40.0, play_arcsec=20.0)},  # interpolation error dominates
 ])
