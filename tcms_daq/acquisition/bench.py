@@ -177,6 +177,7 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         driver_name = opts.pop("driver", None)
         if not driver_name:
             raise ConfigError(f"bench config: [instruments.{kind}] has no 'driver'")
+        opts.pop("uncertainty", None)  # the declared uncertainty of its reading: the evaluation's, not the driver's
         opts = {k: v for k, v in opts.items() if v is not None}
         cls = registry.driver_class(driver_name)
         from_config = getattr(cls, "from_config", None)

@@ -65,7 +65,7 @@ class SteppedScheduler:
     def pass_time(self, loop: AcquisitionLoop, now_s: float, dt_s: float) -> None:
         loop.clock.sleep(dt_s)
         if loop.clock.now() <= now_s:  # a clock that cannot move would spin here for ever
-            raise TcmsError(f"the simulated clock did not advance from {now_s!r} s by {dt_s!r} s")
+            raise TcmsError(f"the simulated clock did not advance from {float(now_s):.9g} s by {float(dt_s):.9g} s")
         loop.step()
 
 

@@ -23,10 +23,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import uniform_filter1d
 
-from tcms_daq.analysis import harmonic
+from tcms_daq.analysis import harmonic, plausibility
 from tcms_daq.analysis.interpolation import MAX_SPAN_FRACTION, angle_at_torque, fit_window
 from tcms_daq.analysis.noise import white_noise_std
-from tcms_daq.analysis.segmentation import Branch, Loop, segment_loops
+from tcms_daq.analysis.segmentation import TIP_VALID_FRACTION, Branch, Loop, segment_loops, turning_points
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
 
@@ -51,9 +51,18 @@ class Limits:
     backlash_max_arcsec: float | None = None
     lost_motion_max_arcsec: float | None = None
 
-    def judge(self, values: dict[str, float]) -> dict[str, Any]:
-        """Verdict of mean values: ``{"passed": bool, "checks": {limit_name: {...}}}``; each check carries a
-        readable ``label`` of its limit ("rigidity ≥ 235.2 N·m/arcmin")."""
+    def judge(self, values: dict[str, float], expanded: dict[str, float] | None = None,
+              rule: str = "simple") -> dict[str, Any]:
+        """Verdict of mean values per ISO 14253-1: ``{"passed", "decision", "rule", "checks": {limit_name: {...}}}``.
+
+        ``expanded`` maps a quantity to its expanded uncertainty U (same unit). Rule "simple": the value alone
+        decides (simple acceptance, guard band 0). Rule "guarded": the guard band is U — pass only when the
+        value is inside the limit by at least U, fail only when it is outside by more than U, otherwise
+        "undecided" (a quantity without U gets guard band 0 and says so: ``"U": None``). Each check carries a
+        readable ``label`` of its limit ("rigidity ≥ 235.2 N·m/arcmin"); ``passed`` is True only for "pass".
+        """
+        if rule not in DECISION_RULES:
+            raise EvaluationError(f"decision rule must be one of {', '.join(DECISION_RULES)}, got {rule!r}")
         rules = (
             ("rigidity_min_nm_per_arcmin", "rigidity_nm_per_arcmin", ">="),
             ("rigidity_max_nm_per_arcmin", "rigidity_nm_per_arcmin", "<="),
@@ -67,8 +76,10 @@ class Limits:
             limit = getattr(self, name)
             if limit is None:
                 continue
-            value = values[quantity]
-            passed = bool(value >= limit if comparison == ">=" else value <= limit)
+            value = float(values[quantity])
+            u_expanded = (expanded or {}).get(quantity)
+            guard = float(u_expanded) if rule == "guarded" and u_expanded is not None else 0.0
+            decision = _decide(value, float(limit), comparison, guard)
             what, unit = readable[quantity]
             sign = "≥" if comparison == ">=" else "≤"
             checks[name] = {
@@ -76,10 +87,28 @@ class Limits:
                 "value": value,
                 "comparison": comparison,
                 "limit": float(limit),
-                "passed": passed,
+                "passed": decision == "pass",
+                "decision": decision,
+                "guard_band": guard,
+                "U": None if u_expanded is None else float(u_expanded),
                 "label": f"{what} {sign} {float(limit):.4g}{'' if unit == '″' else ' '}{unit}",
             }
-        return {"passed": all(c["passed"] for c in checks.values()), "checks": checks}
+        decisions = {c["decision"] for c in checks.values()}
+        overall = "fail" if "fail" in decisions else "undecided" if "undecided" in decisions else "pass"
+        return {"passed": overall == "pass", "decision": overall, "rule": rule, "checks": checks}
+
+
+DECISION_RULES = ("simple", "guarded")
+
+
+def _decide(value: float, limit: float, comparison: str, guard: float) -> str:
+    """ISO 14253-1 decision for one limit: pass / fail / undecided with guard band ``guard`` (≥ 0)."""
+    margin = value - limit if comparison == ">=" else limit - value  # > 0: inside the specification
+    if margin >= guard:
+        return "pass"
+    if margin < -guard:
+        return "fail"
+    return "undecided"
 
 
 @dataclass
@@ -142,6 +171,13 @@ class Evaluation:
     noise: dict[str, float] = field(default_factory=dict)
     fit_window_samples: int = 2
     warnings: list[str] = field(default_factory=list)
+    # loop closure: drift rate of the angle at the turning points, the closure over the record, the bias drift
+    # gives the backlash and the drift-corrected backlash (None: fewer than three turning points)
+    closure: dict[str, float] | None = None
+    # per result name {"value", "u", "U", "k", "dof", "unit", "dominant", "budget"} (tcms_daq.uncertainty);
+    # empty until a budget is attached
+    uncertainty: dict[str, Any] = field(default_factory=dict)
+    uncertainty_basis: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = jsonable(asdict(self))
@@ -189,9 +225,16 @@ def _validated(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: np
     if back.size:
         i = int(back[0])
         raise DataFormatError(
-            f"time_s is not strictly increasing at sample {i + 1} ({t[i]!r} s then {t[i + 1]!r} s)"
+            f"time_s is not strictly increasing at sample {i + 1} ({float(t[i]):.9g} s then {float(t[i + 1]):.9g} s)"
         )
     return t, cols["torque_nm"], cols["angle_arcsec"]
+
+
+def _shown(value: object) -> str:
+    """A value as a message shows it: numbers as numbers (never ``np.float64(…)``), anything else as repr."""
+    if isinstance(value, int | float | np.number) and not isinstance(value, bool):
+        return f"{float(value):g}"
+    return repr(value)
 
 
 @dataclass(frozen=True)
@@ -209,9 +252,9 @@ class EvaluationSettings:
     def __post_init__(self) -> None:
         rated, test = self.rated_torque_nm, self.test_torque_nm
         if not (rated is not None and math.isfinite(rated) and rated > 0):
-            raise EvaluationError(f"rated torque must be a positive number of N·m, got {rated!r}")
+            raise EvaluationError(f"rated torque must be a positive number of N·m, got {_shown(rated)}")
         if test is not None and not (math.isfinite(test) and test > 0):
-            raise EvaluationError(f"test torque must be a positive number of N·m, got {test!r}")
+            raise EvaluationError(f"test torque must be a positive number of N·m, got {_shown(test)}")
         if not (0.0 < self.lost_motion_pct < 50.0):
             raise EvaluationError(
                 f"lost-motion torque level must be between 0 and 50 % of rated, got {self.lost_motion_pct}")
@@ -324,6 +367,8 @@ def evaluate(
             warnings.append(f"skipped loop {k} not reported: {exc}")
     used = [r for r in loop_results if r.evaluated]
     means, stds, hd = _loop_statistics(used, with_hd=hd_breakpoints_nm is not None)
+    used_loops = [loops[r.index] for r in used]
+    closure = _plausibility(ctx, used_loops, means, warnings)
     rates = [r.loading_rate_nm_per_s for r in used if math.isfinite(r.loading_rate_nm_per_s)]
     return Evaluation(
         rigidity_nm_per_arcmin=means["rigidity_nm_per_arcmin"],
@@ -348,8 +393,60 @@ def evaluate(
         noise={"torque_nm": cond.torque_noise_nm, "angle_arcsec": cond.angle_noise_arcsec},
         fit_window_samples=cond.window,
         warnings=sorted(set(warnings)),
-        **hd,
+        closure=closure,
+        k1_nm_per_rad=hd.get("k1_nm_per_rad"),
+        k2_nm_per_rad=hd.get("k2_nm_per_rad"),
+        k3_nm_per_rad=hd.get("k3_nm_per_rad"),
     )
+
+
+def _plausibility(ctx: LoopContext, used: list[Loop], means: dict[str, Any], warnings: list[str]
+                  ) -> dict[str, float] | None:
+    """Warnings for what must not pass silently (tcms_daq.analysis.plausibility); returns the loop closure."""
+    cond, lm_nm = ctx.cond, ctx.settings.lost_motion_torque_nm
+    span = plausibility.implausible_span(ctx.angle_arcsec)
+    if span is not None:
+        warnings.append(
+            f"angle span {span:.3g}″ over a ±{ctx.test_torque_nm:.4g} N·m test is implausibly small for arcsec "
+            f"({plausibility.unit_hint(span)}): is angle_arcsec in degrees or radians?")
+    tips = turning_points(cond.torque_smooth_nm, cond.scale_nm)
+    reduced, typical = plausibility.reduced_turning_points(tips, TIP_VALID_FRACTION)
+    for tp in reduced:
+        warnings.append(
+            f"reduced amplitude: the torque turns at {tp.torque_nm:+.4g} N·m at t = {float(ctx.time_s[tp.index]):.2f} s, "
+            f"{abs(tp.torque_nm) / typical:.0%} of the typical {typical:.4g} N·m (a loop needs "
+            f"{TIP_VALID_FRACTION:.0%}): the loop(s) through it are not evaluated")
+    branches = [b for lp in used for b in (lp.first, lp.second)]
+    gap = plausibility.coarsest_sampling_nm(cond.torque_smooth_nm, branches, np.array([0.0, lm_nm, -lm_nm]))
+    if gap > plausibility.COARSE_FRACTION * lm_nm:
+        warnings.append(
+            f"sampling too coarse for the loop: {gap:.3g} N·m between the samples at the evaluation levels, the lost "
+            f"motion is read at ±{lm_nm:.4g} N·m (want at most {plausibility.COARSE_FRACTION * lm_nm:.3g} N·m): "
+            "sample faster or load more slowly")
+    rigidity = means.get("rigidity_nm_per_arcmin")
+    if rigidity is None or not rigidity > 0.0:
+        return None
+    drift = plausibility.drift_from_turning_points(
+        ctx.time_s, ctx.torque_nm, ctx.angle_arcsec, cond.torque_smooth_nm, tips, cond.scale_nm,
+        ARCSEC_PER_ARCMIN / rigidity)
+    if drift is None:
+        return None
+    bias = float(np.mean([plausibility.backlash_drift_bias_arcsec(ctx.time_s, cond.torque_smooth_nm, lp,
+                                                                   drift.rate_arcsec_per_s) for lp in used]))
+    backlash = float(means["backlash_arcsec"])
+    closure = {
+        "drift_rate_arcsec_per_s": drift.rate_arcsec_per_s,
+        "closure_arcsec": drift.closure_arcsec,
+        "span_s": drift.span_s,
+        "backlash_drift_bias_arcsec": bias,
+        "drift_corrected_backlash_arcsec": backlash - bias,
+    }
+    if abs(bias) > max(plausibility.DRIFT_BIAS_WARNING_ARCSEC, plausibility.DRIFT_BIAS_WARNING_FRACTION * backlash):
+        warnings.append(
+            f"loop does not close: the angle at the turning points drifts by {drift.rate_arcsec_per_s:+.3g}″/s "
+            f"({drift.closure_arcsec:+.3g}″ over {drift.span_s:.3g} s); this moves the backlash by {bias:+.3g}″, "
+            f"drift-corrected backlash {backlash - bias:.4g}″ (reported {backlash:.4g}″)")
+    return closure
 
 
 def _condition(torque: np.ndarray, angle: np.ndarray) -> Conditioning:

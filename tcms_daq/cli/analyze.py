@@ -6,7 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
-from tcms_daq.analysis import evaluate, format_evaluation
+from tcms_daq.analysis import format_evaluation
+from tcms_daq.analysis.evaluation import EvaluationSettings
+from tcms_daq.cli.options import add_decision_rule_option
+from tcms_daq.config import ReducerSpec
 from tcms_daq.errors import EvaluationError
 from tcms_daq.samples import read_csv
 
@@ -42,6 +45,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="report but do not average the first N full loops (e.g. 1 conditioning loop; default 0)")
     p.add_argument("--hd-breakpoints", type=float, nargs=2, default=None, metavar=("T1", "T2"),
                    help="Harmonic Drive breakpoints in N·m: also fit K1, K2, K3 (N·m/rad)")
+    p.add_argument("--uncertainty", type=Path, default=None, metavar="FILE.toml",
+                   help="declared standard uncertainties (k = 1) of the measuring chain: [torque] u_rel, u_zero_nm; "
+                   "[angle] u_rel, u_arcsec, u_interpolation_arcsec, signal_period_arcsec; [compensation] u_rel, "
+                   "u_torsion_arcsec_per_knm; [temperature] u_k and its coefficients (docs/uncertainty.md). "
+                   "Without it: Type A only (the loop-to-loop scatter)")
+    add_decision_rule_option(p)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.set_defaults(func=run)
 
@@ -55,9 +64,11 @@ def _interval(values: tuple[float, float]) -> tuple[float, float]:
     return lo, hi
 
 
-def _options(args: argparse.Namespace) -> dict:
-    """Evaluation keyword arguments: the catalogue entry (with --reducer), overridden by explicit options."""
+def _options(args: argparse.Namespace) -> tuple[dict, ReducerSpec | None]:
+    """Evaluation keyword arguments (the catalogue entry with --reducer, overridden by explicit options) and the
+    catalogue entry (None without --reducer)."""
     options: dict = {"lost_motion_pct": 3.0}
+    spec = None
     if args.reducer is not None:
         from tcms_daq.config import get_reducer, load_reducer_catalogue
         from tcms_daq.procedure.evaluation import catalogue_options
@@ -77,13 +88,24 @@ def _options(args: argparse.Namespace) -> dict:
         rigidity_interval=_interval(tuple(args.interval)),
         skip_loops=args.skip_loops,
     )
-    return options
+    return options, spec
 
 
 def run(args: argparse.Namespace) -> int:
-    options = _options(args)
+    from tcms_daq.config import load_chain_uncertainty
+    from tcms_daq.procedure.evaluation import evaluate_test
+
+    options, spec = _options(args)
+    limits = options.pop("limits", None)
+    settings = EvaluationSettings(**options)
+    chain = load_chain_uncertainty(args.uncertainty) if args.uncertainty is not None else None
+    if chain is not None and not chain.declared():
+        chain = None  # every declared u is 0: the budget is Type A only, and says so
     samples = read_csv(args.file)
-    ev = evaluate(samples.time_s, samples.torque_nm, samples.angle_arcsec, **options)
+    ev = evaluate_test(samples.time_s, samples.torque_nm, samples.angle_arcsec, settings, limits=limits, chain=chain,
+                       rule=args.decision_rule, reducer=spec,
+                       no_chain_basis="type A only (no --uncertainty file)" if args.uncertainty is None else
+                       f"type A only ({args.uncertainty} declares no nonzero uncertainty)")
     if args.json:
         print(json.dumps({"file": str(args.file), "reducer": args.reducer, **ev.to_dict()}, allow_nan=False))
     else:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tcms_daq.cli.options import add_bench_config_options
+from tcms_daq.cli.options import add_bench_config_options, add_decision_rule_option
 from tcms_daq.config import (
     BenchConfig,
     ReducerSpec,
@@ -96,6 +96,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "in-process bench: pace the simulated clock at X × real time (default: as fast as possible)")
     p.add_argument("--no-compensation", action="store_true",
                    help="evaluate the raw encoder: skip the bench's compensator ([bench] compensation)")
+    add_decision_rule_option(p, default=None)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.set_defaults(func=run)
 
@@ -184,10 +185,20 @@ def _truth(sim_bench, profile: Profile, reducer: ReducerSpec) -> dict[str, Any]:
     return truth
 
 
-def evaluate_run(result: SimulatedRun):
+def evaluate_run(result: SimulatedRun, rule: str | None = None):
+    """The evaluation of a run with the uncertainty the bench config declares and its decision rule (``rule``
+    overrides the config's [bench] decision_rule)."""
     from tcms_daq.procedure.evaluation import evaluate_for_reducer
 
-    return evaluate_for_reducer(result.evaluated, result.reducer, result.profile.test_torque_nm)
+    cfg = result.config
+    chain = cfg.chain_uncertainty()
+    without = f"type A only (no uncertainty declared in {cfg.source_path or 'the bench config'})"
+    ev = evaluate_for_reducer(result.evaluated, result.reducer, result.profile.test_torque_nm, chain=chain,
+                              rule=rule or cfg.bench.decision_rule, no_chain_basis=without)
+    if result.compensation.startswith("none") and cfg.bench.compensation:
+        ev.uncertainty_basis = (f"{ev.uncertainty_basis}; compensation skipped: the measuring chain's geometric "
+                                "errors it corrects are not in U")
+    return ev
 
 
 def _profile_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Profile:
@@ -275,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    ev = evaluate_run(result)
+    ev = evaluate_run(result, args.decision_rule)
 
     if args.out is not None:
         _write_samples(args.out, result.evaluated)

@@ -5,10 +5,15 @@ measured. The encoder error y = encoder − reference is modelled as Σ term(enc
 terms' linear parameters fitted by ordinary least squares, so the compensated angle encoder − Σ term
 approximates the reference. Reported:
 
-* coefficients with expanded uncertainty U = 2·u (coverage factor k = 2; u from s²(XᵀX)⁻¹, s² = RSS/(n − p));
+* coefficients with their GUM budget (``tcms_daq.uncertainty.regression``): Type A from the residuals with their
+  lag-1 autocorrelation (effective number of observations n_eff = n(1 − ρ₁)/(1 + ρ₁), n_eff − p degrees of
+  freedom — never as if the points were independent), Type B from the reference instrument's declared
+  uncertainty; expanded U with the t-based k for 95 %;
 * before/after RMS and max of (angle − reference) on the calibration data (in-sample);
-* held-out error: leave-one-out (closed form r_i/(1 − h_ii)) and blocked cross-validation with contiguous
-  blocks (for series, where neighbouring points are correlated and LOO is optimistic).
+* held-out error: blocked cross-validation with contiguous blocks (the headline: neighbouring points of a series
+  are correlated, so leave-one-out is optimistic) and leave-one-out (closed form r_i/(1 − h_ii)) beside it;
+* the uncertainty of one compensated reading in the calibrated range: the blocked held-out error and the
+  reference it is traced to.
 """
 
 from __future__ import annotations
@@ -22,9 +27,12 @@ import numpy as np
 
 from tcms_daq.compensation.compensator import Compensator
 from tcms_daq.compensation.terms import Term, parse_term_spec
+from tcms_daq.config.models import ReferenceUncertainty
 from tcms_daq.crossval import contiguous_blocks, leave_one_group_out
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.samples import read_csv_columns
+from tcms_daq.uncertainty.budget import Budget
+from tcms_daq.uncertainty.regression import ResidualCorrelation, coefficient_budgets, reading_budget
 
 CALIBRATION_COLUMNS = ("torque_nm", "encoder_arcsec", "reference_arcsec")
 DEFAULT_TERMS = ("offset", "scale")
@@ -61,7 +69,8 @@ class TermFit:
     label: str
     term: Term
     values: dict[str, float]
-    uncertainty: dict[str, float]  # expanded, k = 2
+    uncertainty: dict[str, float]  # expanded U (95 %, k of its budget)
+    budgets: dict[str, Budget] = field(default_factory=dict)
 
 
 @dataclass
@@ -81,6 +90,11 @@ class CalibrationResult:
     cv_method: str
     residual_after_arcsec: np.ndarray = field(repr=False)
     loo_residual_arcsec: np.ndarray = field(repr=False)
+    blocked_residual_arcsec: np.ndarray = field(repr=False, default_factory=lambda: np.empty(0))  # NaN: not fitted
+    correlation: ResidualCorrelation | None = None
+    reading: Budget | None = None  # one compensated reading at the largest calibrated angle
+    reading_angle_arcsec: float = 0.0
+    reference: ReferenceUncertainty | None = None
 
     @property
     def cv_rms_arcsec(self) -> float:
@@ -92,19 +106,32 @@ class CalibrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         terms: dict[str, Any] = {}
+        uncertainty: dict[str, Any] = {}
         for f in self.fits:
+            for name, b in f.budgets.items():
+                uncertainty[f"{f.label}.{name}"] = b.to_dict()
             if len(f.values) == 1:
                 (name, value), = f.values.items()
-                terms[f.label] = {"parameter": name, "value": value, "uncertainty": f.uncertainty[name]}
+                terms[f.label] = {"parameter": name, "value": value, "uncertainty": f.uncertainty[name],
+                                  "k": f.budgets[name].k if name in f.budgets else None}
             else:
                 terms[f.label] = {
                     "value": dict(f.values),
                     "uncertainty": dict(f.uncertainty),
+                    "k": {name: b.k for name, b in f.budgets.items()},
                 }
+        if self.reading is not None:
+            uncertainty["compensated_angle_arcsec"] = {**self.reading.to_dict(),
+                                                       "at_angle_arcsec": self.reading_angle_arcsec}
         return {
             "n": self.n,
             "terms": terms,
-            "uncertainty_coverage_factor": 2,
+            "uncertainty": uncertainty,
+            "uncertainty_basis": ("declared reference: " + ", ".join(
+                f"{k} {v:g}" for k, v in self.reference.model_dump().items() if v)
+                if self.reference is not None and self.reference.declared() else
+                "residuals only (no reference uncertainty declared)"),
+            "residual_correlation": self.correlation.to_dict() if self.correlation is not None else None,
             "rms_before_arcsec": self.rms_before_arcsec,
             "max_before_arcsec": self.max_before_arcsec,
             "rms_after_arcsec": self.rms_after_arcsec,
@@ -118,6 +145,14 @@ class CalibrationResult:
             "blocked_cv_max_arcsec": self.blocked_max_arcsec,
             "blocked_cv_blocks": self.n_blocks,
         }
+
+
+def _parameter_unit(name: str) -> str:
+    """The unit of a linear parameter from its name (value_arcsec, coefficient, arcsec_per_nm …)."""
+    if "_per_" in name:
+        head, _, tail = name.partition("_per_")
+        return f"{head}/{ {'nm': 'N·m', 's': 's'}.get(tail, tail)}"
+    return "arcsec" if name.endswith("arcsec") else "1"
 
 
 def _rms(x: np.ndarray) -> float:
@@ -160,11 +195,13 @@ def calibrate(
     *,
     blocks: int = 5,
     cv: str = "auto",
+    reference: ReferenceUncertainty | None = None,
 ) -> CalibrationResult:
     """Fit the linear parameters of ``terms`` (Term objects or names such as "offset", "periodic:72").
 
-    cv: "loo", "blocked" or "auto" (blocked when the data have a time_s column, i.e. are a series).
-    Raises EvaluationError if the terms are not identifiable from the data or too few points remain.
+    cv: the headline held-out error: "blocked" (contiguous blocks; "auto" means it: rows are in the order
+    measured) or "loo". reference: the reference instrument's declared standard uncertainty (None: not
+    declared). Raises EvaluationError if the terms are not identifiable from the data or too few points remain.
     """
     if cv not in ("auto", "loo", "blocked"):
         raise EvaluationError(f"unknown cross-validation {cv!r} (loo, blocked, auto)")
@@ -187,11 +224,10 @@ def calibrate(
         )
     beta = np.linalg.solve(r, q.T @ y) / norms
     resid = y - x @ beta
-    dof = n - p
-    s2 = float(resid @ resid) / dof
-    rinv = np.linalg.inv(r)
-    cov = s2 * (rinv @ rinv.T) / np.outer(norms, norms)
-    u_exp = 2.0 * np.sqrt(np.diag(cov))
+    param_names = [f"{ti}:{name}" for ti, name in index]
+    budgets, correlation = coefficient_budgets(x, resid, data.reference_arcsec, beta, param_names,
+                                               [_parameter_unit(name) for _, name in index], reference)
+    u_exp = np.array([budgets[name].expanded for name in param_names])
 
     hat = np.sum(q * q, axis=1)
     loo = resid / np.clip(1.0 - hat, 1e-12, None)
@@ -210,8 +246,9 @@ def calibrate(
     for i, term in enumerate(term_list):
         vals = {name: float(beta[j]) for j, (ti, name) in enumerate(index) if ti == i}
         us = {name: float(u_exp[j]) for j, (ti, name) in enumerate(index) if ti == i}
+        bs = {name: budgets[param_names[j]] for j, (ti, name) in enumerate(index) if ti == i}
         fitted = term.with_params(**vals)
-        fits.append(TermFit(term.label(), fitted, vals, us))
+        fits.append(TermFit(term.label(), fitted, vals, us, bs))
         fitted_terms.append(fitted)
         uncs.append(us)
     comp = Compensator(
@@ -220,7 +257,10 @@ def calibrate(
         meta={"description": f"calibrated against a reference ({', '.join(t.label() for t in term_list)})",
               "source": data.source, "n_points": n},
     )
-    method = cv if cv != "auto" else ("blocked" if data.time_s is not None else "loo")
+    method = "loo" if cv == "loo" else "blocked"
+    held_out = _rms(loo) if method == "loo" else _rms(blocked_ok)
+    reading_angle = float(np.max(np.abs(data.reference_arcsec)))
+    reading = reading_budget(held_out, correlation, p, reading_angle, reference)
     return CalibrationResult(
         compensator=comp,
         fits=fits,
@@ -237,19 +277,38 @@ def calibrate(
         cv_method=method,
         residual_after_arcsec=resid,
         loo_residual_arcsec=loo,
+        blocked_residual_arcsec=blocked,
+        correlation=correlation,
+        reading=reading,
+        reading_angle_arcsec=reading_angle,
+        reference=reference,
     )
 
 
 def format_calibration(result: CalibrationResult) -> str:
-    lines = [f"calibration on {result.n} points (uncertainties expanded, k = 2)"]
+    from tcms_daq.analysis.rounding import with_uncertainty
+
+    corr = result.correlation
+    lines = [f"calibration on {result.n} points (expanded uncertainties U for 95 %, k from the effective degrees "
+             "of freedom)"]
+    if corr is not None:
+        lines.append(f"  residuals: lag-1 autocorrelation {corr.lag1:.2f}, Durbin–Watson {corr.durbin_watson:.2f}, "
+                     f"n_eff {corr.n_eff:.1f} of {corr.n}")
     for f in result.fits:
         for name, value in f.values.items():
-            lines.append(f"  {f.label:<14} {name:<16} {value:+.6g} ± {f.uncertainty[name]:.2g}")
+            b = f.budgets.get(name)
+            shown = with_uncertainty(value, b.to_dict() if b else None, "")
+            lines.append(f"  {f.label:<14} {name:<16} {shown}" + (f"  dominant: {b.dominant}" if b else ""))
     lines.append(f"  before:  rms {result.rms_before_arcsec:.3f}″  max {result.max_before_arcsec:.3f}″")
     lines.append(f"  after:   rms {result.rms_after_arcsec:.3f}″  max {result.max_after_arcsec:.3f}″ (in-sample)")
-    lines.append(f"  held out (leave-one-out): rms {result.loo_rms_arcsec:.3f}″  max {result.loo_max_arcsec:.3f}″")
     lines.append(
         f"  held out (blocked, {result.n_blocks} contiguous blocks): rms {result.blocked_rms_arcsec:.3f}″  "
-        f"max {result.blocked_max_arcsec:.3f}″"
+        f"max {result.blocked_max_arcsec:.3f}″" + ("  (headline)" if result.cv_method == "blocked" else "")
     )
+    lines.append(f"  held out (leave-one-out, optimistic for correlated residuals): rms {result.loo_rms_arcsec:.3f}″"
+                 f"  max {result.loo_max_arcsec:.3f}″")
+    if result.reading is not None:
+        lines.append(f"  one compensated reading (up to {result.reading_angle_arcsec:.4g}″): ± "
+                     f"{with_uncertainty(0.0, result.reading.to_dict(), 'arcsec').split('± ')[1]}; "
+                     f"dominant: {result.reading.dominant}")
     return "\n".join(lines)

@@ -94,7 +94,7 @@ def tabulate(
     (the error of a tangent peaks at the cell edges, which are among them). None if ``max_points`` are not
     enough, or the step would be below 1/2048″ (the caller evaluates the function directly instead)."""
     if not (period_arcsec > 0 and math.isfinite(period_arcsec)):
-        raise ValueError(f"period must be a positive number of arcsec, got {period_arcsec!r}")
+        raise ValueError(f"period must be a positive number of arcsec, got {period_arcsec}")
     if not max_error_arcsec > 0:
         raise ValueError("max_error_arcsec must be > 0")
     offsets_in_steps = np.linspace(-0.5, 0.5, _VERIFY_POINTS_PER_CELL)

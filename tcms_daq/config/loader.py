@@ -10,7 +10,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from tcms_daq.config.models import BenchConfig, ReducerSpec, TestProfile
+from tcms_daq.config.models import BenchConfig, ChainUncertainty, ReducerSpec, TestProfile
 from tcms_daq.errors import ConfigError
 
 M = TypeVar("M", bound=BaseModel)
@@ -171,3 +171,11 @@ def load_reducers_for(cfg: BenchConfig) -> dict[str, ReducerSpec]:
 def load_test_profile(data: dict[str, Any], source: str = "<profile>") -> TestProfile:
     """Validate a test-profile mapping (from an API request or a [procedure] table)."""
     return validate(TestProfile, data, source)
+
+
+def load_chain_uncertainty(path: str | Path) -> ChainUncertainty:
+    """Read declared standard uncertainties (k = 1) of a measuring chain: ``[torque]``, ``[angle]``,
+    ``[compensation]``, ``[reference]``, ``[temperature]`` tables (``tcms analyze --uncertainty FILE.toml``)."""
+    chain = validate(ChainUncertainty, read_toml(path), path)
+    chain.source = str(path)
+    return chain

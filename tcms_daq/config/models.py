@@ -166,6 +166,92 @@ class TestProfile(BaseModel):
     start: Literal["negative", "positive"] = "negative"
 
 
+# ------------------------------------------------------------------------------------------------- uncertainty
+# Declared standard uncertainties (k = 1) of the measuring chain: `tcms analyze --uncertainty FILE.toml` and the
+# bench config ([instruments.torque.uncertainty], [instruments.angle.uncertainty], [uncertainty]). Every input is
+# an error of the reading with estimate 0; tcms_daq.uncertainty propagates it through the evaluation.
+
+
+class _Declared(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    def declared(self) -> bool:
+        """Whether any uncertainty of this section is nonzero."""
+        return any(isinstance(v, float) and v > 0.0 and k.startswith("u_") for k, v in self)
+
+
+class TorqueUncertainty(_Declared):
+    """The torque reading: scale (class or calibration certificate, relative) and zero (N·m)."""
+
+    u_rel: float = Field(0.0, ge=0.0, lt=0.5)
+    u_zero_nm: float = Field(0.0, ge=0.0)
+
+
+class AngleUncertainty(_Declared):
+    """The angle reading: scale (relative; the local slope of the graduation error), absolute (a common offset,
+    arcsec), and the interpolation error over one signal period (RMS over the period, arcsec)."""
+
+    u_rel: float = Field(0.0, ge=0.0, lt=0.5)
+    u_arcsec: float = Field(0.0, ge=0.0)
+    u_interpolation_arcsec: float = Field(0.0, ge=0.0)
+    signal_period_arcsec: float = Field(72.0, gt=0.0)
+
+
+class CompensationUncertainty(_Declared):
+    """What the compensation model leaves after its calibration: a scale (relative) and a torsion term (arcsec
+    per 1000 N·m)."""
+
+    u_rel: float = Field(0.0, ge=0.0, lt=0.5)
+    u_torsion_arcsec_per_knm: float = Field(0.0, ge=0.0)
+
+
+class ReferenceUncertainty(_Declared):
+    """The reference instrument of a calibration (autocollimator): a common offset (arcsec) and its scale
+    (relative)."""
+
+    u_arcsec: float = Field(0.0, ge=0.0)
+    u_rel: float = Field(0.0, ge=0.0, lt=0.5)
+
+
+class TemperatureUncertainty(_Declared):
+    """Temperature off its reference (standard uncertainty in K) and what it does to the readings per K."""
+
+    u_k: float = Field(0.0, ge=0.0)
+    torque_tc_rel_per_k: float = 0.0
+    torque_zero_tc_nm_per_k: float = 0.0
+    angle_tc_rel_per_k: float = 0.0
+
+    def declared(self) -> bool:
+        return self.u_k > 0.0 and any(
+            c != 0.0 for c in (self.torque_tc_rel_per_k, self.torque_zero_tc_nm_per_k, self.angle_tc_rel_per_k))
+
+
+class ChainUncertainty(_Declared):
+    """The declared uncertainties of a measuring chain (an ``--uncertainty`` file, or assembled from a bench
+    config). ``source`` says where they were declared."""
+
+    torque: TorqueUncertainty = Field(default_factory=TorqueUncertainty)
+    angle: AngleUncertainty = Field(default_factory=AngleUncertainty)
+    compensation: CompensationUncertainty = Field(default_factory=CompensationUncertainty)
+    reference: ReferenceUncertainty = Field(default_factory=ReferenceUncertainty)
+    temperature: TemperatureUncertainty = Field(default_factory=TemperatureUncertainty)
+    source: str | None = Field(None, exclude=True)
+
+    def declared(self) -> bool:
+        return any(getattr(self, k).declared() for k in ("torque", "angle", "compensation", "reference",
+                                                         "temperature"))
+
+
+DecisionRule = Literal["simple", "guarded"]
+
+
+class BenchUncertainty(_Declared):
+    """[uncertainty] of a bench config: what is not one instrument's (the compensation model, temperature)."""
+
+    compensation: CompensationUncertainty = Field(default_factory=CompensationUncertainty)
+    temperature: TemperatureUncertainty = Field(default_factory=TemperatureUncertainty)
+
+
 # ------------------------------------------------------------------------------------------------- bench
 
 
@@ -178,11 +264,23 @@ class InstrumentConfig(BaseModel):
     url: str = "virtual://sim"
 
 
+class TorqueInstrumentConfig(InstrumentConfig):
+    """[instruments.torque]: also the declared uncertainty of its reading ([instruments.torque.uncertainty])."""
+
+    uncertainty: TorqueUncertainty | None = None
+
+
+class AngleInstrumentConfig(InstrumentConfig):
+    """[instruments.angle]: also the declared uncertainty of its reading ([instruments.angle.uncertainty])."""
+
+    uncertainty: AngleUncertainty | None = None
+
+
 class InstrumentsConfig(BaseModel):
     model_config = ConfigDict(extra="allow")
 
-    angle: InstrumentConfig = Field(default_factory=InstrumentConfig)
-    torque: InstrumentConfig = Field(default_factory=InstrumentConfig)
+    angle: AngleInstrumentConfig = Field(default_factory=AngleInstrumentConfig)
+    torque: TorqueInstrumentConfig = Field(default_factory=TorqueInstrumentConfig)
     loader: InstrumentConfig = Field(default_factory=InstrumentConfig)
 
 
@@ -201,6 +299,7 @@ class BenchSection(BaseModel):
     min_step_nm: float = Field(0.1, gt=0.0)
     max_test_duration_s: float = Field(4 * 3600.0, gt=0.0)
     max_segments: int = Field(20_000, ge=1)
+    decision_rule: DecisionRule = "guarded"  # ISO 14253-1: "guarded" (guard bands of U) or "simple" acceptance
 
     @property
     def rate_limit_nm_per_s(self) -> float:
@@ -242,7 +341,20 @@ class BenchConfig(BaseModel):
     instruments: InstrumentsConfig = Field(default_factory=InstrumentsConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
     procedure: TestProfile = Field(default_factory=TestProfile)
+    uncertainty: BenchUncertainty = Field(default_factory=BenchUncertainty)
     source_path: str | None = Field(None, exclude=True)
+
+    def chain_uncertainty(self) -> ChainUncertainty | None:
+        """The declared uncertainties of this bench's measuring chain (instruments and [uncertainty]), or None
+        when nothing is declared."""
+        chain = ChainUncertainty(
+            torque=self.instruments.torque.uncertainty or TorqueUncertainty(),
+            angle=self.instruments.angle.uncertainty or AngleUncertainty(),
+            compensation=self.uncertainty.compensation,
+            temperature=self.uncertainty.temperature,
+            source=f"bench config {self.source_path or '(defaults)'}",
+        )
+        return chain if chain.declared() else None
 
     def resolve(self, relative: str) -> str:
         """A path named in this file, resolved relative to the file's directory."""

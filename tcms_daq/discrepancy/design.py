@@ -227,7 +227,7 @@ def build_design(measured: Samples, simulated: Samples, *, signal_period_arcsec:
         if np.any(dt > time_tolerance_s * max(1.0, float(np.max(np.abs(measured.time_s))))):
             i = int(np.argmax(dt))
             raise DataFormatError(
-                f"time_s differs at row {i + 2}: measured {measured.time_s[i]!r}, simulated {simulated.time_s[i]!r}"
+                f"time_s differs at row {i + 2}: measured {float(measured.time_s[i]):.9g}, simulated {float(simulated.time_s[i]):.9g}"
             )
     span = float(np.ptp(measured.torque_nm))
     tol = torque_tolerance_nm if torque_tolerance_nm is not None else max(1e-6 * max(span, 1.0), 1e-9)
@@ -235,8 +235,8 @@ def build_design(measured: Samples, simulated: Samples, *, signal_period_arcsec:
     if np.any(dtq > tol):
         i = int(np.argmax(dtq))
         raise DataFormatError(
-            f"torque_nm differs at row {i + 2}: measured {measured.torque_nm[i]!r}, "
-            f"simulated {simulated.torque_nm[i]!r} (files are not aligned)"
+            f"torque_nm differs at row {i + 2}: measured {float(measured.torque_nm[i]):.9g}, "
+            f"simulated {float(simulated.torque_nm[i]):.9g} (files are not aligned)"
         )
     if span <= 0:
         raise DataFormatError("torque_nm is constant: there is no torque–angle curve to compare")

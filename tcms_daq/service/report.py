@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from tcms_daq.analysis.rounding import NOT_STATED, with_uncertainty
 from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
@@ -102,6 +103,7 @@ table {{ border-collapse: collapse; margin-bottom: 1.5em; }}
 th, td {{ text-align: left; padding: 2px 12px 2px 0; border-bottom: 1px solid #eee; font-weight: normal; }}
 th {{ color: #555; }} .loops th, .loops td {{ padding-right: 18px; }}
 tr.pass td {{ color: #157a2e; font-weight: bold; }} tr.fail td {{ color: #b3261e; font-weight: bold; }}
+tr.undecided td {{ color: #a15c00; font-weight: bold; }} .muted {{ color: #777; }}
 </style></head><body>
 <h1>Torsional characteristic test {html.escape(record.id)}</h1>
 <table class="meta">{meta}</table>
@@ -113,6 +115,8 @@ tr.pass td {{ color: #157a2e; font-weight: bold; }} tr.fail td {{ color: #b3261e
 """
 
 
+UNCERTAIN = ("rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec", "k1_nm_per_rad", "k2_nm_per_rad",
+             "k3_nm_per_rad")
 HEADLINE: tuple[tuple[str, str], ...] = (
     ("rigidity_nm_per_arcmin", "torsional rigidity / N·m/arcmin"),
     ("lost_motion_arcsec", "lost motion / arcsec"),
@@ -126,31 +130,58 @@ HEADLINE: tuple[tuple[str, str], ...] = (
 )
 
 
+DECISION_CLASS = {"pass": "pass", "fail": "fail", "undecided": "undecided"}
+
+
+def _decision(entry: Mapping[str, Any]) -> str:
+    """A verdict's or check's ISO 14253-1 decision (older runs have only ``passed``)."""
+    decision = entry.get("decision")
+    if decision in DECISION_CLASS:
+        return str(decision)
+    return "pass" if entry.get("passed") else "fail"
+
+
 def _results_html(results: Mapping[str, Any]) -> str:
-    """Headline values (mean ± std over loops), the verdict checks, the per-loop table, then every value."""
+    """Headline values (value ± U with the dominant contributor, and the std over loops), the verdict checks
+    with their ISO 14253-1 decision, the per-loop table, the warnings, then every value."""
     parts = []
     std = results.get("std") or {}
+    uncertainty = results.get("uncertainty") or {}
     rows = []
     for key, label in HEADLINE:
         value = results.get(key)
         if isinstance(value, int | float) and not isinstance(value, bool):
+            entry = uncertainty.get(key) if isinstance(uncertainty, Mapping) else None
             spread = std.get(key) if isinstance(std, Mapping) else None
-            shown = _fmt(float(value)) + (f" ± {_fmt(float(spread))}" if isinstance(spread, int | float) else "")
-            rows.append(f"<tr><th>{html.escape(label)}</th><td>{shown}</td></tr>")
+            if key in UNCERTAIN:
+                shown = with_uncertainty(float(value), entry, "")
+                dominant = f"dominant: {entry.get('dominant')}" if isinstance(entry, Mapping) else ""
+            else:
+                shown, dominant = _fmt(float(value)), ""
+            scatter = f"std over loops {float(spread):.2g}" if isinstance(spread, int | float) else ""
+            rows.append(f"<tr><th>{html.escape(label)}</th><td>{html.escape(shown)}</td>"
+                        f"<td class='muted'>{html.escape(dominant)}</td><td class='muted'>{scatter}</td></tr>")
     if rows:
+        basis = results.get("uncertainty_basis")
         parts.append("<table class='results'>" + "".join(rows) + "</table>")
+        parts.append(f"<p class='muted'>U: expanded uncertainty for 95 % coverage (k from the Welch–Satterthwaite "
+                     f"degrees of freedom); basis: {html.escape(str(basis or NOT_STATED))}.</p>")
     verdict = results.get("verdict")
     if isinstance(verdict, Mapping):
         rows = []
         for check in (verdict.get("checks") or {}).values():
-            ok = bool(check.get("passed"))
+            decision = _decision(check)
+            guard = check.get("guard_band")
+            guard_text = f" (guard band {_fmt(float(guard))})" if isinstance(guard, int | float) and guard else ""
             rows.append(
-                f"<tr class='{'pass' if ok else 'fail'}'><th>{html.escape(str(check.get('label') or check))}</th>"
-                f"<td>{_fmt(check.get('value'))}</td><td>{'pass' if ok else 'FAIL'}</td></tr>"
+                f"<tr class='{DECISION_CLASS[decision]}'><th>{html.escape(str(check.get('label') or check))}</th>"
+                f"<td>{_fmt(check.get('value'))}{guard_text}</td><td>{decision}</td></tr>"
             )
-        ok = bool(verdict.get("passed"))
-        rows.append(f"<tr class='{'pass' if ok else 'fail'}'><th>verdict</th><td></td><td>{'pass' if ok else 'FAIL'}"
-                    "</td></tr>")
+        decision = _decision(verdict)
+        rule = verdict.get("rule")
+        rule_text = f"ISO 14253-1, {rule} rule" if rule else ""
+        rows.append(f"<tr class='{DECISION_CLASS[decision]}'><th>decision</th><td>{html.escape(rule_text)}</td>"
+                    f"<td>{decision.upper()}</td></tr>")
         parts.append("<h3>Acceptance</h3><table class='verdict'>" + "".join(rows) + "</table>")
     loops = results.get("loops")
     if isinstance(loops, list) and loops and all(isinstance(lp, Mapping) for lp in loops):

@@ -78,6 +78,7 @@ class Runner(Protocol):
 class _Plan:
     profile: Any  # tcms_daq.procedure.Profile
     reducer: Any  # tcms_daq.config.ReducerSpec
+    decision_rule: str = "guarded"  # ISO 14253-1: the request's, else the bench config's
 
 
 def _columns(samples: Any) -> dict[str, np.ndarray]:
@@ -296,16 +297,21 @@ class BenchRunner:
             profile = build_profile(test, spec)
         except ValueError as exc:
             raise RequestRejected(str(exc).splitlines()[0]) from None
+        rule = request.decision_rule or self.config.bench.decision_rule
         summary = {**profile.to_dict(), "reducer": spec.name, "rated_torque_nm": spec.rated_torque_nm,
-                   "segments": len(profile.segments)}
-        return TestPlan(request, summary, _Plan(profile, spec))
+                   "segments": len(profile.segments), "decision_rule": rule}
+        return TestPlan(request, summary, _Plan(profile, spec, rule))
 
     def _evaluator(self, plan: _Plan) -> Callable[[Any], dict[str, Any]]:
         from tcms_daq.procedure.evaluation import evaluate_for_reducer
 
+        chain = self.config.chain_uncertainty()
+        without = f"type A only (no uncertainty declared in {self.config_path.name})"
+
         def run(samples: Any) -> dict[str, Any]:
             # TestRun hands over the evaluated loops only (loop_index >= 1: conditioning removed)
-            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm).to_dict()
+            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm, chain=chain,
+                                        rule=plan.decision_rule, no_chain_basis=without).to_dict()
 
         return run
 

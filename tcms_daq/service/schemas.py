@@ -27,6 +27,9 @@ class TestRequest(BaseModel):
     dwell_s: float | None = Field(default=None, ge=0, le=600, description="dwell at each step, s")
     serial_number: str | None = Field(default=None, max_length=64)
     operator: str | None = Field(default=None, max_length=64)
+    decision_rule: Literal["simple", "guarded"] | None = Field(
+        default=None, description="ISO 14253-1 decision: 'guarded' (guard bands of U: pass / fail / undecided) or "
+        "'simple' acceptance; default: the bench config's [bench] decision_rule")
 
     @model_validator(mode="after")
     def _stepped_fields(self) -> TestRequest:
@@ -42,6 +45,73 @@ class TestAccepted(BaseModel):
     status: str
 
 
+class BudgetLineView(BaseModel):
+    """One source of a result's uncertainty budget."""
+
+    model_config = ConfigDict(extra="allow")
+
+    source: str
+    type: Literal["A", "B"]
+    u_input: float = Field(description="standard uncertainty of the input, in its own unit (input_unit)")
+    sensitivity: float = Field(description="result unit per input unit (1 for a Type A line)")
+    contribution: float = Field(description="|sensitivity| × u_input, in the result's unit")
+
+
+class UncertaintyEntry(BaseModel):
+    """The GUM uncertainty of one result (JCGM 100): value ± U (k), the budget, the dominant contributor."""
+
+    model_config = ConfigDict(extra="allow")
+
+    value: float
+    u: float = Field(description="combined standard uncertainty, in the result's unit")
+    U: float = Field(description="expanded uncertainty k·u (95 % coverage), in the result's unit")
+    k: float = Field(description="coverage factor (t-based, 95 %)")
+    dof: float | None = Field(description="Welch–Satterthwaite effective degrees of freedom (null: infinite)")
+    unit: str
+    dominant: str | None = Field(description="the source with the largest contribution")
+    budget: list[BudgetLineView]
+
+
+class CheckView(BaseModel):
+    """One limit of the verdict with its ISO 14253-1 decision."""
+
+    model_config = ConfigDict(extra="allow")
+
+    quantity: str | None = None
+    value: float | None = None
+    comparison: str | None = None
+    limit: float | None = None
+    passed: bool | None = None
+    decision: Literal["pass", "fail", "undecided"] | None = None
+    guard_band: float | None = Field(None, description="U under the guarded rule, 0 under simple acceptance")
+    label: str | None = None
+
+
+class VerdictView(BaseModel):
+    """Pass / fail / undecided per ISO 14253-1; ``passed`` (kept for compatibility) is true only for "pass"."""
+
+    model_config = ConfigDict(extra="allow")
+
+    passed: bool
+    decision: Literal["pass", "fail", "undecided"] | None = None
+    rule: Literal["simple", "guarded"] | None = None
+    checks: dict[str, CheckView] = Field(default_factory=dict)
+
+
+class TestResults(BaseModel):
+    """A run's evaluation (the keys of ``tcms analyze --json``); the typed ones are the shared result contract,
+    every other key of the evaluation is kept as it is. Runs evaluated before uncertainty budgets have
+    ``uncertainty`` empty."""
+
+    __test__ = False
+    model_config = ConfigDict(extra="allow")
+
+    uncertainty: dict[str, UncertaintyEntry] = Field(default_factory=dict)
+    uncertainty_basis: str | None = None
+    verdict: VerdictView | None = None
+    warnings: list[str] = Field(default_factory=list)
+
+
 class TestSummary(BaseModel):
     id: str
     status: RunState  # one of the stored states: queued, running, completed, aborted, failed, interrupted
@@ -49,7 +119,7 @@ class TestSummary(BaseModel):
     started_at: str | None
     finished_at: str | None
     request: dict[str, Any]
-    results: dict[str, Any] | None
+    results: TestResults | None
     error: str | None
     sample_count: int
     channels: list[str]

@@ -2,7 +2,7 @@
 
 * No cycle among the parts: the tcms_daq subpackages, ``drivers`` and ``sim``.
 * Drivers know nothing of the simulator.
-* The pure core (units, errors, samples, crossval, analysis, compensation, discrepancy, procedure, and the
+* The pure core (units, errors, samples, crossval, analysis, compensation, discrepancy, procedure, uncertainty, and the
   protocol definitions drivers and simulators share) imports nothing of the shell (drivers, sim, acquisition, store, service, cli, config files and the environment) nor the I/O libraries,
   and never reads the environment.
 """
@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("tcms_daq", "drivers", "sim")
 CORE = {"tcms_daq.units", "tcms_daq.errors", "tcms_daq.samples", "tcms_daq.crossval", "tcms_daq.analysis",
         "tcms_daq.compensation", "tcms_daq.discrepancy", "tcms_daq.procedure", "tcms_daq.protocols",
-        "tcms_daq.runstate"}
+        "tcms_daq.runstate", "tcms_daq.uncertainty"}
 SHELL = {"drivers", "sim", "tcms_daq.acquisition", "tcms_daq.store", "tcms_daq.service", "tcms_daq.cli",
          "tcms_daq.settings"}
 IO_LIBRARIES = {"fastapi", "starlette", "uvicorn", "serial", "pymodbus", "can", "canopen", "psycopg", "asyncua",

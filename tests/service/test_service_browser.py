@@ -6,6 +6,7 @@ Set TCMS_UPDATE_SCREENSHOT=1 to write the final view to docs/screenshot-dashboar
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -76,9 +77,12 @@ def test_dashboard_starts_a_test_and_draws_the_loop(settings_factory, sim_config
                 timeout=60_000,
             )
             assert page.text_content("#test-state") == "completed"
-            page.wait_for_selector("#results td.pass, #results td.fail")
-            assert "rigidity / N·m/arcmin" in page.text_content("#results")
-            assert "verdict" in page.text_content("#results")
+            page.wait_for_selector("#results td.pass, #results td.fail, #results td.undecided")
+            shown = page.text_content("#results")
+            assert "rigidity / N·m/arcmin" in shown and "decision" in shown and "ISO 14253-1" in shown
+            # value ± U (k = …), U to two significant digits, and the dominant contributor
+            assert re.search(r"\d ± \d+(\.\d+)? \(k = \d\.\d\d\)", shown), shown
+            assert "dominant: " in shown
             assert page.evaluate(COUNT_LOOP_PIXELS) > 100
             assert page.evaluate("window.tcms.state.gaps") == 0
             # the finished run against the bench model (POST /api/discrepancy), with a link to its report

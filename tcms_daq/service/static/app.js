@@ -226,36 +226,71 @@
     return "";
   }
 
-  // Results: the headline quantities (mean ± std over the evaluated loops) and the verdict checks; results of an
-  // unknown shape fall back to their top-level scalars.
+  // A result as "value ± U (k = …)": U to two significant digits, the value to the same decimal place (as
+  // tcms_daq/analysis/rounding.py does for the table and the report); "U not stated" without an uncertainty entry.
+  function roundToU(value, U) {
+    let exp = Math.floor(Math.log10(U)) - 1;
+    let r = Math.round(U / Math.pow(10, exp)) * Math.pow(10, exp);
+    if (r >= Math.pow(10, exp + 2)) { exp += 1; r = Math.round(U / Math.pow(10, exp)) * Math.pow(10, exp); }
+    const decimals = Math.max(0, -exp);
+    const v = Math.round(value / Math.pow(10, exp)) * Math.pow(10, exp);
+    return [v.toFixed(decimals), r.toFixed(decimals)];
+  }
+  function fmtU(value, entry) {
+    if (typeof value !== "number") return "–";
+    if (!entry || typeof entry.U !== "number" || !(entry.U > 0)) return fmt(value) + " (U not stated)";
+    const [v, u] = roundToU(value, entry.U);
+    return `${v} ± ${u}` + (typeof entry.k === "number" ? ` (k = ${entry.k.toFixed(2)})` : "");
+  }
+  // a spread shown with two significant digits, not "0.0708006"
+  function fmt2(v) { return typeof v === "number" ? (v === 0 ? "0" : +v.toPrecision(2) + "") : "–"; }
+
+  // Results: the headline quantities (value ± U, the dominant contributor, the std over the evaluated loops),
+  // the verdict checks with their ISO 14253-1 decision, the warnings; results of an unknown shape fall back to
+  // their top-level scalars.
   const HEADLINE = [
-    ["rigidity_nm_per_arcmin", "rigidity / N·m/arcmin"],
-    ["lost_motion_arcsec", "lost motion / arcsec"],
-    ["backlash_arcsec", "backlash / arcsec"],
-    ["loading_rate_nm_per_s", "loading rate / N·m/s"],
-    ["test_torque_nm", "test torque / N·m"],
-    ["n_loops", "evaluated loops"],
+    ["rigidity_nm_per_arcmin", "rigidity / N·m/arcmin", true],
+    ["lost_motion_arcsec", "lost motion / arcsec", true],
+    ["backlash_arcsec", "backlash / arcsec", true],
+    ["loading_rate_nm_per_s", "loading rate / N·m/s", false],
+    ["test_torque_nm", "test torque / N·m", false],
+    ["n_loops", "evaluated loops", false],
   ];
+  const DECISION_WORD = { pass: "PASS", fail: "FAIL", undecided: "UNDECIDED" };
+  function decisionOf(c) { return c.decision || (c.passed ? "pass" : "fail"); }
 
   function resultRows(res) {
     const rows = [];
     const std = res.std || {};
-    for (const [key, label] of HEADLINE) {
+    const unc = res.uncertainty || {};
+    for (const [key, label, uncertain] of HEADLINE) {
       if (typeof res[key] !== "number") continue;
-      const s = typeof std[key] === "number" ? " ± " + fmt(std[key]) : "";
-      rows.push([label, fmt(res[key]) + s, ""]);
+      if (uncertain) {
+        const entry = unc[key];
+        const notes = [];
+        if (entry && entry.dominant) notes.push("dominant: " + entry.dominant);
+        if (typeof std[key] === "number") notes.push("std over loops " + fmt2(std[key]));
+        rows.push([label, fmtU(res[key], entry), "", notes.join(" · ")]);
+      } else {
+        rows.push([label, fmt(res[key]), ""]);
+      }
     }
     for (const k of ["k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"]) {
-      if (typeof res[k] === "number") rows.push([k.slice(0, 2).toUpperCase() + " / N·m/rad", fmt(res[k]), ""]);
+      if (typeof res[k] === "number") rows.push([k.slice(0, 2).toUpperCase() + " / N·m/rad", fmtU(res[k], unc[k]), ""]);
     }
+    if (res.uncertainty_basis) rows.push(["U (95 %) basis", res.uncertainty_basis, "muted"]);
     const verdict = res.verdict;
     if (verdict && typeof verdict === "object") {
       for (const [name, c] of Object.entries(verdict.checks || {})) {
-        rows.push([c.label || `${c.quantity} ${c.comparison} ${fmt(c.limit)}`, (c.passed ? "pass" : "FAIL") + " (" + fmt(c.value) + ")",
-          c.passed ? "pass" : "fail"]);
+        const d = decisionOf(c);
+        const guard = typeof c.guard_band === "number" && c.guard_band > 0 ? ", guard band " + fmt2(c.guard_band) : "";
+        rows.push([c.label || `${c.quantity} ${c.comparison} ${fmt(c.limit)}`, DECISION_WORD[d] + " (" + fmt(c.value) + guard + ")", d]);
       }
-      rows.push(["verdict", verdict.passed ? "pass" : "FAIL", verdict.passed ? "pass" : "fail"]);
+      const d = decisionOf(verdict);
+      // the decision first: it is what the operator looks for
+      rows.unshift(["decision", DECISION_WORD[d] + (verdict.rule ? " (ISO 14253-1, " + verdict.rule + " rule)" : ""), d]);
     }
+    for (const w of res.warnings || []) rows.push(["warning", String(w), "warning"]);
     if (!rows.length) {
       for (const [k, v] of Object.entries(res)) {
         if (v === null || typeof v === "object") continue;
@@ -274,9 +309,10 @@
     if (!rows.length) {
       body.innerHTML = `<tr><td class="muted">${run.status}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
     }
-    for (const [label, value, cls] of rows) {
+    for (const [label, value, cls, note] of rows) {
       const tr = document.createElement("tr");
-      tr.innerHTML = `<th>${escapeHtml(label)}</th><td class="${cls}">${escapeHtml(String(value))}</td>`;
+      tr.innerHTML = `<th>${escapeHtml(label)}</th><td class="${cls}">${escapeHtml(String(value))}` +
+        (note ? `<div class="note">${escapeHtml(note)}</div>` : "") + `</td>`;
       body.appendChild(tr);
     }
     const link = $("report-link");

@@ -1,0 +1,260 @@
+"""GUM uncertainty budgets (JCGM 100) of the results of a hysteresis evaluation.
+
+For each result y (rigidity per direction and mean, lost motion, backlash, K1–K3, loop energy):
+- Type A from the data: the loop-to-loop scatter, u = s/√n with n − 1 degrees of freedom; with a single loop
+  the within-loop noise instead (a parametric bootstrap: the record re-evaluated with fresh noise of the measured
+  size, ``BOOTSTRAP_DRAWS`` times, n − 1 degrees of freedom);
+- Type B from the declared chain (``tcms_daq.uncertainty.chain``): sensitivities c_i = ∂y/∂x_i by central
+  differences through the same ``evaluate`` (±step, the step at least the input's u, as JCGM 100 5.1.3 allows);
+- combined with GTC (the GUM Tree Calculator): u_c, Welch–Satterthwaite effective degrees of freedom, the
+  t-based coverage factor k for 95 %, U = k·u_c.
+
+The one entry point is :func:`evaluation_budgets` (arrays, settings and the declared chain in, budgets out).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from GTC import reporting, type_a, ureal
+
+from tcms_daq.analysis.evaluation import Evaluation, EvaluationSettings, evaluate
+from tcms_daq.config.models import ChainUncertainty
+from tcms_daq.errors import EvaluationError
+from tcms_daq.uncertainty.chain import Input, chain_inputs
+
+COVERAGE_PROBABILITY = 95.0  # percent, as GTC's reporting.k_factor takes it
+BOOTSTRAP_DRAWS = 8
+BOOTSTRAP_SEED = 20_240_611
+
+# result name → unit (the order results are reported in)
+RESULT_UNITS: dict[str, str] = {
+    "rigidity_nm_per_arcmin": "N·m/arcmin",
+    "positive_rigidity_nm_per_arcmin": "N·m/arcmin",
+    "negative_rigidity_nm_per_arcmin": "N·m/arcmin",
+    "lost_motion_arcsec": "arcsec",
+    "backlash_arcsec": "arcsec",
+    "k1_nm_per_rad": "N·m/rad",
+    "k2_nm_per_rad": "N·m/rad",
+    "k3_nm_per_rad": "N·m/rad",
+    "loop_energy_j": "J",
+}
+
+
+@dataclass(frozen=True)
+class BudgetLine:
+    """One source: its standard uncertainty ``u_input`` (in ``input_unit``), the sensitivity of the result to it
+    (result unit per input unit; for a Type A line 1) and its contribution |c|·u in the result's unit."""
+
+    source: str
+    type: str  # "A" or "B"
+    u_input: float
+    input_unit: str
+    sensitivity: float
+    contribution: float
+    dof: float | None  # None: infinite
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The uncertainty of one result: value, combined standard uncertainty u, effective degrees of freedom
+    (None = infinite), coverage factor k (95 %), expanded U = k·u, the lines (largest contribution first)."""
+
+    value: float
+    u: float
+    k: float
+    dof: float | None
+    unit: str
+    lines: list[BudgetLine] = field(default_factory=list)
+
+    @property
+    def expanded(self) -> float:
+        return self.k * self.u
+
+    @property
+    def dominant(self) -> str | None:
+        return self.lines[0].source if self.lines else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON form of the shared result contract (``uncertainty.<result name>``)."""
+        return {"value": self.value, "u": self.u, "U": self.expanded, "k": self.k, "dof": self.dof,
+                "unit": self.unit, "dominant": self.dominant, "budget": [line.to_dict() for line in self.lines]}
+
+
+def result_values(ev: Evaluation) -> dict[str, float]:
+    """The results of an evaluation that get a budget (those present), by name."""
+    values: dict[str, Any] = {
+        "rigidity_nm_per_arcmin": ev.rigidity_nm_per_arcmin,
+        "positive_rigidity_nm_per_arcmin": ev.per_direction["positive"].rigidity_nm_per_arcmin,
+        "negative_rigidity_nm_per_arcmin": ev.per_direction["negative"].rigidity_nm_per_arcmin,
+        "lost_motion_arcsec": ev.lost_motion_arcsec,
+        "backlash_arcsec": ev.backlash_arcsec,
+        "k1_nm_per_rad": ev.k1_nm_per_rad,
+        "k2_nm_per_rad": ev.k2_nm_per_rad,
+        "k3_nm_per_rad": ev.k3_nm_per_rad,
+        "loop_energy_j": ev.loop_energy_j,
+    }
+    return {k: float(v) for k, v in values.items() if v is not None and math.isfinite(v)}
+
+
+def loop_values(ev: Evaluation, name: str) -> list[float]:
+    """The per-loop values of a result over the evaluated loops."""
+    out: list[float] = []
+    for r in ev.loops:
+        if not r.evaluated:
+            continue
+        side, _, rest = name.partition("_")
+        v = (getattr(r.per_direction[side], rest) if side in ("positive", "negative") else getattr(r, name))
+        if v is not None:
+            out.append(float(v))
+    return out
+
+
+@dataclass(frozen=True)
+class Contribution:
+    """A Type B input of a budget with its sensitivity: ``line`` groups inputs reported together."""
+
+    source: str
+    unit: str
+    u: float
+    sensitivity: float
+    line: str = ""
+
+
+def combine(value: float, unit: str, type_a_u: float | None, type_a_dof: float | None, type_a_source: str,
+            type_b: list[Contribution]) -> Budget:
+    """Combine a Type A component (u, dof; None = none) and Type B inputs with their sensitivities (GTC), then
+    report them one line per budget line (phase components of one periodic error merged root-sum-square)."""
+    terms: list[Any] = []
+    if type_a_u is not None:
+        terms.append(ureal(0.0, type_a_u, math.inf if type_a_dof is None else type_a_dof, label=type_a_source))
+    for b in type_b:
+        terms.append(b.sensitivity * ureal(0.0, b.u, label=b.source))
+    if not terms:
+        return Budget(value, 0.0, float(reporting.k_factor(math.inf, COVERAGE_PROBABILITY)), None, unit)
+    y = value + sum(terms[1:], terms[0])
+    u = float(y.u)
+    dof = float(y.df) if u > 0.0 and math.isfinite(y.df) else None
+    k = float(reporting.k_factor(math.inf if dof is None else dof, COVERAGE_PROBABILITY))
+    lines: dict[str, BudgetLine] = {}
+    if type_a_u is not None:
+        lines[type_a_source] = BudgetLine(type_a_source, "A", type_a_u, unit, 1.0, type_a_u, type_a_dof)
+    for b in type_b:
+        line = b.line or b.source
+        before = lines.get(line)
+        if before is None:
+            lines[line] = BudgetLine(line, "B", b.u, b.unit, b.sensitivity, abs(b.sensitivity) * b.u, None)
+        else:  # another phase component of the same error: root-sum-square sensitivity
+            s = math.hypot(before.sensitivity, b.sensitivity)
+            lines[line] = replace(before, sensitivity=s, contribution=s * b.u)
+    ordered = sorted(lines.values(), key=lambda ln: -ln.contribution)
+    return Budget(value, u, k, dof, unit, ordered)
+
+
+def _evaluate(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
+              settings: EvaluationSettings) -> Evaluation:
+    return evaluate(time_s, torque_nm, angle_arcsec, **asdict(settings))
+
+
+def _sensitivities(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, settings: EvaluationSettings,
+                   inputs: list[Input], names: list[str]) -> dict[str, list[Contribution]]:
+    """c_i per result by central differences through the evaluation."""
+    out: dict[str, list[Contribution]] = {name: [] for name in names}
+    for inp in inputs:
+        results = []
+        for x in (inp.step, -inp.step):
+            torque, angle = inp.apply(torque_nm, angle_arcsec, x)
+            try:
+                results.append(result_values(_evaluate(time_s, torque, angle, settings)))
+            except EvaluationError as exc:
+                raise EvaluationError(
+                    f"uncertainty budget: the evaluation fails with {inp.name} moved by {x:+.3g} {inp.unit}: {exc}"
+                ) from None
+        plus, minus = results
+        for name in names:
+            if name not in plus or name not in minus:
+                raise EvaluationError(f"uncertainty budget: {name} is not evaluated with {inp.name} moved by "
+                                      f"±{inp.step:.3g} {inp.unit}")
+            c = (plus[name] - minus[name]) / (2.0 * inp.step)
+            out[name].append(Contribution(inp.name, inp.unit, inp.u, c, inp.budget_line))
+    return out
+
+
+def _bootstrap_type_a(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
+                      settings: EvaluationSettings, nominal: Evaluation, names: list[str]) -> dict[str, float]:
+    """One loop: the standard deviation each result gets from the record's own noise (torque and angle noise as
+    measured), by re-evaluating with fresh noise of that size (a parametric bootstrap)."""
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    sigma_t = nominal.noise.get("torque_nm", 0.0)
+    sigma_a = nominal.noise.get("angle_arcsec", 0.0)
+    draws: dict[str, list[float]] = {name: [] for name in names}
+    for _ in range(BOOTSTRAP_DRAWS):
+        torque = torque_nm + sigma_t * rng.standard_normal(torque_nm.size)
+        angle = angle_arcsec + sigma_a * rng.standard_normal(angle_arcsec.size)
+        try:
+            values = result_values(_evaluate(time_s, torque, angle, settings))
+        except EvaluationError:
+            continue
+        for name in names:
+            if name in values:
+                draws[name].append(values[name])
+    return {name: float(np.std(v, ddof=1)) for name, v in draws.items() if len(v) >= 2}
+
+
+def evaluation_budgets(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: npt.ArrayLike,
+                       settings: EvaluationSettings, chain: ChainUncertainty | None = None,
+                       nominal: Evaluation | None = None) -> dict[str, Budget]:
+    """The uncertainty budget of every result of ``evaluate(time_s, torque_nm, angle_arcsec, **settings)``.
+
+    ``chain``: the declared standard uncertainties of the measuring chain (None: Type A only). ``nominal``: the
+    evaluation of these arrays with these settings, when the caller already has it. Perturbed evaluations keep
+    the nominal test torque (the measurand's evaluation interval is defined by it). Raises EvaluationError when
+    a perturbation within the declared uncertainties makes the record unevaluable.
+    """
+    t = np.asarray(time_s, dtype=float)
+    torque = np.asarray(torque_nm, dtype=float)
+    angle = np.asarray(angle_arcsec, dtype=float)
+    if nominal is None:
+        nominal = _evaluate(t, torque, angle, settings)
+    fixed = replace(settings, test_torque_nm=nominal.test_torque_nm)
+    values = result_values(nominal)
+    names = list(values)
+    inputs = chain_inputs(chain, nominal.test_torque_nm) if chain is not None else []
+    sens = _sensitivities(t, torque, angle, fixed, inputs, names)
+    n = nominal.n_loops
+    if n >= 2:
+        scatter = {name: _type_a(loop_values(nominal, name)) for name in names}
+        source = f"repeatability (loop-to-loop, n = {n})"
+    else:
+        within = _bootstrap_type_a(t, torque, angle, fixed, nominal, names)
+        scatter = {name: (within[name], BOOTSTRAP_DRAWS - 1.0) if name in within else (None, None) for name in names}
+        source = "noise within the one loop (loop-to-loop repeatability not assessed)"
+    return {name: combine(values[name], RESULT_UNITS[name], scatter[name][0], scatter[name][1], source, sens[name])
+            for name in names}
+
+
+def _type_a(values: list[float]) -> tuple[float | None, float | None]:
+    """u = s/√n and n − 1 degrees of freedom of the mean of ``values`` (GTC's type_a.estimate)."""
+    if len(values) < 2:
+        return None, None
+    est = type_a.estimate(values)
+    return float(est.u), float(est.df)
+
+
+def attach(ev: Evaluation, budgets: dict[str, Budget], basis: str) -> Evaluation:
+    """Store the budgets on the evaluation in their JSON form (``ev.uncertainty``) with their basis."""
+    ev.uncertainty = {name: b.to_dict() for name, b in budgets.items()}
+    ev.uncertainty_basis = basis
+    return ev
+
+
+def expanded_by_quantity(ev: Evaluation) -> dict[str, float]:
+    """The expanded uncertainty U per result name of an evaluation with budgets attached."""
+    return {name: float(entry["U"]) for name, entry in ev.uncertainty.items() if entry.get("U") is not None}
