@@ -126,6 +126,47 @@ HEADLINE: tuple[tuple[str, str], ...] = (
 )
 
 
+STAGE_COLUMNS = (("rigidity_nm_per_arcmin", "rigidity / N·m/arcmin"), ("lost_motion_arcsec", "lost motion / ″"),
+                 ("backlash_arcsec", "backlash / ″"))
+
+
+def _with_uncertainty(entry: Mapping[str, Any], key: str) -> str:
+    """'value ± U (k = …)' when the entry states its expanded uncertainty (U to two significant digits), else the
+    value and 'U not stated'."""
+    value = entry.get(key)
+    if not isinstance(value, int | float):
+        return "–"
+    u = (entry.get("uncertainty") or {}).get(key)
+    if isinstance(u, Mapping) and isinstance(u.get("U"), int | float):
+        k, expanded = u.get("k"), float(f"{u['U']:.2g}")
+        return f"{value:.6g} ± {expanded:g}" + (f" (k = {k:.3g})" if isinstance(k, int | float) else "")
+    return f"{value:.6g} <span class='muted'>(U not stated)</span>"
+
+
+def _stages_html(results: Mapping[str, Any]) -> str:
+    """The per-position or per-rate table of a test of several stages, its summary (max, min, spread; GB/T 40731)
+    and, for rates, the rate sensitivity; '' for a single test."""
+    entries = results.get("positions") or results.get("rates")
+    if not isinstance(entries, list) or not entries:
+        return ""
+    positional = "positions" in results
+    first = "position / °" if positional else "loading rate / N·m/s"
+    head = f"<tr><th>{first}</th>" + "".join(f"<th>{label}</th>" for _, label in STAGE_COLUMNS) + "</tr>"
+    body = "".join(
+        f"<tr><td>{_fmt(e.get('position_deg' if positional else 'rate_nm_per_s'))}</td>"
+        + "".join(f"<td>{_with_uncertainty(e, key)}</td>" for key, _ in STAGE_COLUMNS) + "</tr>"
+        for e in entries if isinstance(e, Mapping))
+    for stat in ("max", "min", "spread"):
+        body += f"<tr><th>{stat}</th>" + "".join(f"<td>{_fmt(results.get(f'{key}_{stat}'))}</td>"
+                                                 for key, _ in STAGE_COLUMNS) + "</tr>"
+    sensitivity = results.get("rate_sensitivity")
+    if isinstance(sensitivity, Mapping):
+        body += "<tr><th>per tenfold rate</th>" + "".join(
+            f"<td>{_fmt(sensitivity.get(f'{key}_per_decade'))}</td>" for key, _ in STAGE_COLUMNS) + "</tr>"
+    title = "Positions (GB/T 40731)" if positional else "Loading rates"
+    return f"<h3>{title}</h3><table class='stages'>{head}{body}</table>"
+
+
 def _results_html(results: Mapping[str, Any]) -> str:
     """Headline values (mean ± std over loops), the verdict checks, the per-loop table, then every value."""
     parts = []
@@ -152,6 +193,7 @@ def _results_html(results: Mapping[str, Any]) -> str:
         rows.append(f"<tr class='{'pass' if ok else 'fail'}'><th>verdict</th><td></td><td>{'pass' if ok else 'FAIL'}"
                     "</td></tr>")
         parts.append("<h3>Acceptance</h3><table class='verdict'>" + "".join(rows) + "</table>")
+    parts.append(_stages_html(results))
     loops = results.get("loops")
     if isinstance(loops, list) and loops and all(isinstance(lp, Mapping) for lp in loops):
         cols = ("index", "evaluated", "order", "rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec",

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
+from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, positions_from, rates_from
 from tcms_daq.runstate import RunState
 
 
@@ -27,6 +28,27 @@ class TestRequest(BaseModel):
     dwell_s: float | None = Field(default=None, ge=0, le=600, description="dwell at each step, s")
     serial_number: str | None = Field(default=None, max_length=64)
     operator: str | None = Field(default=None, max_length=64)
+    positions: StrictInt | list[float] | None = Field(
+        default=None, description=f"test at several output positions (GB/T 40731): a count N (equally spaced over "
+        f"360°, 1…{MAX_POSITIONS}) or a list of degrees in [0, 360)")
+    rates: list[float] | None = Field(default=None, description=f"the same test at each loading rate, N·m/s "
+                                      f"(1…{MAX_RATES} rates)")
+    move_velocity_deg_per_s: float | None = Field(default=None, gt=0, le=360,
+                                                  description="output speed of the moves between positions, °/s")
+
+    @model_validator(mode="after")
+    def _plan_fields(self) -> TestRequest:
+        if self.positions is not None:
+            positions_from(self.positions)
+        if self.rates is not None:
+            rates_from(self.rates)
+            if self.rate_nm_per_s is not None:
+                raise ValueError("rate_nm_per_s and rates exclude each other")
+        if self.positions is not None and self.rates is not None:
+            raise ValueError("positions and rates cannot be combined in one test")
+        if self.move_velocity_deg_per_s is not None and self.positions is None:
+            raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
+        return self
 
     @model_validator(mode="after")
     def _stepped_fields(self) -> TestRequest:
