@@ -38,14 +38,14 @@ class TestRequest(BaseModel):
 
     @model_validator(mode="after")
     def _plan_fields(self) -> TestRequest:
+        if self.positions is not None and self.rates is not None:
+            raise ValueError("positions and rates cannot be combined in one test")
         if self.positions is not None:
             positions_from(self.positions)
         if self.rates is not None:
             rates_from(self.rates)
             if self.rate_nm_per_s is not None:
                 raise ValueError("rate_nm_per_s and rates exclude each other")
-        if self.positions is not None and self.rates is not None:
-            raise ValueError("positions and rates cannot be combined in one test")
         if self.move_velocity_deg_per_s is not None and self.positions is None:
             raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
         return self
