@@ -11,7 +11,7 @@ from drivers.base import CommandRejected
 from tcms_daq.acquisition import TestRun, compose_bench
 from tcms_daq.config import load_bench_config
 from tcms_daq.procedure import continuous_profile
-from tcms_daq.procedure.plan import Move, Plan, Stage
+from tcms_daq.procedure.plan import Plan, Stage
 
 
 def _bench():
