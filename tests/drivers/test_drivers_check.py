@@ -75,3 +75,21 @@ def test_check_names_the_instrument_that_is_down(served, tmp_path):
     done = subprocess.run([sys.executable, "-m", "tcms_daq.cli", "check", "--config", "bench-loopback.toml", *sets,
                            "--duration", "0.3"], capture_output=True, text=True, timeout=90)
     assert done.returncode == 1 and "DOWN" in done.stdout and "down: torque (AED)" in done.stdout
+
+
+@pytest.mark.parametrize(("config", "loader_class"), [("bench-hardware-canopen.toml", "CiA402Canopen"),
+                                                      ("bench-hardware-modbus.toml", "CiA402Modbus")])
+def test_packaged_hardware_examples_compose(config, loader_class):
+    """docs/hardware.md's example configs load and build their drivers with the documented settings (nothing is
+    opened: that is tcms check's job on the bench)."""
+    from pathlib import Path
+
+    from tcms_daq.acquisition import compose_bench
+    from tcms_daq.config import load_bench_config
+
+    cfg = load_bench_config(config)
+    bench = compose_bench(cfg, config_dir=Path(cfg.source_path).parent)
+    assert type(bench.loader).__name__ == loader_class
+    assert bench.loader.counts_per_rev == 1 << 20 and bench.loader.max_torque_nm == 1100.0
+    assert bench.angle.name == "ND 287" and bench.torque.name == "AED"
+    assert bench.description["angle"]["baudrate"] == 115200 and bench.description["torque"]["baudrate"] == 38400
