@@ -106,6 +106,9 @@ def summarise_plan(kind: str, stages: list[Any], results: list[dict[str, Any]]) 
         out[f"{key}_max"], out[f"{key}_min"] = max(values), min(values)
         out[f"{key}_mean"] = float(np.mean(values))
         out[f"{key}_spread"] = max(values) - min(values)
+    # the spread over the loops of the stage each summary value comes from
+    out["std"] = {**(results[0].get("std") or {}),
+                  **{key: (results[i].get("std") or {}).get(key) for key, i in worst.items()}}
     uncertainties = [r.get("uncertainty") or {} for r in results]
     if any(uncertainties):
         out["uncertainty"] = {key: uncertainties[i][key] for key, i in worst.items() if key in uncertainties[i]}

@@ -73,6 +73,32 @@ def flatten_results(results: Mapping[str, Any], prefix: str = "") -> list[tuple[
     return rows
 
 
+def loops_per_stage(columns: Mapping[str, np.ndarray], results: Mapping[str, Any] | None
+                    ) -> Mapping[str, np.ndarray]:
+    """For a test at several positions: only the samples of its evaluated loops, each stage's angles referred to
+    the mean angle of its loops, so the loops of all positions overlay in one plot (the output's position would
+    put them degrees apart). Other runs: the columns as they are."""
+    loops = (results or {}).get("loops") or []
+    if not (results or {}).get("positions") or "time_s" not in columns:
+        return columns
+    time_s = np.asarray(columns["time_s"])
+    keep = np.zeros(time_s.size, dtype=bool)
+    shift = {k: np.zeros(time_s.size) for k in ("angle_arcsec", "encoder_arcsec") if k in columns}
+    for stage in sorted({lp.get("stage") for lp in loops if lp.get("evaluated")}):
+        mask = np.zeros(time_s.size, dtype=bool)
+        for lp in loops:
+            if lp.get("stage") == stage and lp.get("evaluated"):
+                mask |= (time_s >= lp["start_time_s"]) & (time_s <= lp["end_time_s"])
+        keep |= mask
+        for key in shift:
+            if mask.any():
+                shift[key][mask] = float(np.mean(np.asarray(columns[key])[mask]))
+    out = {k: np.asarray(v)[keep] for k, v in columns.items()}
+    for key, offset in shift.items():
+        out[key] = out[key] - offset[keep]
+    return out
+
+
 def render_report(record: StoredRun, columns: Mapping[str, np.ndarray]) -> str:
     req = record.request
     meta_rows = [
@@ -85,6 +111,8 @@ def render_report(record: StoredRun, columns: Mapping[str, np.ndarray]) -> str:
         ("test torque / N·m", req.get("max_torque_nm")),
         ("cycles", req.get("cycles")),
         ("torque rate / N·m/s", req.get("rate_nm_per_s", "—")),
+        *([("positions", req["positions"])] if req.get("positions") is not None else []),
+        *([("loading rates / N·m/s", req["rates"])] if req.get("rates") is not None else []),
         ("samples", record.sample_count),
         ("created", record.summary()["created_at"]),
         ("finished", record.summary()["finished_at"] or "—"),
@@ -106,7 +134,7 @@ tr.pass td {{ color: #157a2e; font-weight: bold; }} tr.fail td {{ color: #b3261e
 <h1>Torsional characteristic test {html.escape(record.id)}</h1>
 <table class="meta">{meta}</table>
 <h2>Hysteresis curve</h2>
-<figure>{hysteresis_svg(columns)}</figure>
+<figure>{hysteresis_svg(loops_per_stage(columns, record.results))}</figure>
 <h2>Results</h2>
 {results}
 </body></html>

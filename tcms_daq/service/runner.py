@@ -187,7 +187,7 @@ class BenchRunner:
             st = self.acq.last_status
             if st is not None:
                 loader = {"state": st.state, "torque_actual_nm": st.torque_actual_nm, "fault": st.fault,
-                          "error_code": st.error_code}
+                          "error_code": st.error_code, "position_deg": st.position_deg, "moving": st.moving}
             trip = self.acq.trip.to_dict() if self.acq.trip is not None else None
         stats = self.acq.channel_stats() if self.acq is not None else {}
         instruments = {

@@ -126,6 +126,8 @@ class LoaderStatusView(BaseModel):
     torque_actual_nm: float
     fault: bool
     error_code: int = Field(description="0x603F error code (0: none)")
+    position_deg: float | None = Field(default=None, description="the output's position (0x6064), deg")
+    moving: bool = Field(default=False, description="a move between test positions is under way")
 
 
 class InstrumentView(BaseModel):

@@ -106,6 +106,7 @@
   }
 
   function addToLoop(torque, angle) {
+    if (state.outputMoving) return;  // the output turning to the next position is no part of a loop
     const loop = state.loop;
     for (let i = 0; i < torque.length; i++) {
       if (loop.counter++ % loop.stride !== 0) continue;
@@ -206,6 +207,7 @@
         if (["completed", "aborted", "failed", "interrupted"].includes(e.status)) {
           $("test-phase").textContent = "–";
           $("progress").hidden = true;
+          state.outputMoving = false;
           $("progress-text").textContent = "";
           showResults(e.id);
           loadHistory();
@@ -229,6 +231,10 @@
       : s >= 60 ? Math.floor(s / 60) + " min " + (s % 60) + " s" : s + " s";
   }
   function showProgress(e) {
+    // the output turns to the next position: no loop points meanwhile; the new position's loops (degrees away
+    // from the last one's) start a new plot
+    if (e.moving) state.outputMoving = true;
+    else if (state.outputMoving) { state.outputMoving = false; resetLoop(); }
     const speed = e.clock_speed > 0 ? e.clock_speed : 1;
     const done = e.elapsed_s / speed, left = e.eta_s / speed;
     const share = done + left > 0 ? done / (done + left) : 0;
