@@ -418,7 +418,10 @@ def run(args: argparse.Namespace) -> int:
                  ", K1/K2/K3 " + "/".join(f"{t[k]:.4g}" for k in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad")
                                           if t.get(k) is not None) + " N·m/rad")
               + (" (worst over the stages)" if plan.kind != "single" else ""))
-    if args.out is not None:
+    if args.out is not None and plan.kind != "single":
+        print(f"wrote {len(result.evaluated)} samples to {args.out} (column stage_index: the stage of each sample; "
+              "tcms analyze evaluates one stage's rows at a time)")
+    elif args.out is not None:
         print(f"wrote {len(result.evaluated)} samples to {args.out}; re-evaluate with: {_analyze_hint(args.out, result)}")
     return 0
 
