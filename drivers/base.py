@@ -84,7 +84,9 @@ class LoaderStatus:
     """A snapshot of the loader (CiA 402 drive) state.
 
     state: CiA 402 state name ("SWITCH ON DISABLED", "OPERATION ENABLED", "FAULT", …);
-    torque_actual_nm: measured motor torque; error_code: 0x603F (0 = none).
+    torque_actual_nm: measured motor torque; error_code: 0x603F (0 = none); position_deg: the loader shaft's
+    (the reducer output's) position from the drive's position actual 0x6064 (None: the driver cannot tell);
+    moving: a profile-position move is under way (target not reached).
     """
 
     state: str
@@ -93,6 +95,8 @@ class LoaderStatus:
     error_code: int = 0
     position_counts: int = 0
     time_s: float = 0.0
+    position_deg: float | None = None
+    moving: bool = False
 
 
 @runtime_checkable
@@ -149,3 +153,14 @@ class Loader(Protocol):
     def status(self) -> LoaderStatus: ...
 
     def fault_reset(self) -> None: ...
+
+
+@runtime_checkable
+class Positioner(Protocol):
+    """A loader that can also turn the output to a position (CiA 402 profile position mode, mode 1), for tests at
+    several output positions. Moves are made at zero torque only; ``enable()`` returns to profile torque."""
+
+    def move_to(self, position_deg: float, velocity_deg_per_s: float) -> None:
+        """Start a move of the output to ``position_deg`` at ``velocity_deg_per_s`` and return at once
+        (``status().moving`` until it arrives). CommandRejected, nothing moved, while torque is applied."""
+        ...

@@ -17,11 +17,15 @@ from tcms_daq.protocols.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_FAULT_RESET,
+    CW_NEW_SET_POINT,
     CW_QUICK_STOP,
     CW_SHUTDOWN,
     CW_SWITCH_ON,
+    MODE_PROFILE_POSITION,
     MODE_PROFILE_TORQUE,
     STATE_PATTERN,
+    SW_SET_POINT_ACK,
+    SW_TARGET_REACHED,
     is_fault,
     state_from_statusword,
 )
@@ -93,6 +97,11 @@ class CiA402Loader:
         self.timebase = timebase
         self.scaling = None
         self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
+        # profile position (moves between the positions of a multi-position test): position actual 0x6064 and
+        # target 0x607A count this many per revolution of the output; a move is refused above the torque window
+        self.counts_per_rev = 1 << 20
+        self.move_torque_window_nm: float | None = None  # None: 1 % of the rated torque
+        self._position_mode = False  # a move was started and enable() has not returned to profile torque
 
     # -- transport primitives (subclasses) ---------------------------------------------------------------
 
@@ -180,6 +189,49 @@ class CiA402Loader:
             self._write_setting("torque_slope", slope_permille)
             self._slope_permille = slope_permille
 
+    def move_to(self, position_deg: float, velocity_deg_per_s: float) -> None:
+        """Profile position (mode 1): turn the output to ``position_deg`` at ``velocity_deg_per_s`` and return once
+        the drive acknowledged the set-point (``status().moving`` until bit 10 target reached). Refused
+        (CommandRejected, nothing sent but reads) unless OPERATION ENABLED with the torque actual within the
+        window: no move under torque. ``enable()`` returns to profile torque at zero."""
+        scaling = self._scaling()
+        for name, value in (("position", position_deg), ("velocity", velocity_deg_per_s)):
+            if not isinstance(value, int | float) or not math.isfinite(value):
+                raise CommandRejected(self.name, f"move: {name} must be a finite number, got {value!r}")
+        if velocity_deg_per_s <= 0:
+            raise CommandRejected(self.name, f"move: velocity must be > 0 deg/s, got {velocity_deg_per_s:g}")
+        counts = round(position_deg / 360.0 * self.counts_per_rev)
+        velocity_counts = max(1, round(velocity_deg_per_s / 360.0 * self.counts_per_rev))
+        if not -(1 << 31) <= counts < (1 << 31) or velocity_counts > 0xFFFFFFFF:
+            raise CommandRejected(self.name, f"move to {position_deg:g}° at {velocity_deg_per_s:g}°/s is out of range")
+        self._ensure_ready()
+        sw, torque_permille, _ = self._read_process()
+        self._raise_if_fault(sw, "move")
+        if state_from_statusword(sw) != "OPERATION ENABLED":
+            raise CommandRejected(self.name, f"move: drive in {state_from_statusword(sw)}, not OPERATION ENABLED")
+        torque_nm = scaling.newton_metres(torque_permille)
+        window = self.move_torque_window_nm if self.move_torque_window_nm is not None else 0.01 * scaling.rated_torque_nm
+        if abs(torque_nm) > window:
+            raise CommandRejected(self.name, f"{torque_nm:.3g} N·m on the output: no move under torque "
+                                  f"(window ±{window:g} N·m)")
+        self._reset_target()
+        self._write_setting("mode", MODE_PROFILE_POSITION)
+        shown = self._read_mode_display()
+        if shown != MODE_PROFILE_POSITION:
+            raise CommandRejected(self.name, f"drive shows mode {shown} (mode display), not profile position (1)")
+        self._position_mode = True
+        self._write_setting("profile_velocity", velocity_counts)
+        self._write_setting("target_position", counts)
+        self._write_controlword(CW_ENABLE_OPERATION)
+        since = self._write_controlword(CW_ENABLE_OPERATION | CW_NEW_SET_POINT)  # rising edge of bit 4
+        found, last = self._await_statusword(lambda word: bool(word & SW_SET_POINT_ACK) or is_fault(word), since,
+                                             self.state_timeout_s)
+        self._write_controlword(CW_ENABLE_OPERATION)  # bit 4 back low for the next set-point
+        if found is None:
+            raise InstrumentTimeout(self.name, f"the drive did not acknowledge the move to {position_deg:g}° "
+                                    f"(statusword 0x{last:04X})")
+        self._raise_if_fault(found, "move")
+
     def enable(self) -> None:
         """Profile torque mode (4) with target 0, then 0x06 → 0x07 → 0x0F to OPERATION ENABLED; DeviceFault if
         the drive is in FAULT (reset it first), CommandRejected if the mode does not take."""
@@ -195,6 +247,7 @@ class CiA402Loader:
         shown = self._read_mode_display()
         if shown != MODE_PROFILE_TORQUE:
             raise CommandRejected(self.name, f"drive shows mode {shown} (mode display), not profile torque (4)")
+        self._position_mode = False
         state = state_from_statusword(sw)
         if state == "OPERATION ENABLED":
             self._write_controlword(CW_ENABLE_OPERATION)
@@ -255,13 +308,16 @@ class CiA402Loader:
         time_s = self.clock()
         sw, torque_permille, position = self._read_process()
         fault = is_fault(sw)
+        state = state_from_statusword(sw)
         return LoaderStatus(
-            state=state_from_statusword(sw),
+            state=state,
             torque_actual_nm=scaling.newton_metres(torque_permille),
             fault=fault,
             error_code=self._read_error_code() if fault else 0,
             position_counts=position,
             time_s=time_s,
+            position_deg=position / self.counts_per_rev * 360.0,
+            moving=self._position_mode and state == "OPERATION ENABLED" and not sw & SW_TARGET_REACHED,
         )
 
     def connect(self) -> None:

@@ -66,7 +66,8 @@ LINK_ERROR_BACKOFF_S = 0.1  # the receive thread's pause after a failed bus read
 TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
 TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
 RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
-SETTING_OBJECTS = {"max_torque": 0x6072, "torque_slope": 0x6087, "mode": 0x6060}  # CiA402Loader settings
+SETTING_OBJECTS = {"max_torque": 0x6072, "torque_slope": 0x6087, "mode": 0x6060,  # CiA402Loader settings
+                   "target_position": 0x607A, "profile_velocity": 0x6081}
 
 
 class _LinkErrorListener(can.Listener):
@@ -140,11 +141,17 @@ class CiA402Canopen(CiA402Loader):
         reconnect_timeout_s: float | None = None,
         clock: Clock = time.monotonic,
         timebase: Timebase = REAL_TIME,
+        counts_per_rev: int = 1 << 20,
+        move_torque_window_nm: float | None = None,
     ):
         if not 1 <= node_id <= 127 or not 1 <= master_node_id <= 127 or node_id == master_node_id:
             raise ValueError(f"{name}: node ids must be 1…127 and differ (drive {node_id}, master {master_node_id})")
         super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
                          state_timeout_s=state_timeout_s, clock=clock, timebase=timebase)
+        if not (isinstance(counts_per_rev, int) and counts_per_rev > 0):
+            raise ValueError(f"{name}: counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        self.counts_per_rev = counts_per_rev
+        self.move_torque_window_nm = move_torque_window_nm
         self.url = url
         self.bus_options = parse_can_url(url, bitrate)
         self.node_id = node_id

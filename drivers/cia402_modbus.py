@@ -81,9 +81,15 @@ class CiA402Modbus(CiA402Loader):
         timebase: Timebase = REAL_TIME,
         trace_packet=None,
         serial_line: bool = False,
+        counts_per_rev: int = 1 << 20,
+        move_torque_window_nm: float | None = None,
     ):
         super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
                          state_timeout_s=state_timeout_s, clock=clock, timebase=timebase)
+        if not (isinstance(counts_per_rev, int) and counts_per_rev > 0):
+            raise ValueError(f"{name}: counts_per_rev must be a positive integer, got {counts_per_rev!r}")
+        self.counts_per_rev = counts_per_rev
+        self.move_torque_window_nm = move_torque_window_nm
         self.url = url
         self.map = register_map if isinstance(register_map, RegisterMap) else load_register_map(register_map)
         self.device_id = self.map.device_id if device_id is None else int(device_id)
@@ -206,6 +212,9 @@ class CiA402Modbus(CiA402Loader):
         return self.read_register("mode_display")
 
     def _write_setting(self, name: str, value: int) -> None:
+        if name not in self.map.registers:
+            raise CommandRejected(self.name, f"the register map has no {name!r} register (needed for moves: "
+                                  "target_position 0x607A and profile_velocity 0x6081)")
         self.write_register(name, value)
 
     def _write_target(self, permille: int) -> None:

@@ -29,11 +29,13 @@ import numpy as np
 from sim.drive import TorqueDrive
 from sim.effects import from_config as effects_from_config
 from sim.physics import LoopTruth, ReducerPhysics, TwistState, loop_truth, physics_from_spec, twist_arcsec
+from sim.reducer_model import RichReducerModel, RichState
 from sim.sensors import EncoderModel, TorqueSensorModel
 from tcms_daq.config.loader import get_reducer, load_reducers_for, validate
 from tcms_daq.config.models import BenchConfig, ReducerSpec, SimConfig
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import Samples
+from tcms_daq.units import ARCSEC_PER_DEG
 
 MeasuringChain = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 Effects = Callable[[dict[str, np.ndarray]], "dict[str, np.ndarray] | None"]
@@ -86,11 +88,17 @@ class SimulatedBench:
         self.physics = params
         self.reducer = reducer
         self.config = cfg
+        # [sim] model = "rich": position-, rate- and time-dependent reducer (sim/reducer_model.py)
+        self.rich_model = RichReducerModel(params, sim.rich) if sim.model == "rich" else None
+        self._rich_state = RichState()
+        # the output's position (deg), turned by the loader's position mode: (from, to, start s, deg/s) while moving
+        self._position_deg = 0.0
+        self._move: tuple[float, float, float, float] | None = None
         self.sample_rate_hz = float(pick(sample_rate_hz, sim.sample_rate_hz))
         self.seed = int(pick(seed, sim.seed))
         self.max_torque_nm = float(pick(max_torque_nm, cfg.bench.max_torque_nm))
-        self.drive = TorqueDrive(self.sample_rate_hz, pick(torque_loop_time_constant_s, sim.torque_loop_time_constant_s),
-                                 self.max_torque_nm)
+        self.torque_loop_time_constant_s = float(pick(torque_loop_time_constant_s, sim.torque_loop_time_constant_s))
+        self.drive = TorqueDrive(self.sample_rate_hz, self.torque_loop_time_constant_s, self.max_torque_nm)
         torque_rng, angle_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(2))
         self.torque_sensor = TorqueSensorModel(
             torque_rng, pick(torque_noise_nm, sim.torque_noise_nm), pick(torque_gain, sim.torque_gain),
@@ -145,6 +153,9 @@ class SimulatedBench:
             self.physics = physics_from_spec(reducer)
             self.reducer = reducer
             self._twist_state = TwistState(float(self.drive.applied_nm), 0.0)
+            if self.rich_model is not None:
+                self.rich_model = RichReducerModel(self.physics, self.rich_model.config)
+                self._rich_state = RichState(TwistState(float(self.drive.applied_nm), 0.0), 0.0, self._now_s)
 
     # ------------------------------------------------------------------------------------------ commands
 
@@ -158,9 +169,50 @@ class SimulatedBench:
         return self.drive.enabled
 
     def set_drive_enabled(self, enabled: bool) -> None:
-        """Enable the loader (torque demand ramps from 0 to the target) or disable it (demand 0 at once)."""
+        """Enable the loader (torque demand ramps from 0 to the target) or disable it (demand 0 at once; a move
+        of the output stops where it is)."""
         with self._lock:
             self.drive.set_enabled(bool(enabled), self._now_s)
+            if not enabled:
+                self.stop_output()
+
+    # -- the output's position (the loader's profile position mode) ------------------------------------------
+
+    @property
+    def output_position_deg(self) -> float:
+        """Where the loader has turned the output (deg, the position part of the true angle)."""
+        with self._lock:
+            return float(self._position_at(np.array([self._now_s]))[0])
+
+    @property
+    def output_moving(self) -> bool:
+        with self._lock:
+            return self._move is not None and self._position_deg != self._move[1]
+
+    def move_output(self, target_deg: float, velocity_deg_per_s: float) -> None:
+        """Turn the output to ``target_deg`` at ``velocity_deg_per_s`` (the drive applies no torque meanwhile)."""
+        if not (math.isfinite(target_deg) and math.isfinite(velocity_deg_per_s) and velocity_deg_per_s > 0):
+            raise ValueError(f"move to {target_deg} deg at {velocity_deg_per_s} deg/s: need finite values, "
+                             "velocity > 0")
+        with self._lock:
+            start = self.output_position_deg
+            self._position_deg = start
+            self._move = (start, float(target_deg), self._now_s, float(velocity_deg_per_s))
+
+    def stop_output(self) -> None:
+        """Halt a move where the output is now."""
+        with self._lock:
+            if self._move is not None:
+                self._position_deg = self.output_position_deg
+                self._move = None
+
+    def _position_at(self, time_s: np.ndarray) -> np.ndarray:
+        """Output position (deg) at the given times of the present move (or where it rests)."""
+        if self._move is None:
+            return np.full(time_s.shape, self._position_deg)
+        start, target, t0, velocity = self._move
+        travelled = np.clip((time_s - t0) * velocity, 0.0, abs(target - start))
+        return start + math.copysign(1.0, target - start) * travelled
 
     def set_torque_target(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
         """Profile torque: ramp the demand to ``target_nm`` at ``slope_nm_per_s`` (None: a step).
@@ -199,7 +251,16 @@ class SimulatedBench:
             self._n = n_end
             time_s = k / self.sample_rate_hz
             demand, applied = self.drive.step(time_s)
-            true_angle, self._twist_state = twist_arcsec(applied, self.physics, self._twist_state)
+            position_deg = self._position_at(time_s)
+            if self._move is not None and time_s[-1] >= self._move[2] + abs(self._move[1] - self._move[0]) / self._move[3]:
+                self._position_deg, self._move = self._move[1], None  # arrived
+            if self.rich_model is not None:
+                twist, self._rich_state = self.rich_model.twist_arcsec(applied, time_s, float(position_deg[-1]),
+                                                                       self._rich_state)
+            else:
+                twist, self._twist_state = twist_arcsec(applied, self.physics, self._twist_state)
+            # the true angle is the output's absolute angle: its position plus the twist (0 at position 0)
+            true_angle = twist + position_deg * ARCSEC_PER_DEG if (self._position_deg or self._move) else twist
             angle_signal = true_angle if self.measuring_chain is None else np.asarray(
                 self.measuring_chain(true_angle, applied, time_s), dtype=float)
             cols = {
@@ -243,6 +304,8 @@ class SimulatedBench:
                 "target_nm": self.drive.target_nm,
                 "slope_nm_per_s": self.drive.slope_nm_per_s,
                 "demand_now_nm": self.drive.demand_setpoint_nm(self._now_s),
+                "output_position_deg": self.output_position_deg,
+                "reducer_model": "rich" if self.rich_model is not None else "simple",
                 "reducer": self.physics.name,
                 "tare_nm": self.torque_sensor.tare_nm,
                 "last": dict(self._last),
@@ -260,6 +323,23 @@ class SimulatedBench:
             self.reducer.lost_motion_pct if self.reducer is not None else 3.0)
         return loop_truth(self.physics, test_torque_nm, rated if rated is not None else test_torque_nm, pct,
                           rigidity_interval)
+
+    def profile_truth(self, segments: Any, test_torque_nm: float, position_deg: float = 0.0,
+                      lost_motion_pct: float | None = None,
+                      rigidity_interval: tuple[float, float] = (0.5, 1.0)) -> dict[str, Any]:
+        """The truth of a test with these profile segments at output position ``position_deg``: the closed-form
+        steady loop of the simple model (``truth``), or the rich model's loops computed numerically
+        (``sim.truth``: they depend on the rate, the dwells and the position)."""
+        if self.rich_model is None:
+            return self.truth(test_torque_nm, lost_motion_pct, rigidity_interval).to_dict()
+        from sim.truth import profile_truth
+
+        rated = self.reducer.rated_torque_nm if self.reducer is not None else test_torque_nm
+        pct = lost_motion_pct if lost_motion_pct is not None else (
+            self.reducer.lost_motion_pct if self.reducer is not None else 3.0)
+        return profile_truth(self.rich_model, segments, position_deg, sample_rate_hz=self.sample_rate_hz,
+                             time_constant_s=self.torque_loop_time_constant_s, rated_torque_nm=rated,
+                             lost_motion_pct=pct, rigidity_interval=rigidity_interval)
 
 
 def _empty_samples() -> Samples:

@@ -178,6 +178,19 @@ class VirtualBench:
             self._target_nm = float(target_nm)
             self.physics.set_torque_target(float(target_nm), float(slope_nm_per_s))
 
+    def move_output(self, position_deg: float, velocity_deg_per_s: float) -> None:
+        """Turn the output (the drive's profile position mode) with the torque demand at zero."""
+        with self._lock:
+            self.physics.set_torque_target(0.0, 1e9)
+            self.physics.move_output(float(position_deg), float(velocity_deg_per_s))
+
+    def output_position(self) -> tuple[float | None, bool]:
+        """(the output's position in deg or None when the physics has none, moving)."""
+        with self._lock:
+            if not hasattr(self.physics, "move_output"):
+                return None, False
+            return float(self.physics.output_position_deg), bool(self.physics.output_moving)
+
     @property
     def drive_enabled(self) -> bool:
         return self._drive_enabled
@@ -302,7 +315,7 @@ class VirtualLoader:
     """CiA 402-like loader over the simulated drive: enable/disable, profile torque with a slope, FAULT."""
 
     def __init__(self, bench: VirtualBench, rated_torque_nm: float, max_torque_nm: float | None = None,
-                 name: str = "virtual loader"):
+                 name: str = "virtual loader", move_torque_window_nm: float | None = None):
         if rated_torque_nm <= 0:
             raise ConfigError(f"{name}: rated_torque_nm must be > 0, got {rated_torque_nm}")
         self.name = name
@@ -311,6 +324,9 @@ class VirtualLoader:
         self.rated_torque_nm = float(rated_torque_nm)
         self.max_torque_nm = float(max_torque_nm if max_torque_nm is not None else rated_torque_nm)
         self.connected = False
+        # a move is refused while more torque than this is applied (default 1 % of the rated torque)
+        self.move_torque_window_nm = (float(move_torque_window_nm) if move_torque_window_nm is not None
+                                      else 0.01 * self.rated_torque_nm)
         self.commands: list[tuple[str, float, float]] = []  # (command, value, sim time) for tests
 
     def _check(self) -> None:
@@ -355,6 +371,25 @@ class VirtualLoader:
         self.bench.set_torque_target(float(target_nm), slope)
         self.commands.append(("torque", float(target_nm), self.bench.now_s()))
 
+    def move_to(self, position_deg: float, velocity_deg_per_s: float) -> None:
+        """Profile position: turn the output to ``position_deg`` (deg) at ``velocity_deg_per_s``; refused while
+        torque is applied, while disabled or in FAULT."""
+        if not (np.isfinite(position_deg) and np.isfinite(velocity_deg_per_s) and velocity_deg_per_s > 0):
+            raise CommandRejected(self.name, f"move to {position_deg} deg at {velocity_deg_per_s} deg/s: need a "
+                                  "finite position and a velocity > 0")
+        self._check()
+        code = self.bench.faults.drive_fault_code
+        if code:
+            raise DeviceFault(self.name, f"drive in FAULT (error 0x{code:04X})", code)
+        if not self.bench.drive_enabled:
+            raise CommandRejected(self.name, "drive not in OPERATION ENABLED")
+        torque = self.bench.applied_torque_nm
+        if abs(torque) > self.move_torque_window_nm:
+            raise CommandRejected(self.name, f"{torque:.3g} N·m on the output: no move under torque "
+                                  f"(window ±{self.move_torque_window_nm:g} N·m)")
+        self.bench.move_output(float(position_deg), float(velocity_deg_per_s))
+        self.commands.append(("move", float(position_deg), self.bench.now_s()))
+
     def status(self) -> LoaderStatus:
         self._check()
         code = self.bench.faults.drive_fault_code
@@ -363,8 +398,9 @@ class VirtualLoader:
         else:
             state = "OPERATION ENABLED" if self.bench.drive_enabled else "SWITCH ON DISABLED"
         torque = self.bench.applied_torque_nm if not code else 0.0
+        position_deg, moving = self.bench.output_position()
         return LoaderStatus(state=state, torque_actual_nm=torque, fault=bool(code), error_code=code,
-                            time_s=self.bench.now_s())
+                            time_s=self.bench.now_s(), position_deg=position_deg, moving=moving)
 
     def set_specimen(self, reducer: Any) -> None:
         """The simulated loader's bench mounts the requested reducer (``Bench.set_specimen``)."""

@@ -13,7 +13,13 @@ when |actual − effective target| ≤ ``target_window_permille``.
 Safety: quick stop (option 0x605A = 2: ramp to zero with the quick-stop slope, then SWITCH ON DISABLED;
 5…8: stay in QUICK STOP ACTIVE); a fault (``inject_fault(code)``, or ``communication_lost()`` = 0x8130) goes
 FAULT REACTION ACTIVE → FAULT with the torque removed at once, sets 0x603F/0x1001 and notifies the EMCY
-listeners; leaving FAULT sends the EMCY error reset (code 0). Only mode 4 is supported (0x6502 = 0x0008).
+listeners; leaving FAULT sends the EMCY error reset (code 0).
+
+Profile position (mode 1, 0x6502 = 0x0009 with mode 4): in OPERATION ENABLED a rising edge of controlword bit 4
+(new set-point) turns the output to the target position 0x607A (counts of ``counts_per_rev`` per output
+revolution) at the profile velocity 0x6081 (counts/s), with no torque applied; statusword bit 12 acknowledges the
+set-point while bit 4 is held, bit 10 "target reached" once the output rests within ``position_window_counts``.
+Leaving OPERATION ENABLED or mode 1 (disable, quick stop, fault) halts a move where the output is.
 """
 
 from __future__ import annotations
@@ -23,9 +29,13 @@ from collections.abc import Callable
 
 from sim.instruments.physics import PhysicsReading, SharedPhysics
 from tcms_daq.protocols.cia402 import (
+    CW_NEW_SET_POINT,
     EMCY_COMMUNICATION,
+    MODE_PROFILE_POSITION,
     MODE_PROFILE_TORQUE,
-    SUPPORTED_MODES_PROFILE_TORQUE,
+    SUPPORTED_MODES,
+    SW_SET_POINT_ACK,
+    SW_TARGET_REACHED,
     to_int16,
 )
 from tcms_daq.units import ARCSEC_PER_REV
@@ -83,6 +93,7 @@ class Drive402Model:
         self.quick_stop_option = int(quick_stop_option)
         self.target_window_permille = int(target_window_permille)
         self.counts_per_rev = int(counts_per_rev)
+        self.position_window_counts = max(1, self.counts_per_rev // 36_000)  # 0.01° of the output
         self._power_on_state()
         self._emcy_listeners: list[EmcyListener] = []
         self._latest = physics.latest()
@@ -100,6 +111,8 @@ class Drive402Model:
         self.controlword = 0
         self.mode = 0
         self.target_torque_permille = 0
+        self.target_position_counts = 0
+        self.profile_velocity_counts_per_s = 10_000
         self.error_code = 0
         self.error_register = 0
 
@@ -140,6 +153,12 @@ class Drive402Model:
     def statusword(self) -> int:
         with self.lock:
             word = self.state.value | 0x0200  # bit 9 remote
+            if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_POSITION:
+                if (not self.physics.output_moving()
+                        and abs(self.position_counts() - self.target_position_counts) <= self.position_window_counts):
+                    word |= SW_TARGET_REACHED
+                if self.controlword & CW_NEW_SET_POINT:
+                    word |= SW_SET_POINT_ACK
             if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_TORQUE:
                 if abs(self.torque_actual_permille() - self._effective_target_permille()) <= self.target_window_permille:
                     word |= 0x0400  # target reached
@@ -153,6 +172,7 @@ class Drive402Model:
         with self.lock:
             cw &= 0xFFFF
             rising_reset = bool(cw & 0x80) and not (self.controlword & 0x80)
+            rising_set_point = bool(cw & CW_NEW_SET_POINT) and not (self.controlword & CW_NEW_SET_POINT)
             self.controlword = cw
             state = self.state
             if state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
@@ -195,12 +215,20 @@ class Drive402Model:
                 nxt = S.OPERATION_ENABLED
             if nxt is not None:
                 self._set_state(nxt)
+            elif (rising_set_point and state is S.OPERATION_ENABLED and command == "enable operation"
+                  and self.mode == MODE_PROFILE_POSITION):
+                self._start_move()
+
+    def _start_move(self) -> None:
+        """A new set-point in profile position: turn the output to 0x607A at 0x6081 (no torque applied)."""
+        velocity = self.profile_velocity_counts_per_s / self.counts_per_rev * 360.0
+        self.physics.move_output(self.target_position_counts / self.counts_per_rev * 360.0, max(velocity, 1e-6))
 
     def write_mode(self, mode: int) -> None:
         with self.lock:
             mode = to_int16(mode) if mode > 127 else mode
-            if mode != 0 and not (mode in range(1, 32) and SUPPORTED_MODES_PROFILE_TORQUE & (1 << (mode - 1))):
-                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{SUPPORTED_MODES_PROFILE_TORQUE:04X})")
+            if mode != 0 and not (mode in range(1, 32) and SUPPORTED_MODES & (1 << (mode - 1))):
+                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{SUPPORTED_MODES:04X})")
             self.mode = mode
             self._apply()
 
@@ -208,6 +236,18 @@ class Drive402Model:
         with self.lock:
             self.target_torque_permille = to_int16(permille)
             self._apply()
+
+    def write_target_position(self, counts: int) -> None:
+        with self.lock:
+            counts = int(counts)
+            counts = counts - (1 << 32) if counts >= (1 << 31) else counts  # INT32 carried as unsigned
+            self.target_position_counts = counts
+
+    def write_profile_velocity(self, counts_per_s: int) -> None:
+        with self.lock:
+            if not 0 < counts_per_s <= 0xFFFFFFFF:
+                raise DriveCommandError(f"profile velocity {counts_per_s} counts/s out of range (must be > 0)")
+            self.profile_velocity_counts_per_s = int(counts_per_s)
 
     def write_max_torque(self, permille: int) -> None:
         with self.lock:
@@ -270,7 +310,13 @@ class Drive402Model:
     def _apply(self) -> None:
         """Push the drive's present command to the physics."""
         rated = self.rated_torque_nm
-        if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_TORQUE:
+        if not (self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_POSITION):
+            self.physics.stop_output()  # a move ends where the output is when the drive leaves position mode
+        if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_POSITION:
+            # the output is held and turned by position control: no torque through the reducer in this model
+            self.physics.set_drive_enabled(True)
+            self.physics.set_torque_target(0.0, self.torque_slope_permille_per_s / 1000.0 * rated)
+        elif self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_TORQUE:
             self.physics.set_drive_enabled(True)
             self.physics.set_torque_target(
                 self._effective_target_permille() / 1000.0 * rated,

@@ -146,7 +146,8 @@ class DriveCanopenNode:
                 0x6040: lambda: d.controlword, 0x6060: lambda: d.mode,
                 0x6071: lambda: d.target_torque_permille, 0x6072: lambda: d.max_torque_permille,
                 0x6087: lambda: d.torque_slope_permille_per_s, 0x6076: lambda: d.rated_torque_mnm,
-                0x605A: lambda: d.quick_stop_option,
+                0x605A: lambda: d.quick_stop_option, 0x607A: lambda: d.target_position_counts,
+                0x6081: lambda: d.profile_velocity_counts_per_s,
             }
             getter = values.get(index)
             return getter() if getter is not None else None
@@ -156,7 +157,7 @@ class DriveCanopenNode:
         setters = {
             0x6040: d.write_controlword, 0x6060: d.write_mode, 0x6071: d.write_target_torque,
             0x6072: d.write_max_torque, 0x6087: d.write_torque_slope, 0x6076: d.write_rated_torque,
-            0x605A: d.write_quick_stop_option,
+            0x605A: d.write_quick_stop_option, 0x607A: d.write_target_position, 0x6081: d.write_profile_velocity,
         }
         if index == 0x1016 and subindex == 1:
             value = od.decode_raw(data)

@@ -84,6 +84,8 @@ class DriveModbusServer:
             "torque_slope": lambda: d.torque_slope_permille_per_s,
             "rated_torque": lambda: d.rated_torque_mnm,
             "quick_stop_option": lambda: d.quick_stop_option,
+            "target_position": lambda: d.target_position_counts,
+            "profile_velocity": lambda: d.profile_velocity_counts_per_s,
         }
         return getters[name]() if name in getters else 0
 
@@ -97,6 +99,8 @@ class DriveModbusServer:
             "torque_slope": d.write_torque_slope,
             "rated_torque": d.write_rated_torque,
             "quick_stop_option": d.write_quick_stop_option,
+            "target_position": d.write_target_position,
+            "profile_velocity": d.write_profile_velocity,
         }
         if name not in setters:
             raise DriveCommandError(f"{name} is read-only", kind="readonly")

@@ -96,6 +96,21 @@ class SharedPhysics:
         with self._lock:
             self.bench.set_torque_target(float(target_nm), float(slope_nm_per_s))
 
+    def move_output(self, target_deg: float, velocity_deg_per_s: float) -> None:
+        """Turn the output (the drive's profile position mode): ``SimulatedBench.move_output``."""
+        with self._lock:
+            self.bench.move_output(float(target_deg), float(velocity_deg_per_s))  # type: ignore[attr-defined]
+
+    def stop_output(self) -> None:
+        with self._lock:
+            stop = getattr(self.bench, "stop_output", None)
+            if stop is not None:
+                stop()
+
+    def output_moving(self) -> bool:
+        with self._lock:
+            return bool(getattr(self.bench, "output_moving", False))
+
     def advance(self, duration_s: float) -> PhysicsReading:
         """Advance the physics by ``duration_s`` simulated seconds and run the tick hooks."""
         with self._lock:

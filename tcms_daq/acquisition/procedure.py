@@ -48,6 +48,7 @@ from tcms_daq.acquisition.record import (
     empty_samples,
 )
 from tcms_daq.errors import TcmsError
+from tcms_daq.procedure.plan import Move, Plan
 from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment
 from tcms_daq.runstate import RunState
 from tcms_daq.samples import Samples
@@ -200,6 +201,8 @@ class TestRun:
                  abort_event: threading.Event | None = None, run_id: str | None = None,
                  profile_info: dict[str, Any] | None = None):
         self.bench = bench
+        # a Plan (several positions or rates: tcms_daq.procedure.plan) runs its steps in order, moves included
+        self.plan: Plan | None = profile if isinstance(profile, Plan) else None
         self.segments = as_segments(profile)
         self.limits = limits or default_limits(bench, self.segments, reducer_torque_limit_nm)
         validate_profile(self.segments, self.limits)
@@ -213,11 +216,16 @@ class TestRun:
         self.tolerance_nm = (self.options.tolerance_nm if self.options.tolerance_nm is not None
                              else max(0.02 * peak, 1.0))
         info = profile.to_dict() if hasattr(profile, "to_dict") else {}
+        if self.plan is not None:
+            info = {**self.plan.first.to_dict(), **info}
         self.record = RunRecord(run_id or uuid.uuid4().hex[:12], bench_name=bench.name,
                                 profile={**info, **(profile_info or {}),
                                          "segments": [asdict(s) for s in self.segments]},
                                 limits=self.limits.to_dict())
-        self._marks: list[tuple[float, int]] = []  # (clock time a segment was commanded, its loop index)
+        # (clock time a step was commanded, its loop index, its stage index)
+        self._marks: list[tuple[float, int, int]] = []
+        self._t_start: float | None = None
+        self._step_durations_s: list[float] = []
         self._thread: threading.Thread | None = None
         self._done = threading.Event()
         self._setpoint_nm = 0.0
@@ -275,10 +283,20 @@ class TestRun:
             acq.start()
             self._prepare(acq)
             self._transition(LOADING)
-            t_start = acq.clock.now()
-            for seg in self.segments:
-                self._run_segment(acq, seg)
+            t_start = self._t_start = acq.clock.now()
+            steps: list[tuple[int, Move | Segment]] = (self.plan.steps() if self.plan is not None
+                                                       else [(0, seg) for seg in self.segments])
+            self._step_durations_s = (self.plan.step_durations_s() if self.plan is not None else
+                                      [seg.duration_s(prev.target_nm if prev is not None else 0.0)
+                                       for prev, seg in zip([None, *self.segments[:-1]], self.segments, strict=True)])
+            for number, (stage, step) in enumerate(steps):
+                self._publish_progress(acq, number, stage, step)
+                if isinstance(step, Move):
+                    self._run_move(acq, step, stage)
+                else:
+                    self._run_segment(acq, step, stage)
             self.record.loading_window_s = (t_start, acq.clock.now())
+            self._publish_progress(acq, len(steps), -1, None)
             self._safe_stop(acq)
             self._transition(EVALUATING)
             self._collect(buffer)
@@ -339,9 +357,67 @@ class TestRun:
         self._setpoint_nm = 0.0
         acq.wait(opts.settle_s, abort_event=self.abort_event)
 
-    def _run_segment(self, acq: AcquisitionLoop, seg: Segment) -> None:
+    def _publish_progress(self, acq: AcquisitionLoop, number: int, stage: int, step: Move | Segment | None) -> None:
+        """A ``progress`` event before step ``number`` (and one after the last, ``step`` None): the loop (0 the
+        conditioning, −1 outside the loops or moving) of ``loops`` evaluated ones, the position (1-based) of
+        ``positions``, the stage of ``stages``, the elapsed clock time and an ETA (clock s): the planned time
+        left, scaled by how much longer than planned the steps so far took."""
+        now = acq.clock.now()
+        elapsed = now - (self._t_start if self._t_start is not None else now)
+        planned_done = sum(self._step_durations_s[:number])
+        left = sum(self._step_durations_s[number:])
+        pace = min(max(elapsed / planned_done, 1.0), 3.0) if planned_done > 1.0 else 1.0
+        stages = self.plan.stages if self.plan is not None else ()
+        current = stages[stage] if 0 <= stage < len(stages) else None
+        positional = self.plan is not None and self.plan.kind == "positions"
+        profile = current.profile if current is not None else (self.plan.first if self.plan is not None else None)
+        acq.fanout.publish_event(
+            "progress", now, run_id=self.run_id,
+            step=number, steps=len(self._step_durations_s),
+            loop=(OUTSIDE_LOOPS if step is None or isinstance(step, Move) else step.loop_index),
+            loops=profile.cycles if profile is not None else max((s.loop_index for s in self.segments), default=0),
+            moving=isinstance(step, Move),
+            position=(stage + 1 if positional and stage >= 0 else (len(stages) if positional else 1)),
+            positions=len(stages) if positional else 1,
+            position_deg=(current.position_deg if current is not None else None),
+            stage=stage + 1 if stage >= 0 else max(len(stages), 1), stages=max(len(stages), 1),
+            rate_nm_per_s=current.rate_nm_per_s if current is not None else None,
+            elapsed_s=elapsed, eta_s=left * pace,
+        )
+
+    def _run_move(self, acq: AcquisitionLoop, move: Move, stage: int) -> None:
+        """Turn the output to the stage's position: only at zero torque (the profile before it ended at zero;
+        the loader refuses a move under torque too), then back to profile torque at zero."""
+        loader = self.bench.loader
+        if not callable(getattr(loader, "move_to", None)):
+            raise ProcedureError(f"{loader.name} cannot turn the output (no profile position mode): a test at "
+                                 "several positions needs a loader with move_to")
+        measured = acq.latest_torque_nm()
+        if measured is None or abs(measured) > self.tolerance_nm:
+            raise ProcedureError(f"torque {measured} N·m before the move to {move.position_deg:g}°: no move under "
+                                 f"torque (window ±{self.tolerance_nm:g} N·m)")
+        self._marks.append((acq.clock.now(), OUTSIDE_LOOPS, stage))
+        before: LoaderStatus = acq.loader_command(loader.status)
+        start_deg = before.position_deg if before.position_deg is not None else move.position_deg
+        travel_s = abs(move.position_deg - start_deg) / move.velocity_deg_per_s
+        acq.loader_command(loader.move_to, move.position_deg, move.velocity_deg_per_s)
+        self.record.notes.append(f"stage {stage + 1}: output moved from {start_deg:.3f}° to {move.position_deg:g}°")
+
+        def arrived() -> bool:
+            st: LoaderStatus = acq.loader_command(loader.status)
+            return (not st.moving and st.position_deg is not None
+                    and abs(st.position_deg - move.position_deg) <= 0.05)
+
+        acq.wait(travel_s, abort_event=self.abort_event)
+        if not acq.wait(self.options.settle_timeout_s + 0.1 * travel_s, abort_event=self.abort_event, until=arrived):
+            st = acq.loader_command(loader.status)
+            raise ProcedureError(f"the output did not reach {move.position_deg:g}° (at {st.position_deg}°)")
+        acq.loader_command(loader.enable)  # profile torque again, target zero
+        acq.wait(self.options.settle_s, abort_event=self.abort_event)
+
+    def _run_segment(self, acq: AcquisitionLoop, seg: Segment, stage: int = 0) -> None:
         start_nm = self._setpoint_nm
-        self._marks.append((acq.clock.now(), seg.loop_index))
+        self._marks.append((acq.clock.now(), seg.loop_index, stage))
         acq.loader_command(self.bench.loader.set_torque, seg.target_nm, seg.slope_nm_per_s)
         self._setpoint_nm = seg.target_nm
         ramp_s = abs(seg.target_nm - start_nm) / seg.slope_nm_per_s
@@ -438,9 +514,11 @@ class TestRun:
         self._tag_loops()
 
     def _tag_loops(self) -> None:
-        """``loop_index`` column: the loop index of the segment being run at each sample (−1 outside)."""
+        """``loop_index`` column: the loop index of the segment being run at each sample (−1 outside); a plan's
+        run also gets ``stage_index``: the stage (position or rate, 0-based) of each sample (−1 outside)."""
         s = self.record.samples
         loop = np.full(len(s), float(OUTSIDE_LOOPS))
+        stage = np.full(len(s), -1.0)
         if self._marks and len(s):
             times = np.array([m[0] for m in self._marks])
             idx = np.searchsorted(times, s.time_s, side="right") - 1
@@ -448,7 +526,10 @@ class TestRun:
             if self.record.loading_window_s is not None:
                 inside &= s.time_s <= self.record.loading_window_s[1]
             loop[inside] = np.array([m[1] for m in self._marks], dtype=float)[idx[inside]]
+            stage[inside] = np.array([m[2] for m in self._marks], dtype=float)[idx[inside]]
         s.extra["loop_index"] = loop
+        if self.plan is not None:
+            s.extra["stage_index"] = stage
 
     # -- state machine -------------------------------------------------------------------------------
     def _transition(self, state: RunState, reason: str | None = None) -> None:

@@ -17,11 +17,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.cli.options import add_bench_config_options, add_decision_rule_option
 from tcms_daq.config import (
     BenchConfig,
@@ -32,10 +32,36 @@ from tcms_daq.config import (
 )
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure import Profile, build_profile, check_test_bounds
+from tcms_daq.procedure.plan import MAX_POSITIONS, Plan, build_plan, single_plan
 from tcms_daq.samples import Samples, write_csv
 
 CSV_COLUMNS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec", "applied_torque_nm", "true_angle_arcsec",
-               "loop_index")
+               "loop_index", "stage_index")
+
+
+def _positions(text: str) -> int | list[float]:
+    """``--positions``: a count N (equally spaced over 360°) or a comma-separated list of degrees."""
+    from tcms_daq.procedure.plan import positions_from
+
+    try:
+        spec: int | list[float] = int(text) if "," not in text and text.strip().lstrip("+").isdigit() else [
+            float(part) for part in text.split(",")]
+        positions_from(spec)
+    except ValueError as exc:
+        message = str(exc) if "positions" in str(exc) else f"not a count or a list of degrees: {text!r}"
+        raise argparse.ArgumentTypeError(message) from None
+    return spec
+
+
+def _rates(text: str) -> list[float]:
+    """``--rates R1,R2,…``: loading rates in N·m/s."""
+    from tcms_daq.procedure.plan import rates_from
+
+    try:
+        return rates_from([float(part) for part in text.split(",")])
+    except ValueError as exc:
+        message = str(exc) if "rates" in str(exc) else f"not a list of numbers: {text!r}"
+        raise argparse.ArgumentTypeError(message) from None
 
 
 def _positive(text: str) -> float:
@@ -89,6 +115,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="loading rate in N·m/s (default: a quarter of the test torque per second)")
     p.add_argument("--step", type=_positive, default=None, metavar="NM", help="stepped profile: torque step")
     p.add_argument("--dwell", type=float, default=None, metavar="S", help="stepped profile: dwell per step")
+    p.add_argument("--positions", type=_positions, default=None, metavar="N|DEG,DEG,…",
+                   help=f"test at several output positions (GB/T 40731): N equally spaced over 360° (1…{MAX_POSITIONS}) "
+                   "or a list of degrees; the loader turns the output between them at zero torque")
+    p.add_argument("--rates", type=_rates, default=None, metavar="R1,R2,…",
+                   help="the same test at each of these loading rates (N·m/s); prints the rate sensitivity")
+    p.add_argument("--move-velocity", type=_positive, default=None, metavar="DEG_PER_S",
+                   help="output speed of the moves between positions (default 30 °/s)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE.csv",
                    help="write the evaluated samples as canonical CSV")
     p.add_argument("--speed", type=_positive, default=None, metavar="X",
@@ -113,11 +146,13 @@ class SimulatedRun:
     evaluated: Samples
     truth: dict[str, Any] | None
     compensation: str = "identity"
+    plan: Plan | None = None
+    stage_truths: list[dict[str, Any]] | None = None  # per stage of a plan of several (simulated benches)
 
 
-def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int | None = None,
+def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile | Plan, seed: int | None = None,
              progress=None, speed: float | None = None, compensate: bool = True) -> SimulatedRun:
-    """Run ``profile`` through the acquisition layer on the bench ``cfg`` composes (the in-process simulated
+    """Run ``profile`` (or a plan of several positions or rates) through the acquisition layer on the bench ``cfg`` composes (the in-process simulated
     bench for virtual instruments, else the configured real-protocol instruments).
 
     Raises TcmsError when the test does not complete (the message carries the state and the reason); the
@@ -142,19 +177,16 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
     if not in_process and seed is not None:
         raise TcmsError("--seed applies to the in-process simulated bench only (the simulators' seed is their "
                         "config's [sim] seed)")
+    plan = profile if isinstance(profile, Plan) else single_plan(profile)
     subscribers = []
     if progress is not None:
-        total_s = profile.duration_s()
-        first: list[float] = []
-
         def on_message(msg) -> None:
-            if msg.kind == "data" and len(msg.samples):
-                first[:1] = first[:1] or [float(msg.samples.time_s[0])]
-                progress(min(float(msg.samples.time_s[-1]) - first[0], total_s), total_s)
+            if msg.kind == "event" and msg.event == "progress":
+                progress(msg.details)
 
         subscribers.append(on_message)
     try:
-        run = TestRun(bench, profile, reducer_torque_limit_nm=1.1 * reducer.rated_torque_nm,
+        run = TestRun(bench, plan if plan.kind != "single" else plan.first, reducer_torque_limit_nm=1.1 * reducer.rated_torque_nm,
                       subscribers=subscribers, profile_info={"reducer": reducer.name})
     except ProfileRejected as exc:
         raise TcmsError(str(exc)) from None
@@ -164,41 +196,101 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile, seed: int
         err = TcmsError(f"test {rec.state}: {rec.reason} ({len(record)} samples recorded)")
         err.record = record  # type: ignore[attr-defined]
         raise err
+    truths: list[dict[str, Any]] | None = None
     if in_process:
         physics = built[0]
-        truth = _truth(physics, profile, reducer)
+        truths = _truths(physics, plan, reducer)
         used_seed = physics.seed
     else:
         # the simulators run the config's [sim] physics: its truth is known when the config has that table
-        truth = None
         if "sim" in cfg.model_fields_set:
-            truth = _truth(SimulatedBench.from_config(cfg, reducer), profile, reducer)
-            truth["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
+            truths = _truths(SimulatedBench.from_config(cfg, reducer), plan, reducer)
+            for t in truths:
+                t["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
         used_seed = cfg.sim.seed
-    return SimulatedRun(cfg, reducer, profile, used_seed, record, rec.evaluated_samples(), truth, compensation)
+    truth = None if truths is None else (truths[0] if len(truths) == 1 else _worst_truth(truths))
+    return SimulatedRun(cfg, reducer, plan.first, used_seed, record, rec.evaluated_samples(), truth, compensation,
+                        plan, truths if plan.kind != "single" else None)
 
 
-def _truth(sim_bench, profile: Profile, reducer: ReducerSpec) -> dict[str, Any]:
-    """The simulated reducer's exact characteristics for this test, with the physics parameters behind them."""
-    truth = sim_bench.truth(profile.test_torque_nm, reducer.lost_motion_pct).to_dict()
-    truth["physics"] = {k: v for k, v in sim_bench.physics.to_dict().items() if k != "name"}
-    return truth
+def _truths(sim_bench, plan: Plan, reducer: ReducerSpec) -> list[dict[str, Any]]:
+    """The simulated reducer's exact characteristics for each stage of the test (its position, its rate), with
+    the physics parameters behind them."""
+    out = []
+    for stage in plan.stages:
+        truth = jsonable(sim_bench.profile_truth(stage.profile.segments, stage.profile.test_torque_nm,
+                                                 stage.position_deg or 0.0, reducer.lost_motion_pct))
+        truth["physics"] = {k: v for k, v in sim_bench.physics.to_dict().items() if k != "name"}
+        truth["reducer_model"] = "rich" if getattr(sim_bench, "rich_model", None) is not None else "simple"
+        out.append(truth)
+    return out
+
+
+def _worst_truth(truths: list[dict[str, Any]]) -> dict[str, Any]:
+    """The truth of a plan's summary: the same worst-over-stages rule as the evaluation's summary."""
+    from tcms_daq.procedure.evaluation import SUMMARY_QUANTITIES
+
+    out = dict(truths[0])
+    for key, rule in SUMMARY_QUANTITIES:
+        values = [t[key] for t in truths]
+        out[key] = min(values) if rule == "min" else max(values)
+    out.pop("position_deg", None)
+    return out
+
+
+def _uncertainty_options(result: SimulatedRun, rule: str | None) -> dict[str, Any]:
+    """The bench config's declared chain and decision rule (``rule`` overrides its [bench] decision_rule)."""
+    cfg = result.config
+    return {"chain": cfg.chain_uncertainty(), "rule": rule or cfg.bench.decision_rule,
+            "no_chain_basis": f"type A only (no uncertainty declared in {cfg.source_path or 'the bench config'})"}
 
 
 def evaluate_run(result: SimulatedRun, rule: str | None = None):
-    """The evaluation of a run with the uncertainty the bench config declares and its decision rule (``rule``
-    overrides the config's [bench] decision_rule)."""
+    """The evaluation of a single test with the uncertainty the bench config declares and its decision rule."""
     from tcms_daq.procedure.evaluation import evaluate_for_reducer
 
-    cfg = result.config
-    chain = cfg.chain_uncertainty()
-    without = f"type A only (no uncertainty declared in {cfg.source_path or 'the bench config'})"
-    ev = evaluate_for_reducer(result.evaluated, result.reducer, result.profile.test_torque_nm, chain=chain,
-                              rule=rule or cfg.bench.decision_rule, no_chain_basis=without)
-    if result.compensation.startswith("none") and cfg.bench.compensation:
+    ev = evaluate_for_reducer(result.evaluated, result.reducer, result.profile.test_torque_nm,
+                              **_uncertainty_options(result, rule))
+    if result.compensation.startswith("none") and result.config.bench.compensation:
         ev.uncertainty_basis = (f"{ev.uncertainty_basis}; compensation skipped: the measuring chain's geometric "
                                 "errors it corrects are not in U")
     return ev
+
+
+def evaluate_plan_run(result: SimulatedRun, rule: str | None = None) -> dict[str, Any]:
+    """The evaluation of a test at several positions or rates: the summary with its per-position/per-rate entries
+    (each with its uncertainty and, on a simulated bench, its stage's truth)."""
+    from tcms_daq.procedure.evaluation import evaluate_plan
+
+    out = evaluate_plan(result.evaluated, result.plan, result.reducer, **_uncertainty_options(result, rule))
+    if result.stage_truths is not None:
+        for entry, truth in zip(out.get("positions") or out.get("rates") or [], result.stage_truths, strict=True):
+            entry["truth"] = {k: v for k, v in truth.items() if k != "physics"}
+    return out
+
+
+def _plan_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Plan:
+    """The profile of the options (``_profile_from_args``) at each position or rate they ask for."""
+    profile = _profile_from_args(cfg, reducer, args)
+    positions = getattr(args, "positions", None)
+    rates = getattr(args, "rates", None)
+    if positions is None and rates is None:
+        return single_plan(profile)
+    if rates is not None and args.rate is not None:
+        raise TcmsError("--rate and --rates exclude each other")
+    from tcms_daq.config import load_test_profile
+
+    data = cfg.procedure.model_dump()
+    data.update({"kind": profile.kind, "max_torque_nm": profile.test_torque_nm, "cycles": profile.cycles,
+                 "conditioning_loops": profile.conditioning_loops, "rate_nm_per_s": profile.rate_nm_per_s,
+                 "step_nm": profile.step_nm or data["step_nm"], "dwell_s": profile.dwell_s})
+    test = load_test_profile(data, source=cfg.source_path or "<config>")
+    velocity = getattr(args, "move_velocity", None)
+    try:
+        return build_plan(test, reducer, cfg.bench, positions=positions, rates=rates,
+                          **({"move_velocity_deg_per_s": velocity} if velocity is not None else {}))
+    except ValueError as exc:
+        raise TcmsError(f"{exc} ([bench] in {cfg.source_path or 'the config'})") from None
 
 
 def _profile_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Profile:
@@ -249,33 +341,45 @@ def _write_samples(path: Path, samples: Samples) -> None:
         raise TcmsError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
+def _progress_text(event: dict[str, Any]) -> str:
+    """'position 2/4 · loop 1/3' (conditioning, moving …) of a progress event."""
+    parts = []
+    if event.get("positions", 1) > 1:
+        parts.append(f"position {event['position']}/{event['positions']}")
+    elif event.get("stages", 1) > 1:
+        parts.append(f"rate {event['stage']}/{event['stages']}")
+    loop = event.get("loop", -1)
+    parts.append("moving" if event.get("moving") else
+                 "conditioning" if loop == 0 else f"loop {loop}/{event['loops']}" if loop > 0 else "approach")
+    return " · ".join(parts)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.parent.is_dir():  # fail before the test, not after it
         raise TcmsError(f"{args.out}: cannot write (no directory {args.out.parent})")
     cfg = load_bench_config(args.config, args.overrides)
     catalogue = load_reducers_for(cfg)
     reducer = get_reducer(catalogue, args.reducer or cfg.sim.reducer, cfg.resolve(cfg.bench.reducers))
-    profile = _profile_from_args(cfg, reducer, args)
+    plan = _plan_from_args(cfg, reducer, args)
 
     bar = None
     progress = None
     if sys.stderr.isatty():
         from tqdm import tqdm
 
-        bar = tqdm(total=round(profile.duration_s(), 1), unit="s", desc=f"{reducer.name} (sim time)",
-                   file=sys.stderr, leave=False)
+        total_s = plan.duration_s()
+        bar = tqdm(total=round(total_s, 1), unit="s", desc=f"{reducer.name} (clock time)", file=sys.stderr,
+                   leave=False, bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s {postfix}")
 
-        drawn_at = [0.0]
-
-        def progress(done_s: float, total_s: float) -> None:
-            now = time.monotonic()
-            if now - drawn_at[0] >= 0.1 or done_s >= total_s:  # redraw at most 10 times a second
-                drawn_at[0] = now
-                bar.n = round(done_s, 1)
-                bar.refresh()
+        def progress(event: dict[str, Any]) -> None:
+            done_s = float(event.get("elapsed_s", 0.0))
+            bar.total = round(done_s + float(event.get("eta_s", 0.0)), 1) or bar.total
+            bar.n = round(min(done_s, bar.total), 1)
+            bar.set_postfix_str(f"{_progress_text(event)}, ETA {float(event.get('eta_s', 0.0)):.0f} s", refresh=False)
+            bar.refresh()
 
     try:
-        result = simulate(cfg, reducer, profile, seed=args.seed, progress=progress, speed=args.speed,
+        result = simulate(cfg, reducer, plan, seed=args.seed, progress=progress, speed=args.speed,
                           compensate=not args.no_compensation)
     except TcmsError as exc:
         kept = getattr(exc, "record", None)
@@ -286,17 +390,18 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    ev = evaluate_run(result, args.decision_rule)
+    evaluation = evaluate_run(result, args.decision_rule) if plan.kind == "single" else None
+    ev = evaluation.to_dict() if evaluation is not None else evaluate_plan_run(result, args.decision_rule)
 
     if args.out is not None:
         _write_samples(args.out, result.evaluated)
 
     if args.json:
         out = {
-            **ev.to_dict(),
+            **ev,
             "reducer": reducer.name,
             "seed": result.seed,
-            "profile": result.profile.to_dict(),
+            "profile": {**result.profile.to_dict(), **(plan.to_dict() if plan.kind != "single" else {})},
             "truth": result.truth,
             "sample_rate_hz": cfg.sim.sample_rate_hz,
             "n_samples_recorded": len(result.record),
@@ -307,21 +412,57 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(out, allow_nan=False))
         return 0
 
-    from tcms_daq.analysis import format_evaluation
-
     p, t = result.profile, result.truth
     print(f"{result.config.bench.name}: {reducer.name}, {p.kind} profile ±{p.test_torque_nm:g} N·m at "
           f"{p.mean_rate_nm_per_s:.4g} N·m/s, {p.conditioning_loops} conditioning + {p.cycles} loops, "
-          f"seed {result.seed}, {len(result.record)} samples ({p.duration_s():.1f} s simulated)")
+          f"seed {result.seed}, {len(result.record)} samples ({plan.duration_s():.1f} s planned)")
     print(f"compensation: {result.compensation}")
-    print(format_evaluation(ev))
+    if evaluation is not None:
+        from tcms_daq.analysis import format_evaluation
+
+        print(format_evaluation(evaluation))
+    else:
+        print(format_plan(ev))
     print()
     if t is not None:
         print(f"simulated truth: rigidity {t['rigidity_nm_per_arcmin']:.2f} N·m/arcmin, lost motion "
               f"{t['lost_motion_arcsec']:.2f}″, backlash {t['backlash_arcsec']:.2f}″"
-          + ("" if t.get("k1_nm_per_rad") is None else
-             ", K1/K2/K3 " + "/".join(f"{t[k]:.4g}" for k in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad")
-                                      if t.get(k) is not None) + " N·m/rad"))
-    if args.out is not None:
+              + ("" if t.get("k1_nm_per_rad") is None else
+                 ", K1/K2/K3 " + "/".join(f"{t[k]:.4g}" for k in ("k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad")
+                                          if t.get(k) is not None) + " N·m/rad")
+              + (" (worst over the stages)" if plan.kind != "single" else ""))
+    if args.out is not None and plan.kind != "single":
+        print(f"wrote {len(result.evaluated)} samples to {args.out} (column stage_index: the stage of each sample; "
+              "tcms analyze evaluates one stage's rows at a time)")
+    elif args.out is not None:
         print(f"wrote {len(result.evaluated)} samples to {args.out}; re-evaluate with: {_analyze_hint(args.out, result)}")
     return 0
+
+
+def format_plan(ev: dict[str, Any]) -> str:
+    """A table of a plan's stages (position or rate, rigidity, lost motion, backlash, truth when known) and its
+    summary (max, min, spread) and, for rates, the rate sensitivity."""
+    entries = ev.get("positions") or ev.get("rates") or []
+    positional = "positions" in ev
+    lines = [f"{'position °' if positional else 'rate N·m/s':>11} {'rigidity N·m/arcmin':>20} {'lost motion ″':>14} "
+             f"{'backlash ″':>11}   truth (rigidity / lost motion / backlash)"]
+    for e in entries:
+        key = f"{e['position_deg']:.1f}" if positional else f"{e['rate_nm_per_s']:g}"
+        truth = e.get("truth")
+        truth_text = ("" if truth is None else f"{truth['rigidity_nm_per_arcmin']:.2f} / "
+                      f"{truth['lost_motion_arcsec']:.2f} / {truth['backlash_arcsec']:.2f}")
+        lines.append(f"{key:>11} {e['rigidity_nm_per_arcmin']:>20.2f} {e['lost_motion_arcsec']:>14.2f} "
+                     f"{e['backlash_arcsec']:>11.2f}   {truth_text}")
+    for quantity, unit in (("rigidity_nm_per_arcmin", "N·m/arcmin"), ("lost_motion_arcsec", "″"),
+                           ("backlash_arcsec", "″")):
+        lines.append(f"{quantity}: max {ev[quantity + '_max']:.2f}, min {ev[quantity + '_min']:.2f}, spread "
+                     f"{ev[quantity + '_spread']:.2f} {unit}")
+    sensitivity = ev.get("rate_sensitivity")
+    if sensitivity:
+        lines.append("rate sensitivity (per tenfold loading rate): " + ", ".join(
+            f"{k.removesuffix('_per_decade')} {v:+.3g}" for k, v in sensitivity.items()
+            if k.endswith("_per_decade") and v is not None))
+    verdict = ev.get("verdict")
+    if verdict:
+        lines.append(f"verdict (worst over the stages): {'PASS' if verdict.get('passed') else 'FAIL'}")
+    return "\n".join(lines)

@@ -306,6 +306,35 @@ class BenchSection(BaseModel):
         return self.max_rate_nm_per_s if self.max_rate_nm_per_s is not None else self.max_torque_nm
 
 
+class RichReducerConfig(BaseModel):
+    """[sim.rich]: the richer reducer model of the simulated bench (``sim/reducer_model.py``), used when
+    ``[sim] model = "rich"``. Variations over the output position φ are a once-per-revolution term and a term
+    with the pin count (cycloid/pin meshing): x(φ) = x₀·[1 + a₁·cos(φ − φ₁) + a_z·cos(z·φ − φ_z)].
+
+    stiffness_*_pct: elastic stiffness variation; lost_motion_*_pct: lost-motion zone variation;
+    asymmetry_pct: the positive direction is stiffer by this share, the negative softer by as much;
+    creep_share: compliance of a Kelvin–Voigt creep element as a share of the elastic compliance, with the
+    time constant creep_time_s (creep under a held torque, recovery at zero; loops are stiffer when fast);
+    viscous_arcsec_per_nm_per_s: the viscous part of the friction (the loop widens with the torque rate).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    pins: int = Field(40, ge=1, le=400)
+    stiffness_rev_pct: float = Field(3.0, ge=0.0, le=30.0)
+    stiffness_rev_phase_deg: float = 30.0
+    stiffness_pin_pct: float = Field(1.5, ge=0.0, le=30.0)
+    stiffness_pin_phase_deg: float = 0.0
+    lost_motion_rev_pct: float = Field(15.0, ge=0.0, le=90.0)
+    lost_motion_rev_phase_deg: float = 60.0
+    lost_motion_pin_pct: float = Field(5.0, ge=0.0, le=90.0)
+    lost_motion_pin_phase_deg: float = 45.0
+    asymmetry_pct: float = Field(4.0, ge=0.0, le=50.0)
+    creep_share: float = Field(0.05, ge=0.0, le=1.0)
+    creep_time_s: float = Field(2.0, gt=0.0)
+    viscous_arcsec_per_nm_per_s: float = Field(5e-4, ge=0.0)
+
+
 class SimConfig(BaseModel):
     """The simulated bench (sim/): clock, drive, sensors; ``effects`` is the [sim.effects] table (sim/effects.py).
 
@@ -330,6 +359,8 @@ class SimConfig(BaseModel):
     encoder_interpolation_error_arcsec: float = Field(0.0, ge=0.0)
     geometry: str | None = None
     effects: dict[str, Any] = Field(default_factory=dict)
+    model: Literal["simple", "rich"] = "simple"  # the reducer model: see RichReducerConfig
+    rich: RichReducerConfig = Field(default_factory=RichReducerConfig)
 
 
 class BenchConfig(BaseModel):

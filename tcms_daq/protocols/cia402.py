@@ -6,8 +6,13 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
+MODE_PROFILE_POSITION = 1  # moves of the output between the positions of a multi-position test
 MODE_PROFILE_TORQUE = 4
-SUPPORTED_MODES_PROFILE_TORQUE = 0x0008  # 0x6502 bit 3
+SUPPORTED_MODES = 0x0009  # 0x6502: bit 0 profile position, bit 3 profile torque
+
+CW_NEW_SET_POINT = 0x0010  # controlword bit 4 (profile position): a rising edge starts the move to 0x607A
+SW_TARGET_REACHED = 0x0400  # statusword bit 10
+SW_SET_POINT_ACK = 0x1000  # statusword bit 12 (profile position): the new set-point was taken
 
 # controlword commands (bits 7,3,2,1,0)
 CW_DISABLE_VOLTAGE = 0x0000

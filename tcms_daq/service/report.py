@@ -74,6 +74,32 @@ def flatten_results(results: Mapping[str, Any], prefix: str = "") -> list[tuple[
     return rows
 
 
+def loops_per_stage(columns: Mapping[str, np.ndarray], results: Mapping[str, Any] | None
+                    ) -> Mapping[str, np.ndarray]:
+    """For a test at several positions: only the samples of its evaluated loops, each stage's angles referred to
+    the mean angle of its loops, so the loops of all positions overlay in one plot (the output's position would
+    put them degrees apart). Other runs: the columns as they are."""
+    loops = (results or {}).get("loops") or []
+    if not (results or {}).get("positions") or "time_s" not in columns:
+        return columns
+    time_s = np.asarray(columns["time_s"])
+    keep = np.zeros(time_s.size, dtype=bool)
+    shift = {k: np.zeros(time_s.size) for k in ("angle_arcsec", "encoder_arcsec") if k in columns}
+    for stage in sorted({lp.get("stage") for lp in loops if lp.get("evaluated")}):
+        mask = np.zeros(time_s.size, dtype=bool)
+        for lp in loops:
+            if lp.get("stage") == stage and lp.get("evaluated"):
+                mask |= (time_s >= lp["start_time_s"]) & (time_s <= lp["end_time_s"])
+        keep |= mask
+        for key in shift:
+            if mask.any():
+                shift[key][mask] = float(np.mean(np.asarray(columns[key])[mask]))
+    out = {k: np.asarray(v)[keep] for k, v in columns.items()}
+    for key, offset in shift.items():
+        out[key] = out[key] - offset[keep]
+    return out
+
+
 def render_report(record: StoredRun, columns: Mapping[str, np.ndarray]) -> str:
     req = record.request
     meta_rows = [
@@ -86,6 +112,8 @@ def render_report(record: StoredRun, columns: Mapping[str, np.ndarray]) -> str:
         ("test torque / N·m", req.get("max_torque_nm")),
         ("cycles", req.get("cycles")),
         ("torque rate / N·m/s", req.get("rate_nm_per_s", "—")),
+        *([("positions", req["positions"])] if req.get("positions") is not None else []),
+        *([("loading rates / N·m/s", req["rates"])] if req.get("rates") is not None else []),
         ("samples", record.sample_count),
         ("created", record.summary()["created_at"]),
         ("finished", record.summary()["finished_at"] or "—"),
@@ -108,7 +136,7 @@ tr.undecided td {{ color: #a15c00; font-weight: bold; }} .muted {{ color: #777; 
 <h1>Torsional characteristic test {html.escape(record.id)}</h1>
 <table class="meta">{meta}</table>
 <h2>Hysteresis curve</h2>
-<figure>{hysteresis_svg(columns)}</figure>
+<figure>{hysteresis_svg(loops_per_stage(columns, record.results))}</figure>
 <h2>Results</h2>
 {results}
 </body></html>
@@ -139,6 +167,42 @@ def _decision(entry: Mapping[str, Any]) -> str:
     if decision in DECISION_CLASS:
         return str(decision)
     return "pass" if entry.get("passed") else "fail"
+
+
+STAGE_COLUMNS = (("rigidity_nm_per_arcmin", "rigidity / N·m/arcmin"), ("lost_motion_arcsec", "lost motion / ″"),
+                 ("backlash_arcsec", "backlash / ″"))
+
+
+def _with_uncertainty(entry: Mapping[str, Any], key: str) -> str:
+    """A stage's result as 'value ± U (k = …)' (the shared rendering), or the value and 'U not stated'."""
+    value = entry.get(key)
+    if not isinstance(value, int | float):
+        return "–"
+    return html.escape(with_uncertainty(float(value), (entry.get("uncertainty") or {}).get(key), unit=""))
+
+
+def _stages_html(results: Mapping[str, Any]) -> str:
+    """The per-position or per-rate table of a test of several stages, its summary (max, min, spread; GB/T 40731)
+    and, for rates, the rate sensitivity; '' for a single test."""
+    entries = results.get("positions") or results.get("rates")
+    if not isinstance(entries, list) or not entries:
+        return ""
+    positional = "positions" in results
+    first = "position / °" if positional else "loading rate / N·m/s"
+    head = f"<tr><th>{first}</th>" + "".join(f"<th>{label}</th>" for _, label in STAGE_COLUMNS) + "</tr>"
+    body = "".join(
+        f"<tr><td>{_fmt(e.get('position_deg' if positional else 'rate_nm_per_s'))}</td>"
+        + "".join(f"<td>{_with_uncertainty(e, key)}</td>" for key, _ in STAGE_COLUMNS) + "</tr>"
+        for e in entries if isinstance(e, Mapping))
+    for stat in ("max", "min", "spread"):
+        body += f"<tr><th>{stat}</th>" + "".join(f"<td>{_fmt(results.get(f'{key}_{stat}'))}</td>"
+                                                 for key, _ in STAGE_COLUMNS) + "</tr>"
+    sensitivity = results.get("rate_sensitivity")
+    if isinstance(sensitivity, Mapping):
+        body += "<tr><th>per tenfold rate</th>" + "".join(
+            f"<td>{_fmt(sensitivity.get(f'{key}_per_decade'))}</td>" for key, _ in STAGE_COLUMNS) + "</tr>"
+    title = "Positions (GB/T 40731)" if positional else "Loading rates"
+    return f"<h3>{title}</h3><table class='stages'>{head}{body}</table>"
 
 
 def _results_html(results: Mapping[str, Any]) -> str:
@@ -183,6 +247,7 @@ def _results_html(results: Mapping[str, Any]) -> str:
         rows.append(f"<tr class='{DECISION_CLASS[decision]}'><th>decision</th><td>{html.escape(rule_text)}</td>"
                     f"<td>{decision.upper()}</td></tr>")
         parts.append("<h3>Acceptance</h3><table class='verdict'>" + "".join(rows) + "</table>")
+    parts.append(_stages_html(results))
     loops = results.get("loops")
     if isinstance(loops, list) and loops and all(isinstance(lp, Mapping) for lp in loops):
         cols = ("index", "evaluated", "order", "rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec",

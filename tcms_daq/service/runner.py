@@ -79,6 +79,7 @@ class _Plan:
     profile: Any  # tcms_daq.procedure.Profile
     reducer: Any  # tcms_daq.config.ReducerSpec
     decision_rule: str = "guarded"  # ISO 14253-1: the request's, else the bench config's
+    stages: Any = None  # tcms_daq.procedure.plan.Plan of a test at several positions or rates
 
 
 def _columns(samples: Any) -> dict[str, np.ndarray]:
@@ -187,7 +188,7 @@ class BenchRunner:
             st = self.acq.last_status
             if st is not None:
                 loader = {"state": st.state, "torque_actual_nm": st.torque_actual_nm, "fault": st.fault,
-                          "error_code": st.error_code}
+                          "error_code": st.error_code, "position_deg": st.position_deg, "moving": st.moving}
             trip = self.acq.trip.to_dict() if self.acq.trip is not None else None
         stats = self.acq.channel_stats() if self.acq is not None else {}
         instruments = {
@@ -291,27 +292,40 @@ class BenchRunner:
             "step_nm": request.step_nm if request.step_nm is not None else defaults.step_nm,
             "dwell_s": request.dwell_s if request.dwell_s is not None else defaults.dwell_s,
         }
+        from tcms_daq.procedure.plan import build_plan
+
         try:
             test = TestProfile(**fields)
             check_test_bounds(test, torque, self.config.bench)
             profile = build_profile(test, spec)
+            stages = None
+            if request.positions is not None or request.rates is not None:
+                stages = build_plan(test, spec, self.config.bench, positions=request.positions, rates=request.rates,
+                                    **({"move_velocity_deg_per_s": request.move_velocity_deg_per_s}
+                                       if request.move_velocity_deg_per_s is not None else {}))
         except ValueError as exc:
             raise RequestRejected(str(exc).splitlines()[0]) from None
+        if stages is not None and stages.kind == "positions" and not callable(getattr(self.bench.loader, "move_to",
+                                                                                      None)):
+            raise RequestRejected(f"positions: the loader {self.bench.loader.name} cannot turn the output")
         rule = request.decision_rule or self.config.bench.decision_rule
         summary = {**profile.to_dict(), "reducer": spec.name, "rated_torque_nm": spec.rated_torque_nm,
-                   "segments": len(profile.segments), "decision_rule": rule}
-        return TestPlan(request, summary, _Plan(profile, spec, rule))
+                   "segments": len(profile.segments) if stages is None else len(stages.segments),
+                   "decision_rule": rule, **(stages.to_dict() if stages is not None else {})}
+        return TestPlan(request, summary, _Plan(profile, spec, rule, stages))
 
     def _evaluator(self, plan: _Plan) -> Callable[[Any], dict[str, Any]]:
-        from tcms_daq.procedure.evaluation import evaluate_for_reducer
+        from tcms_daq.procedure.evaluation import evaluate_for_reducer, evaluate_plan
 
         chain = self.config.chain_uncertainty()
         without = f"type A only (no uncertainty declared in {self.config_path.name})"
 
         def run(samples: Any) -> dict[str, Any]:
             # TestRun hands over the evaluated loops only (loop_index >= 1: conditioning removed)
-            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm, chain=chain,
-                                        rule=plan.decision_rule, no_chain_basis=without).to_dict()
+            options = {"chain": chain, "rule": plan.decision_rule, "no_chain_basis": without}
+            if plan.stages is not None:
+                return evaluate_plan(samples, plan.stages, plan.reducer, **options)
+            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm, **options).to_dict()
 
         return run
 
@@ -329,6 +343,9 @@ class BenchRunner:
             elif isinstance(msg, EventMessage):
                 if msg.event == "state":
                     on_phase(msg.details.get("state", "?"), reason=msg.details.get("reason"))
+                elif msg.event == "progress":  # times in clock seconds; clock_speed turns them into real ones
+                    on_phase("progress", **msg.details,
+                             clock_speed=self.sim_speed if self.bench.clock.stepped else 1.0)
                 else:
                     on_phase(msg.event, **msg.details)
 
@@ -339,7 +356,7 @@ class BenchRunner:
                 on_phase("specimen", reducer=payload.reducer.name)
             try:
                 run = TestRun(
-                    self.bench, payload.profile,
+                    self.bench, payload.stages if payload.stages is not None else payload.profile,
                     reducer_torque_limit_nm=1.1 * payload.reducer.rated_torque_nm,
                     evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
                     run_id=run_id, profile_info={"reducer": payload.reducer.name},

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
+from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, positions_from, rates_from
 from tcms_daq.runstate import RunState
 
 
@@ -30,6 +31,27 @@ class TestRequest(BaseModel):
     decision_rule: Literal["simple", "guarded"] | None = Field(
         default=None, description="ISO 14253-1 decision: 'guarded' (guard bands of U: pass / fail / undecided) or "
         "'simple' acceptance; default: the bench config's [bench] decision_rule")
+    positions: StrictInt | list[float] | None = Field(
+        default=None, description=f"test at several output positions (GB/T 40731): a count N (equally spaced over "
+        f"360°, 1…{MAX_POSITIONS}) or a list of degrees in [0, 360)")
+    rates: list[float] | None = Field(default=None, description=f"the same test at each loading rate, N·m/s "
+                                      f"(1…{MAX_RATES} rates)")
+    move_velocity_deg_per_s: float | None = Field(default=None, gt=0, le=360,
+                                                  description="output speed of the moves between positions, °/s")
+
+    @model_validator(mode="after")
+    def _plan_fields(self) -> TestRequest:
+        if self.positions is not None and self.rates is not None:
+            raise ValueError("positions and rates cannot be combined in one test")
+        if self.positions is not None:
+            positions_from(self.positions)
+        if self.rates is not None:
+            rates_from(self.rates)
+            if self.rate_nm_per_s is not None:
+                raise ValueError("rate_nm_per_s and rates exclude each other")
+        if self.move_velocity_deg_per_s is not None and self.positions is None:
+            raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
+        return self
 
     @model_validator(mode="after")
     def _stepped_fields(self) -> TestRequest:
@@ -174,6 +196,8 @@ class LoaderStatusView(BaseModel):
     torque_actual_nm: float
     fault: bool
     error_code: int = Field(description="0x603F error code (0: none)")
+    position_deg: float | None = Field(default=None, description="the output's position (0x6064), deg")
+    moving: bool = Field(default=False, description="a move between test positions is under way")
 
 
 class InstrumentView(BaseModel):

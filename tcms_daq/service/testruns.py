@@ -102,7 +102,11 @@ class TestManager:
         recorder = Recorder(self.store, run_id, flush_interval_s=self.recorder_flush_s)
 
         def on_phase(phase: str, **detail: Any) -> None:
-            self.events.publish("test_phase", id=run_id, phase=phase, **detail)
+            if phase == "progress":  # loop, loops, position, positions, elapsed_s, eta_s (see TestRun)
+                detail.pop("run_id", None)
+                self.events.publish("test_progress", id=run_id, **detail)
+            else:
+                self.events.publish("test_phase", id=run_id, phase=phase, **detail)
 
         self.store.set_status(run_id, "running")
         self.events.publish("test_state", id=run_id, status="running")

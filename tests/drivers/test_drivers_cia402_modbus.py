@@ -91,8 +91,8 @@ def test_raw_socket_replies_and_exceptions(drive_sims):
         # unmapped address -> exception 2; write to the read-only statusword -> exception 2
         assert ask("00 08 00 00 00 06 01 03 40 00 00 01") == bytes.fromhex("00 08 00 00 00 03 01 83 02")
         assert ask("00 09 00 00 00 06 01 06 32 00 00 01") == bytes.fromhex("00 09 00 00 00 03 01 86 02")
-        # unsupported mode (1 = profile position) -> exception 3
-        assert ask("00 0A 00 00 00 06 01 06 35 00 00 01") == bytes.fromhex("00 0A 00 00 00 03 01 86 03")
+        # unsupported mode (3 = profile velocity; 1 and 4 are supported) -> exception 3
+        assert ask("00 0A 00 00 00 06 01 06 35 00 00 03") == bytes.fromhex("00 0A 00 00 00 03 01 86 03")
 
 
 def test_normal_exchange_torque_follows(drive_sims):

@@ -99,7 +99,7 @@ def test_communication_loss_faults_only_when_enabled(drive):
 
 def test_refused_writes(drive):
     with pytest.raises(DriveCommandError):
-        drive.write_mode(1)  # profile position is not supported
+        drive.write_mode(3)  # profile velocity is not supported (1 and 4 are)
     _enable(drive)
     with pytest.raises(DriveCommandError) as info:
         drive.write_rated_torque(5_000)

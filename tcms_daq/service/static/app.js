@@ -106,6 +106,7 @@
   }
 
   function addToLoop(torque, angle) {
+    if (state.outputMoving) return;  // the output turning to the next position is no part of a loop
     const loop = state.loop;
     for (let i = 0; i < torque.length; i++) {
       if (loop.counter++ % loop.stride !== 0) continue;
@@ -205,6 +206,9 @@
         setTestState(e.id, e.status);
         if (["completed", "aborted", "failed", "interrupted"].includes(e.status)) {
           $("test-phase").textContent = "–";
+          $("progress").hidden = true;
+          state.outputMoving = false;
+          $("progress-text").textContent = "";
           showResults(e.id);
           loadHistory();
           if (e.error) message(e.status + ": " + e.error, e.status !== "aborted");
@@ -212,9 +216,60 @@
         }
       } else if (e.type === "test_phase") {
         $("test-phase").textContent = e.phase;
+      } else if (e.type === "test_progress") {
+        showProgress(e);
       }
     };
     ws.onclose = () => { $("events-state").textContent = "reconnecting"; setTimeout(connectEvents, 1000); };
+  }
+
+  // progress of the active test (test_progress events): the bar is the elapsed share of elapsed + ETA; times in
+  // real seconds (clock seconds divided by the simulated clock's speed)
+  function duration(s) {
+    s = Math.max(0, Math.round(s));
+    return s >= 3600 ? Math.floor(s / 3600) + " h " + Math.floor((s % 3600) / 60) + " min"
+      : s >= 60 ? Math.floor(s / 60) + " min " + (s % 60) + " s" : s + " s";
+  }
+  function showProgress(e) {
+    // the output turns to the next position: no loop points meanwhile; the new position's loops (degrees away
+    // from the last one's) start a new plot
+    if (e.moving) state.outputMoving = true;
+    else if (state.outputMoving) { state.outputMoving = false; resetLoop(); }
+    const speed = e.clock_speed > 0 ? e.clock_speed : 1;
+    const done = e.elapsed_s / speed, left = e.eta_s / speed;
+    const share = done + left > 0 ? done / (done + left) : 0;
+    $("progress").hidden = false;
+    $("progress-bar").style.width = (100 * share).toFixed(1) + "%";
+    const parts = [];
+    if (e.positions > 1) parts.push("position " + e.position + "/" + e.positions + (e.position_deg != null ? " (" + fmt(e.position_deg) + "°)" : ""));
+    else if (e.stages > 1) parts.push("rate " + e.stage + "/" + e.stages + (e.rate_nm_per_s != null ? " (" + fmt(e.rate_nm_per_s) + " N·m/s)" : ""));
+    parts.push(e.moving ? "moving" : e.loop === 0 ? "conditioning loop" : e.loop > 0 ? "loop " + e.loop + "/" + e.loops : "approach / return");
+    parts.push("elapsed " + duration(done), "ETA " + duration(left));
+    $("progress-text").textContent = parts.join(" · ");
+  }
+
+  // per-position / per-rate table of a test of several stages, and its summary (max, min, spread)
+  function showStages(res) {
+    const table = $("stages");
+    const entries = res.positions || res.rates;
+    if (!entries || !entries.length) { table.hidden = true; return; }
+    const positional = !!res.positions;
+    const cell = (e, k) => {
+      const u = e.uncertainty && e.uncertainty[k];
+      return typeof e[k] !== "number" ? "–" : u && typeof u.U === "number" ? fmt(e[k]) + " ± " + fmt(+u.U.toPrecision(2)) : fmt(e[k]);
+    };
+    table.tHead.innerHTML = "<tr><th>" + (positional ? "position / °" : "rate / N·m/s") +
+      "</th><th>rigidity / N·m/arcmin</th><th>lost motion / ″</th><th>backlash / ″</th></tr>";
+    const rows = entries.map((e) => [positional ? fmt(e.position_deg) : fmt(e.rate_nm_per_s),
+      cell(e, "rigidity_nm_per_arcmin"), cell(e, "lost_motion_arcsec"), cell(e, "backlash_arcsec")]);
+    for (const stat of ["max", "min", "spread"]) {
+      rows.push([stat, ...["rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec"].map((k) => fmt(res[k + "_" + stat]))]);
+    }
+    const sens = res.rate_sensitivity;
+    if (sens) rows.push(["per decade of rate", ...["rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec"].map((k) =>
+      typeof sens[k + "_per_decade"] === "number" ? fmt(sens[k + "_per_decade"]) : "–")]);
+    table.tBodies[0].innerHTML = rows.map((r) => "<tr>" + r.map((c, i) => (i ? "<td>" : "<th>") + escapeHtml(String(c)) + (i ? "</td>" : "</th>")).join("") + "</tr>").join("");
+    table.hidden = false;
   }
 
   function resetLoop() { state.loop = { x: [], y: [], stride: 1, counter: 0 }; state.dirty = true; }
@@ -306,6 +361,7 @@
     const body = $("results").tBodies[0];
     body.innerHTML = "";
     const rows = run.results ? resultRows(run.results) : [];
+    showStages(run.results || {});
     if (!rows.length) {
       body.innerHTML = `<tr><td class="muted">${run.status}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
     }
@@ -475,6 +531,10 @@
       req.step_nm = parseFloat($("f-step").value);
       req.dwell_s = parseFloat($("f-dwell").value);
     }
+    const positions = $("f-positions").value.trim();
+    if (positions) req.positions = /^\d+$/.test(positions) ? parseInt(positions, 10) : positions.split(",").map(Number);
+    const rates = $("f-rates").value.trim();
+    if (rates) { req.rates = rates.split(",").map(Number); delete req.rate_nm_per_s; }
     if ($("f-serial").value.trim()) req.serial_number = $("f-serial").value.trim();
     if ($("f-operator").value.trim()) req.operator = $("f-operator").value.trim();
     try {

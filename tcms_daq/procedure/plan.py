@@ -1,0 +1,181 @@
+"""A test plan as data (pure): the stages of a test at several output positions or several loading rates.
+
+GB/T 40731-2021 measures lost motion at several output positions (catalogues state the maximum over 4), and
+results depend on the loading rate. A plan is a list of stages; each stage is a whole profile (approach,
+conditioning, evaluated loops, return to zero) at one output position or one rate. A stage at a position
+starts with a :class:`Move` of the output, made at zero torque by the loader's profile position mode.
+
+- single: one stage where the output is (the classic test);
+- positions: ``positions`` = N (N equally spaced over 360°, from 0°) or a list of degrees in [0, 360);
+- rates: ``rates`` = a list of loading rates (N·m/s), the same test at each, where the output is.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from tcms_daq.config.models import BenchSection, ReducerSpec, TestProfile
+from tcms_daq.procedure.profiles import Profile, Segment, build_profile, check_test_bounds
+
+MAX_POSITIONS = 36
+MAX_RATES = 10
+DEFAULT_MOVE_VELOCITY_DEG_PER_S = 30.0  # output speed of a move between positions
+MOVE_SETTLE_S = 0.5  # allowance per move beyond its travel time (acceleration, target window)
+
+PlanKind = Literal["single", "positions", "rates"]
+
+
+@dataclass(frozen=True)
+class Move:
+    """Turn the output to ``position_deg`` at ``velocity_deg_per_s`` (zero torque; profile position mode)."""
+
+    position_deg: float
+    velocity_deg_per_s: float
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One whole profile of the plan: at output position ``position_deg`` (None: where the output is)."""
+
+    index: int
+    profile: Profile
+    position_deg: float | None = None
+
+    @property
+    def rate_nm_per_s(self) -> float:
+        return self.profile.rate_nm_per_s
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The stages of a test, in order, and how the output moves between them."""
+
+    kind: PlanKind
+    stages: tuple[Stage, ...]
+    move_velocity_deg_per_s: float = DEFAULT_MOVE_VELOCITY_DEG_PER_S
+    start_position_deg: float = 0.0  # where the output is assumed to start (for the duration estimate only)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def steps(self) -> list[tuple[int, Move | Segment]]:
+        """(stage index, step) in order: a Move before each positioned stage, then its segments."""
+        out: list[tuple[int, Move | Segment]] = []
+        for stage in self.stages:
+            if stage.position_deg is not None:
+                out.append((stage.index, Move(stage.position_deg, self.move_velocity_deg_per_s)))
+            out.extend((stage.index, seg) for seg in stage.profile.segments)
+        return out
+
+    def step_durations_s(self) -> list[float]:
+        """Planned clock time of each step of :meth:`steps` (moves: travel + MOVE_SETTLE_S)."""
+        out: list[float] = []
+        position, level = self.start_position_deg, 0.0
+        for _, step in self.steps():
+            if isinstance(step, Move):
+                out.append(abs(step.position_deg - position) / step.velocity_deg_per_s + MOVE_SETTLE_S)
+                position = step.position_deg
+            else:
+                out.append(step.duration_s(level))
+                level = step.target_nm
+        return out
+
+    def duration_s(self) -> float:
+        return float(sum(self.step_durations_s()))
+
+    @property
+    def segments(self) -> list[Segment]:
+        """Every torque segment of the plan (for limits and validation)."""
+        return [step for _, step in self.steps() if isinstance(step, Segment)]
+
+    @property
+    def first(self) -> Profile:
+        return self.stages[0].profile
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "plan": self.kind,
+            "stages": [{"index": s.index, "position_deg": s.position_deg, "rate_nm_per_s": s.rate_nm_per_s,
+                        "duration_s": s.profile.duration_s()} for s in self.stages],
+            "move_velocity_deg_per_s": self.move_velocity_deg_per_s,
+            "plan_duration_s": self.duration_s(),
+            **({"positions_deg": [s.position_deg for s in self.stages]} if self.kind == "positions" else {}),
+            **({"rates_nm_per_s": [s.rate_nm_per_s for s in self.stages]} if self.kind == "rates" else {}),
+        }
+
+
+def positions_from(spec: int | Sequence[float]) -> list[float]:
+    """Output positions (deg) of ``spec``: N → N equally spaced over 360° from 0°; a list → those positions.
+    ValueError (one line) for a count outside 1…MAX_POSITIONS, a non-finite, out-of-range or repeated angle."""
+    if isinstance(spec, bool):
+        raise ValueError("positions must be a count or a list of degrees")
+    if isinstance(spec, int):
+        if not 1 <= spec <= MAX_POSITIONS:
+            raise ValueError(f"positions must be 1…{MAX_POSITIONS}, got {spec}")
+        return [360.0 * i / spec for i in range(spec)]
+    values = [float(v) for v in spec]
+    if not 1 <= len(values) <= MAX_POSITIONS:
+        raise ValueError(f"positions: 1…{MAX_POSITIONS} angles, got {len(values)}")
+    for v in values:
+        if not (math.isfinite(v) and 0.0 <= v < 360.0):
+            raise ValueError(f"positions: each angle must be a finite number of degrees in [0, 360), got {v:g}")
+    if len({round(v, 6) for v in values}) != len(values):
+        raise ValueError("positions: an angle is repeated")
+    return values
+
+
+def rates_from(spec: Sequence[float]) -> list[float]:
+    """Loading rates (N·m/s) of ``spec``; ValueError for fewer than 1 or more than MAX_RATES, a rate that is not
+    a finite positive number, or a repeated rate (the bench bounds are checked by :func:`build_plan`)."""
+    values = [float(v) for v in spec]
+    if not 1 <= len(values) <= MAX_RATES:
+        raise ValueError(f"rates: 1…{MAX_RATES} loading rates, got {len(values)}")
+    for v in values:
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"rates: each rate must be a finite number > 0 N·m/s, got {v:g}")
+    if len(set(values)) != len(values):
+        raise ValueError("rates: a rate is repeated")
+    return values
+
+
+def build_plan(test: TestProfile, reducer: ReducerSpec | None, bench: BenchSection, *,
+               positions: int | Sequence[float] | None = None, rates: Sequence[float] | None = None,
+               move_velocity_deg_per_s: float = DEFAULT_MOVE_VELOCITY_DEG_PER_S) -> Plan:
+    """The plan of a test: ``check_test_bounds`` for each stage, then the whole plan against the bench's longest
+    test and most segments. ValueError (one line naming the field) for anything out of bounds."""
+    if positions is not None and rates is not None:
+        raise ValueError("positions and rates cannot be combined in one test (run one plan after the other)")
+    if not (math.isfinite(move_velocity_deg_per_s) and move_velocity_deg_per_s > 0):
+        raise ValueError(f"move velocity must be a finite number > 0 deg/s, got {move_velocity_deg_per_s:g}")
+    torque = test.max_torque_nm if test.max_torque_nm is not None else (reducer.rated_torque_nm if reducer else None)
+    if torque is None:
+        raise ValueError("max_torque_nm is needed when no reducer is given")
+    stage_tests: list[tuple[TestProfile, float | None]]
+    if rates is not None:
+        stage_tests = [(test.model_copy(update={"rate_nm_per_s": r}), None) for r in rates_from(rates)]
+        kind: PlanKind = "rates"
+    elif positions is not None:
+        stage_tests = [(test, p) for p in positions_from(positions)]
+        kind = "positions"
+    else:
+        stage_tests = [(test, None)]
+        kind = "single"
+    stages = []
+    for i, (stage_test, position) in enumerate(stage_tests):
+        check_test_bounds(stage_test, torque, bench)
+        stages.append(Stage(i, build_profile(stage_test, reducer), position))
+    plan = Plan(kind, tuple(stages), move_velocity_deg_per_s)
+    n_segments = len(plan.segments)
+    if n_segments > bench.max_segments:
+        raise ValueError(f"the plan has {n_segments} segments; the bench takes at most {bench.max_segments}")
+    duration_s = plan.duration_s()
+    if duration_s > bench.max_test_duration_s:
+        raise ValueError(f"the plan would take {duration_s / 3600:.3g} h; the bench's longest test is "
+                         f"{bench.max_test_duration_s / 3600:.3g} h")
+    return plan
+
+
+def single_plan(profile: Profile) -> Plan:
+    """The plan of one profile where the output is (no move)."""
+    return Plan("single", (Stage(0, profile, None),))
