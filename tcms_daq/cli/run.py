@@ -440,19 +440,27 @@ def run(args: argparse.Namespace) -> int:
 
 
 def format_plan(ev: dict[str, Any]) -> str:
-    """A table of a plan's stages (position or rate, rigidity, lost motion, backlash, truth when known) and its
-    summary (max, min, spread) and, for rates, the rate sensitivity."""
+    """A table of a plan's stages (position or rate; rigidity, lost motion, backlash as value ± U; truth when
+    known), its summary (max, min, spread), for rates the rate sensitivity, and the decision."""
+    from tcms_daq.analysis.rounding import with_uncertainty
+
     entries = ev.get("positions") or ev.get("rates") or []
     positional = "positions" in ev
-    lines = [f"{'position °' if positional else 'rate N·m/s':>11} {'rigidity N·m/arcmin':>20} {'lost motion ″':>14} "
-             f"{'backlash ″':>11}   truth (rigidity / lost motion / backlash)"]
+    columns = (("rigidity_nm_per_arcmin", "rigidity N·m/arcmin", 28), ("lost_motion_arcsec", "lost motion ″", 22),
+               ("backlash_arcsec", "backlash ″", 22))
+    lines = [f"{'position °' if positional else 'rate N·m/s':>11} "
+             + " ".join(f"{label:>{width}}" for _, label, width in columns)
+             + "   truth (rigidity / lost motion / backlash)"]
     for e in entries:
         key = f"{e['position_deg']:.1f}" if positional else f"{e['rate_nm_per_s']:g}"
         truth = e.get("truth")
         truth_text = ("" if truth is None else f"{truth['rigidity_nm_per_arcmin']:.2f} / "
                       f"{truth['lost_motion_arcsec']:.2f} / {truth['backlash_arcsec']:.2f}")
-        lines.append(f"{key:>11} {e['rigidity_nm_per_arcmin']:>20.2f} {e['lost_motion_arcsec']:>14.2f} "
-                     f"{e['backlash_arcsec']:>11.2f}   {truth_text}")
+        uncertainty = e.get("uncertainty") or {}
+        cells = [with_uncertainty(e[q], uncertainty.get(q), unit="").replace(" (U not stated)", "")
+                 for q, _, _ in columns]
+        lines.append(f"{key:>11} " + " ".join(f"{c:>{w}}" for c, (_, _, w) in zip(cells, columns, strict=True))
+                     + f"   {truth_text}")
     for quantity, unit in (("rigidity_nm_per_arcmin", "N·m/arcmin"), ("lost_motion_arcsec", "″"),
                            ("backlash_arcsec", "″")):
         lines.append(f"{quantity}: max {ev[quantity + '_max']:.2f}, min {ev[quantity + '_min']:.2f}, spread "
@@ -462,7 +470,11 @@ def format_plan(ev: dict[str, Any]) -> str:
         lines.append("rate sensitivity (per tenfold loading rate): " + ", ".join(
             f"{k.removesuffix('_per_decade')} {v:+.3g}" for k, v in sensitivity.items()
             if k.endswith("_per_decade") and v is not None))
+    if not any(e.get("uncertainty") for e in entries):
+        lines.append("U not stated")
     verdict = ev.get("verdict")
     if verdict:
-        lines.append(f"verdict (worst over the stages): {'PASS' if verdict.get('passed') else 'FAIL'}")
+        decision = verdict.get("decision") or ("pass" if verdict.get("passed") else "fail")
+        rule = f" (ISO 14253-1, {verdict['rule']} rule)" if verdict.get("rule") else ""
+        lines.append(f"decision (worst over the stages): {decision.upper()}{rule}")
     return "\n".join(lines)

@@ -65,4 +65,6 @@ def test_multi_position_test_streams_progress(settings_factory, sim_config):
             assert 280 < e["rigidity_nm_per_arcmin"] < 330
         assert res["lost_motion_arcsec_max"] == max(e["lost_motion_arcsec"] for e in res["positions"])
         report = c.get(f"/api/tests/{run_id}/report")
-        assert report.status_code == 200 and "Positions (GB/T 40731)" in report.text and "U not stated" in report.text
+        assert report.status_code == 200 and "Positions (GB/T 40731)" in report.text
+        stages = report.text.split("Positions (GB/T 40731)")[1].split("</table>")[0]
+        assert stages.count(" ± ") == 3 * 4, stages  # each position's three results with their U
