@@ -55,6 +55,19 @@ class TestSummary(BaseModel):
     channels: list[str]
     compensation_version: int | None = None  # the accepted compensation upload the run used (None: config file)
     compensation_sha256: str | None = None  # of the compensator TOML the run used (single-run view)
+    bench_id: str | None = Field(None, description="the bench that ran it ([bench] id; None: recorded before fleets)")
+    bench_name: str | None = None
+    verdict: Literal["pass", "fail", "undecided"] | None = Field(
+        None, description="the results' decision (ISO 14253-1 when stated; else pass/fail); None: no verdict")
+
+
+class LoopView(BaseModel):
+    """``GET /api/tests/{id}/loop``: measured (torque, compensated angle) pairs for plotting."""
+
+    id: str
+    samples: int = Field(description="samples recorded (the pairs are a min/max selection of them)")
+    torque_nm: list[float]
+    angle_arcsec: list[float]
 
 
 class Health(BaseModel):

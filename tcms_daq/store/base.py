@@ -171,7 +171,7 @@ class RunQuery:
     """Which runs to list. Every field narrows the list; None leaves it open. ``bench`` matches a bench's id or
     its name; ``serial`` and ``reducer`` match exactly (case-insensitive); ``text`` is a substring of the run id,
     serial number, reducer, operator or bench; ``since``/``until`` bound the creation time (UNIX seconds,
-    inclusive)."""
+    inclusive; ``until`` to the millisecond, as the API shows times)."""
 
     bench: str | None = None
     reducer: str | None = None
@@ -216,8 +216,8 @@ class RunQuery:
             clauses.append(f"created_at >= {p}")
             params.append(self.since)
         if self.until is not None:
-            clauses.append(f"created_at <= {p}")
-            params.append(self.until)
+            clauses.append(f"created_at < {p}")  # the millisecond ``until`` names is in (times show ms)
+            params.append(self.until + 0.001)
         if self.text:
             pattern = "%" + self.text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
             columns = ("id", "serial_number", "reducer", "operator", "bench_id", "bench_name")

@@ -33,7 +33,10 @@ class ScriptedRunner:
 
     channels = RUN_CHANNELS
 
-    def __init__(self, rate_hz: float = 2000.0, batch_s: float = 0.01, speed: float = 10.0):
+    def __init__(self, rate_hz: float = 2000.0, batch_s: float = 0.01, speed: float = 10.0,
+                 bench_name: str = "scripted bench", bench_id: str | None = None):
+        self.bench_name = bench_name
+        self.bench_id = bench_id
         self.rate_hz = rate_hz
         self.batch_s = batch_s
         self.speed = speed  # simulated seconds per real second during a test
@@ -84,7 +87,7 @@ class ScriptedRunner:
                                 "min_step_nm": 0.1, "max_test_duration_s": 3600.0, "max_segments": 20000}}
 
     def config_snapshot(self) -> dict:
-        return {"bench": {"name": "scripted bench"}}
+        return {"bench": {"name": self.bench_name, **({"id": self.bench_id} if self.bench_id else {})}}
 
     def compensator_toml(self) -> str:
         return self.compensation
