@@ -167,3 +167,48 @@ def run_identity(*, run_id: str, request: Mapping[str, Any], profile: Mapping[st
         "verdict": decision(results),
         "results": headline_results(results),
     }
+
+
+PARAMETER_LABELS: dict[str, tuple[str, str]] = {
+    "max_torque_nm": ("test torque", "N·m"),
+    "cycles": ("evaluated loops", ""),
+    "profile": ("profile", ""),
+    "rate_nm_per_s": ("torque rate", "N·m/s"),
+    "step_nm": ("torque step", "N·m"),
+    "dwell_s": ("dwell per step", "s"),
+    "conditioning_loops": ("conditioning loops", ""),
+    "tip_dwell_s": ("dwell at ±T", "s"),
+    "start": ("first load direction", ""),
+}
+
+
+def parameter_text(parameters: Mapping[str, Any]) -> list[str]:
+    """``["test torque 500 N·m", "evaluated loops 3", …]`` in the order of :data:`PARAMETER_LABELS`."""
+    out = []
+    for key, (label, unit) in PARAMETER_LABELS.items():
+        if key in parameters:
+            value = parameters[key]
+            shown = f"{value:g}" if isinstance(value, float) else str(value)
+            out.append(f"{label} {shown}{' ' + unit if unit else ''}")
+    return out
+
+
+def identity_lines(identity: Mapping[str, Any]) -> list[str]:
+    """The identity of :func:`run_identity` as lines for people (file comments, logs)."""
+    bench = identity.get("bench_name") or "—"
+    if identity.get("bench_id"):
+        bench += f" (id {identity['bench_id']})"
+    version = identity.get("compensation_version")
+    compensation = (f"version {version}" if version is not None else "the bench config's file") + (
+        f", sha256 {str(identity['compensation_sha256'])[:12]}" if identity.get("compensation_sha256") else "")
+    lines = [
+        f"run {identity.get('run_id')} ({identity.get('status')}), started {identity.get('started_at') or '—'} UTC",
+        f"reducer {identity.get('reducer') or '—'}, serial number {identity.get('serial_number') or '—'}",
+        f"bench {bench}, operator {identity.get('operator') or '—'}",
+        "parameters: " + (", ".join(parameter_text(identity.get("parameters") or {})) or "—"),
+        f"compensation: {compensation}",
+    ]
+    results = identity.get("results") or {}
+    lines += [f"{r['label']}: {r['text']}" for r in results.values() if isinstance(r, Mapping)]
+    lines.append(f"verdict: {identity.get('verdict') or 'none'}")
+    return lines

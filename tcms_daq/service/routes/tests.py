@@ -7,8 +7,9 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from fastapi import APIRouter, Depends, Query, Response
-from fastapi.responses import HTMLResponse, StreamingResponse
+from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
+from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.service import exports
 from tcms_daq.service.deps import AUTH, Manager, Store, StoredRunDep, errors
 from tcms_daq.service.report import render_report
@@ -96,10 +97,20 @@ def get_samples(run: StoredRunDep, store: Store, format: Annotated[
     """Every recorded sample (canonical columns first), streamed from the store chunk by chunk."""
     exporter, media_type, ext = exports.EXPORTERS[format]
     chunks = exports.ChunkSource(lambda: store.iter_columns(run.id))
-    return StreamingResponse(
-        exporter(chunks, list(run.channels), run.id), media_type=media_type,
-        headers={"Content-Disposition": f'attachment; filename="tcms-{run.id}.{ext}"'},
-    )
+    headers = {"Content-Disposition": f'attachment; filename="tcms-{run.id}.{ext}"'}
+    if format == exports.ExportFormat.CSV:  # its identity is in the sidecar
+        headers["Link"] = f'</api/tests/{run.id}/metadata>; rel="describedby"; type="application/json"'
+    return StreamingResponse(exporter(chunks, list(run.channels), exports.ExportMeta.of(run)),
+                             media_type=media_type, headers=headers)
+
+
+@router.get("/{run_id}/metadata", response_model=dict[str, Any], responses=errors(404))
+def get_metadata(run: StoredRunDep, store: Store) -> JSONResponse:
+    """The sample CSV's sidecar (``tcms-<id>.json``): the test's identity (reducer, serial number, bench,
+    operator, parameters, compensation version, results ± U, verdict), its start time and full results; the
+    same as the Parquet schema metadata and the MDF4 header carry."""
+    doc = exports.sidecar(exports.ExportMeta.of(run), store.iter_columns(run.id, chunk_samples=1))
+    return JSONResponse(jsonable(doc), headers={"Content-Disposition": f'inline; filename="tcms-{run.id}.json"'})
 
 
 @router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404))
