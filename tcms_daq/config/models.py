@@ -6,6 +6,7 @@ twists the reducer output towards positive angle.
 
 from __future__ import annotations
 
+from datetime import date
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -169,13 +170,30 @@ class TestProfile(BaseModel):
 # ------------------------------------------------------------------------------------------------- bench
 
 
+class InstrumentCalibration(BaseModel):
+    """[instruments.<kind>.calibration]: the instrument's calibration as its certificate states it (printed on
+    the test certificate; not passed to the driver)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    device: str | None = Field(None, max_length=200, description="make, model and serial number of the device")
+    certificate: str | None = Field(None, max_length=200, description="calibration certificate number")
+    laboratory: str | None = Field(None, max_length=200)
+    calibrated_on: date | None = None
+    due: date | None = None
+    uncertainty: str | None = Field(None, max_length=200,
+                                    description="as the certificate states it, e.g. '0.05 % of reading (k = 2)'")
+
+
 class InstrumentConfig(BaseModel):
-    """One instrument: a driver name from the registry and a transport URL; driver options as extra keys."""
+    """One instrument: a driver name from the registry and a transport URL; driver options as extra keys; its
+    calibration (for the certificate) in ``calibration``."""
 
     model_config = ConfigDict(extra="allow")
 
     driver: str = "virtual"
     url: str = "virtual://sim"
+    calibration: InstrumentCalibration | None = None
 
 
 class InstrumentsConfig(BaseModel):

@@ -113,6 +113,19 @@ def get_metadata(run: StoredRunDep, store: Store) -> JSONResponse:
     return JSONResponse(jsonable(doc), headers={"Content-Disposition": f'inline; filename="tcms-{run.id}.json"'})
 
 
+@router.get("/{run_id}/certificate.pdf", response_class=Response, responses={
+    **errors(404), 200: {"description": "the test certificate", "content": {"application/pdf": {
+        "schema": {"type": "string", "format": "binary"}}}}})
+def get_certificate(run: StoredRunDep, store: Store) -> Response:
+    """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
+    the instruments with their calibration and the compensation version (``tcms certificate`` writes the same)."""
+    from tcms_daq.service.certificate import render_certificate
+
+    pdf = render_certificate(run, store.read_columns(run.id))
+    return Response(pdf, media_type="application/pdf",
+                    headers={"Content-Disposition": f'inline; filename="tcms-certificate-{run.id}.pdf"'})
+
+
 @router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404))
 def get_report(run: StoredRunDep, store: Store) -> HTMLResponse:
     """A self-contained HTML report: the loop, the results and the verdict."""
