@@ -85,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         store_kind(store_url)
     except TcmsError as exc:
         raise ConfigError(str(exc)) from None
+    if args.opcua_port:
+        _check_port_free(args.opcua_port)
     store = _open_store(store_url, data_dir, runner)
     everywhere = args.host in ("0.0.0.0", "::", "")
     settings = ServiceSettings(
@@ -119,6 +121,17 @@ def run(args: argparse.Namespace) -> int:
     if not server.started:
         print("TCMS-DAQ service did not start (see the error above).", flush=True)
     return 0 if server.started else 1
+
+
+def _check_port_free(port: int) -> None:
+    """The OPC UA port can be bound on 127.0.0.1 (one-line error otherwise)."""
+    import socket
+
+    with socket.socket() as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            raise ConfigError(f"--opcua-port {port}: cannot listen on 127.0.0.1:{port} ({exc.strerror})") from None
 
 
 def _open_store(url: str | None, data_dir: Path, runner):

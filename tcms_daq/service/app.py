@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import AsyncIterator
+from typing import Any
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.encoders import jsonable_encoder
@@ -107,12 +108,31 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
         app.state.discrepancy = DiscrepancyRuns(store, settings.data_dir / ANALYSES_DIRNAME, events)
         app.state.metrics = make_registry(ServiceCollector(live, events, store, lambda: manager.active_id))
         app.state.framer = asyncio.create_task(live.run(), name="live-framer")
-        await asyncio.to_thread(bench.open, live.publish)
+        app.state.opcua = None
+        sink = live.publish
+        if settings.opcua_port is not None:
+            from tcms_daq.service.opcua import OpcUaBridge
+
+            fallback_id, fallback_name = bench_identity(bench)
+            opcua = OpcUaBridge(store, store.bench_id or fallback_id, store.bench_name or fallback_name,
+                                settings.opcua_port)
+            events.add_listener(opcua.on_event)
+            await asyncio.to_thread(opcua.start)
+            app.state.opcua = opcua
+            print(f"OPC UA server on {opcua.endpoint} (bench {opcua.bench_id})", flush=True)
+
+            def sink(columns: Any) -> None:  # the acquisition thread: the live hub, then a reference for OPC UA
+                live.publish(columns)
+                opcua.live(columns)
+
+        await asyncio.to_thread(bench.open, sink)
 
     async def _stop(app: FastAPI) -> None:
         state = app.state
         await asyncio.to_thread(state.manager.shutdown)
         await asyncio.to_thread(state.runner.close)
+        if state.opcua is not None:
+            await asyncio.to_thread(state.opcua.stop)
         state.framer.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await state.framer
