@@ -281,3 +281,62 @@ class LiveStats(BaseModel):
     samples_decimated_total: int
     evicted_total: int
     clients: list[LiveClientView]
+
+
+class SpcRun(BaseModel):
+    id: str
+    created_at: str | None
+    bench_id: str | None
+    serial_number: str | None
+    value: float
+
+
+class ImrChartView(BaseModel):
+    """Individuals / moving-range chart (``tcms_daq.spc.individuals_chart``)."""
+
+    values: list[float | None]
+    moving_range: list[float | None] = Field(description="|x_i − x_(i−1)|; null for the first run")
+    baseline_n: int = Field(description="the first baseline_n runs set the limits")
+    center: float
+    sigma: float = Field(description="MR̄/d₂ of the baseline")
+    ucl: float
+    lcl: float
+    mr_center: float
+    mr_ucl: float
+    flags: list[list[str]] = Field(description="per run the rules it breaks: beyond_3_sigma, run_of_8")
+    out_of_control: list[int]
+
+
+class SpcChartView(BaseModel):
+    """``GET /api/spc/chart``."""
+
+    quantity: str
+    unit: str
+    reducer: str
+    bench: str | None
+    runs: list[SpcRun]
+    chart: ImrChartView
+
+
+class BenchBiasRow(BaseModel):
+    bench: str
+    bias: float = Field(description="this bench's results minus the reference's, in the quantity's unit")
+    u: float = Field(description="standard uncertainty")
+    U: float = Field(description="expanded uncertainty, k·u")
+    k: float
+    runs: int
+    units: int
+
+
+class BenchBiasView(BaseModel):
+    """``GET /api/spc/bias``: bench biases from reference units tested on several benches."""
+
+    quantity: str
+    unit: str
+    reducer: str
+    reference: str | None = Field(description="the bench whose bias is 0 (null: the benches' mean is 0)")
+    dof: int
+    residual_sd: float = Field(description="repeatability of one test, pooled")
+    units: list[str] = Field(description="serial numbers of the reference units used")
+    excluded_runs: int = Field(description="runs of units tested on one bench only")
+    benches: list[BenchBiasRow]

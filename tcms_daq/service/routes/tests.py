@@ -34,7 +34,7 @@ StoredStatus = Literal["queued", "running", "completed", "aborted", "failed", "i
 _Text = Annotated[str | None, Query(min_length=1, max_length=200)]
 
 
-def _unix(t: datetime | None) -> float | None:
+def unix_seconds(t: datetime | None) -> float | None:
     """An ISO 8601 instant as UNIX seconds; without a zone it is UTC."""
     if t is None:
         return None
@@ -49,7 +49,7 @@ def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, 
     """The filters of ``GET /api/tests`` (and of the SPC views): 422 with one line when they contradict."""
     try:
         return RunQuery(bench=bench, reducer=reducer, serial=serial, status=status, verdict=verdict, text=q,
-                        since=_unix(since), until=_unix(until))
+                        since=unix_seconds(since), until=unix_seconds(until))
     except StoreError as exc:
         raise RequestRejected(str(exc)) from None
 
