@@ -59,6 +59,8 @@ class TestSummary(BaseModel):
     bench_name: str | None = None
     verdict: Literal["pass", "fail", "undecided"] | None = Field(
         None, description="the results' decision (ISO 14253-1 when stated; else pass/fail); None: no verdict")
+    headline: dict[str, str] = Field(default_factory=dict, description=(
+        "rigidity, lost motion and backlash as text: 'value ± U unit (k = …)', 'value unit (U not stated)' or '—'"))
 
 
 class LoopView(BaseModel):

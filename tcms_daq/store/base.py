@@ -26,7 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import DECISIONS, decision, run_identity
+from tcms_daq.identity import DECISIONS, decision, headline_results, run_identity
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples
 
@@ -85,6 +85,7 @@ class StoredRun:
             "request": self.request,
             "results": self.results,
             "verdict": self.verdict,
+            "headline": {key: entry["text"] for key, entry in headline_results(self.results).items()},
             "error": self.error,
             "sample_count": self.sample_count,
             "channels": list(self.channels),
