@@ -285,9 +285,12 @@ class PostgresRunStore:
         return int(row[0]) if row else 0
 
     def count_by_status(self) -> dict[str, int]:
+        """Runs of this bench by status (every bench's for a store without one)."""
         counts = dict.fromkeys(RUN_STATUSES, 0)
+        own, own_params = self._own()
         with self._connection() as conn:
-            for status, n in conn.execute("SELECT status, count(*) FROM runs GROUP BY status").fetchall():
+            rows = conn.execute(f"SELECT status, count(*) FROM runs WHERE {own} GROUP BY status", own_params)
+            for status, n in rows.fetchall():
                 counts[status] = int(n)
         return counts
 

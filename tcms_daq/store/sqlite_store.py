@@ -372,8 +372,11 @@ class RunStore:
         return int(self._conn().execute(f"SELECT COUNT(*) FROM runs {where}", params).fetchone()[0])
 
     def count_by_status(self) -> dict[str, int]:
+        """Runs of this bench (and those recorded before benches) by status."""
         counts = dict.fromkeys(RUN_STATUSES, 0)
-        for status, n in self._conn().execute("SELECT status, COUNT(*) FROM runs GROUP BY status"):
+        own, own_params = self._own()
+        for status, n in self._conn().execute(f"SELECT status, COUNT(*) FROM runs WHERE {own} GROUP BY status",
+                                              own_params):
             counts[status] = n
         return counts
 

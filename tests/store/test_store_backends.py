@@ -103,6 +103,7 @@ def test_restart_interrupts_only_its_own_benchs_runs(opener: Opener):
     assert a2.get_run("b-live").status == "running"  # bench b's test goes on
     assert a2.get_run("a-done").status == "completed"
     assert a2.count_by_status()["interrupted"] == 1
+    assert a2.count_by_status()["running"] == 0 and b.count_by_status()["running"] == 1  # each its own bench
 
 
 def test_versioned_documents_belong_to_their_bench(opener: Opener):
