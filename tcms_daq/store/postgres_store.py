@@ -173,7 +173,7 @@ class PostgresRunStore:
     def _lock_bench(self, bench_id: str) -> None:
         """Hold this bench's advisory lock while the store is open (released by PostgreSQL when the process
         dies): a second service of the same bench on this database is refused."""
-        conn = psycopg.connect(self.url, autocommit=True)
+        conn = psycopg.connect(self.url, autocommit=True, connect_timeout=10)
         got = conn.execute("SELECT pg_try_advisory_lock(%s::int4, hashtext(%s))", (_BENCH_LOCK_CLASS, bench_id)).fetchone()
         if not (got and got[0]):
             conn.close()
