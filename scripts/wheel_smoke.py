@@ -77,6 +77,12 @@ def serve_one_test(tcms: Path, cwd: Path, env: dict) -> None:
         if done["status"] != "completed":
             sys.exit(f"wheel-smoke: FAILED: the served test ended {done['status']}: {json.dumps(done)[:2000]}")
         print(f"wheel-smoke: tcms serve: test {run['id']} completed", flush=True)
+        # the certificate's Typst template is package data: the installed wheel typesets it
+        with urllib.request.urlopen(f"{base}/api/tests/{run['id']}/certificate.pdf", timeout=120) as answer:
+            pdf = answer.read()
+        if not pdf.startswith(b"%PDF-"):
+            sys.exit(f"wheel-smoke: FAILED: the certificate is not a PDF: {pdf[:200]!r}")
+        print(f"wheel-smoke: tcms serve: certificate of {run['id']} ({len(pdf)} bytes)", flush=True)
     finally:
         proc.terminate()
         try:

@@ -1,7 +1,8 @@
 """Process settings from the environment, read in one place (pydantic-settings; prefix ``TCMS_``).
 
 ``TCMS_DATA_DIR`` — the run store directory (default ``./data``); ``TCMS_API_TOKEN`` — the service's bearer token
-when the config has none. Only the composition roots (CLI, service) read them; nothing else reads ``os.environ``.
+when the config has none; ``TCMS_STORE_URL`` — the run store (``postgresql://…``; beats the config's ``[store]
+url``, ``tcms serve --store`` beats it). Only the composition roots (CLI, service) read them; nothing else reads ``os.environ``.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ class Settings(BaseSettings):
 
     data_dir: Path = DEFAULT_DATA_DIR
     api_token: str | None = None
+    store_url: str | None = None
 
 
 def read_settings() -> Settings:

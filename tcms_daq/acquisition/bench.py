@@ -175,6 +175,7 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         if not opts:
             raise ConfigError(f"bench config: missing [instruments.{kind}]")
         driver_name = opts.pop("driver", None)
+        opts.pop("calibration", None)  # for the certificate, not the driver
         if not driver_name:
             raise ConfigError(f"bench config: [instruments.{kind}] has no 'driver'")
         opts.pop("uncertainty", None)  # the declared uncertainty of its reading: the evaluation's, not the driver's

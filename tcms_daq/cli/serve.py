@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from tcms_daq.cli.options import add_bench_config_options
-from tcms_daq.errors import ConfigError
+from tcms_daq.errors import ConfigError, TcmsError
 from tcms_daq.settings import DEFAULT_DATA_DIR, read_settings
 
 
@@ -24,7 +24,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 = any free port)")
     p.add_argument("--data-dir", type=Path, default=None,
-                   help=f"run store directory (default: $TCMS_DATA_DIR or ./{DEFAULT_DATA_DIR})")
+                   help=f"run store directory (default: $TCMS_DATA_DIR or ./{DEFAULT_DATA_DIR}); the SQLite store "
+                        "and the discrepancy analyses live here")
+    p.add_argument("--store", metavar="URL", default=None,
+                   help="run store: postgresql://user@host:port/db (a plant's benches share one database) or "
+                        "sqlite:///path (default: $TCMS_STORE_URL, else the config's [store] url, else the SQLite "
+                        "file in the data directory)")
+    p.add_argument("--opcua-port", type=int, default=None, metavar="N",
+                   help="serve the bench's state and results over OPC UA at opc.tcp://127.0.0.1:N (0 = any free "
+                        "port; off by default)")
     p.add_argument("--sim-speed", type=float, default=1.0,
                    help="simulated seconds per real second for a simulated bench (default 1 = real time)")
     p.add_argument("--read-token", choices=["auto", "on", "off"], default="auto",
@@ -59,20 +67,31 @@ def run(args: argparse.Namespace) -> int:
     from tcms_daq.service.app import ServiceSettings, create_app
     from tcms_daq.service.auth import RedactTokenInAccessLog
     from tcms_daq.service.runner import BenchRunner
-    from tcms_daq.store import STORE_FILENAME
+    from tcms_daq.store.opening import store_kind
 
     if not (args.sim_speed > 0 and math.isfinite(args.sim_speed)):
         raise ConfigError(f"--sim-speed must be a positive number, got {args.sim_speed}")
     if not 0 <= args.port <= 65535:
         raise ConfigError(f"--port must be 0…65535, got {args.port}")
-    data_dir = args.data_dir or read_settings().data_dir
-    _check_store(Path(data_dir) / STORE_FILENAME)
+    if args.opcua_port is not None and not 0 <= args.opcua_port <= 65535:
+        raise ConfigError(f"--opcua-port must be 0…65535, got {args.opcua_port}")
+    env = read_settings()
+    data_dir = Path(args.data_dir or env.data_dir)
     # Compose the bench and reach its instruments before the server starts, so a bad config or an instrument
     # that does not answer is a one-line error, not a startup traceback after the URL was printed.
     runner = BenchRunner.from_config(args.config, sim_speed=args.sim_speed, overrides=args.overrides)
+    store_url = args.store or env.store_url or runner.config.store.url
+    try:
+        store_kind(store_url)
+    except TcmsError as exc:
+        raise ConfigError(str(exc)) from None
+    if args.opcua_port:
+        _check_port_free(args.opcua_port)
+    store = _open_store(store_url, data_dir, runner)
     everywhere = args.host in ("0.0.0.0", "::", "")
     settings = ServiceSettings(
-        data_dir=data_dir, config_path=args.config, sim_speed=args.sim_speed, api_token=_service_token(runner.config),
+        data_dir=data_dir, config_path=args.config, store_url=store_url, sim_speed=args.sim_speed,
+        opcua_port=args.opcua_port, api_token=_service_token(runner.config),
         # Host check against DNS rebinding on loopback; bound to all interfaces the names are not known here
         allowed_hosts=None if everywhere else ("127.0.0.1", "localhost", "::1", "[::1]", args.host),
         read_token_required=args.read_token == "on" or (args.read_token == "auto" and not _loopback(args.host)),
@@ -83,15 +102,17 @@ def run(args: argparse.Namespace) -> int:
         sock.bind((args.host, args.port))
     except OSError as exc:
         sock.close()
+        store.close()
         raise ConfigError(f"cannot listen on {args.host}:{args.port} ({exc.strerror})") from None
     try:
         runner.bench.connect()
     except BaseException:
         sock.close()
+        store.close()
         raise
-    app = create_app(settings, runner=runner)
+    app = create_app(settings, runner=runner, store=store)
     sock.listen(2048)  # connections made from now on wait in the backlog until the app is ready
-    _print_banner(args, app, runner, sock.getsockname()[1], Path(data_dir) / STORE_FILENAME)
+    _print_banner(args, app, runner, sock.getsockname()[1], store)
     config = uvicorn.Config(app, log_level=args.log_level, ws_per_message_deflate=False, lifespan="on",
                             timeout_graceful_shutdown=10)
     logging.getLogger("uvicorn.access").addFilter(RedactTokenInAccessLog())
@@ -102,18 +123,37 @@ def run(args: argparse.Namespace) -> int:
     return 0 if server.started else 1
 
 
-def _check_store(path: Path) -> None:
-    """The run store can be created or opened (one-line error otherwise; runs are left as they are)."""
+def _check_port_free(port: int) -> None:
+    """The OPC UA port can be bound on 127.0.0.1 (one-line error otherwise)."""
+    import socket
+
+    with socket.socket() as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            raise ConfigError(f"--opcua-port {port}: cannot listen on 127.0.0.1:{port} ({exc.strerror})") from None
+
+
+def _open_store(url: str | None, data_dir: Path, runner):
+    """The bench's run store, opened as the service will use it (its runs left active by a dead service are
+    marked interrupted); a one-line error when it cannot be opened."""
     import sqlite3
 
-    from tcms_daq.store import RunStore
+    from tcms_daq.service.app import bench_identity
+    from tcms_daq.store import StoreError, open_store
 
+    bench_id, bench_name = bench_identity(runner)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        RunStore(path, recover=False).close()
+        data_dir.mkdir(parents=True, exist_ok=True)
+        return open_store(url, data_dir, bench_id=bench_id, bench_name=bench_name)
+    except StoreError as exc:
+        raise ConfigError(str(exc)) from None
     except (OSError, sqlite3.Error) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise ConfigError(f"run store {path}: cannot open it ({reason}); choose another --data-dir") from None
+        from tcms_daq.store.opening import sqlite_path
+
+        raise ConfigError(f"run store {sqlite_path(url, data_dir)}: cannot open it ({reason}); choose another "
+                          "--data-dir") from None
 
 
 def _server(config):
@@ -129,7 +169,7 @@ def _server(config):
     return Server(config)
 
 
-def _print_banner(args: argparse.Namespace, app, runner, port: int, store_path: Path) -> None:
+def _print_banner(args: argparse.Namespace, app, runner, port: int, store) -> None:
     """What a test engineer needs: the dashboard URL with the token, the token for scripts, the bench."""
     host = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     host = f"[{host}]" if ":" in host else host
@@ -146,5 +186,5 @@ def _print_banner(args: argparse.Namespace, app, runner, port: int, store_path: 
     print(f"  API token:  {token}  ({where}; scripts send 'Authorization: Bearer <token>')")
     print(f"  API docs:   {base}/docs")
     print(f"  Bench:      {status['name']} ({status['config']}), {clock}")
-    print(f"  Run store:  {store_path.resolve()}")
+    print(f"  Run store:  {store.describe()} (bench id {store.bench_id})")
     print("  Stop with Ctrl+C (an active test is aborted and the bench ramps down).", flush=True)

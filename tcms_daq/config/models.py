@@ -6,6 +6,7 @@ twists the reducer output towards positive angle.
 
 from __future__ import annotations
 
+from datetime import date
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -255,13 +256,30 @@ class BenchUncertainty(_Declared):
 # ------------------------------------------------------------------------------------------------- bench
 
 
+class InstrumentCalibration(BaseModel):
+    """[instruments.<kind>.calibration]: the instrument's calibration as its certificate states it (printed on
+    the test certificate; not passed to the driver)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    device: str | None = Field(None, max_length=200, description="make, model and serial number of the device")
+    certificate: str | None = Field(None, max_length=200, description="calibration certificate number")
+    laboratory: str | None = Field(None, max_length=200)
+    calibrated_on: date | None = None
+    due: date | None = None
+    uncertainty: str | None = Field(None, max_length=200,
+                                    description="as the certificate states it, e.g. '0.05 % of reading (k = 2)'")
+
+
 class InstrumentConfig(BaseModel):
-    """One instrument: a driver name from the registry and a transport URL; driver options as extra keys."""
+    """One instrument: a driver name from the registry and a transport URL; driver options as extra keys; its
+    calibration (for the certificate) in ``calibration``."""
 
     model_config = ConfigDict(extra="allow")
 
     driver: str = "virtual"
     url: str = "virtual://sim"
+    calibration: InstrumentCalibration | None = None
 
 
 class TorqueInstrumentConfig(InstrumentConfig):
@@ -285,12 +303,18 @@ class InstrumentsConfig(BaseModel):
 
 
 class BenchSection(BaseModel):
-    """[bench]: name, torque limit, compensation and catalogue files, and the bounds a test request must keep
-    (``tcms_daq.procedure.profiles.check_test_bounds``): loading rates, the smallest step, the longest test."""
+    """[bench]: id and name, torque limit, compensation and catalogue files, and the bounds a test request must keep
+    (``tcms_daq.procedure.profiles.check_test_bounds``): loading rates, the smallest step, the longest test.
+
+    ``id`` names the bench in a run store shared by a plant's benches: every run records it, the bench's
+    compensations and bench model versions are kept under it, and a restarting service marks only its own
+    bench's runs as interrupted. None: derived from ``name`` (``bench_id``)."""
 
     model_config = ConfigDict(extra="allow")
 
-    name: str = "bench"
+    id: str | None = Field(None, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$",
+                           description="letters, digits, '.', '_', '-' (at most 64)")
+    name: str = Field("bench", min_length=1, max_length=200)
     max_torque_nm: float = Field(2000.0, gt=0.0)
     compensation: str | None = None
     reducers: str = "reducers.toml"
@@ -304,6 +328,31 @@ class BenchSection(BaseModel):
     @property
     def rate_limit_nm_per_s(self) -> float:
         return self.max_rate_nm_per_s if self.max_rate_nm_per_s is not None else self.max_torque_nm
+
+    @property
+    def bench_id(self) -> str:
+        """``id``, or one made from ``name`` (lower case, runs of other characters as '-')."""
+        if self.id is not None:
+            return self.id
+        return bench_id_from_name(self.name)
+
+
+def bench_id_from_name(name: str) -> str:
+    """A bench id from a bench name: ``"Loopback bench (ND 287)"`` → ``"loopback-bench-nd-287"``."""
+    import re
+
+    slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")[:64].rstrip("-")
+    return slug or "bench"
+
+
+class StoreSection(BaseModel):
+    """[store]: where the runs are kept. ``url``: ``postgresql://user@host:port/db`` (a plant's benches share one
+    database) or ``sqlite:///path``; None: the SQLite file in the data directory. ``tcms serve --store`` and
+    ``TCMS_STORE_URL`` take precedence."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    url: str | None = Field(None, min_length=1)
 
 
 class RichReducerConfig(BaseModel):
@@ -369,6 +418,7 @@ class BenchConfig(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     bench: BenchSection = Field(default_factory=BenchSection)
+    store: StoreSection = Field(default_factory=StoreSection)
     instruments: InstrumentsConfig = Field(default_factory=InstrumentsConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
     procedure: TestProfile = Field(default_factory=TestProfile)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import AsyncIterator
+from typing import Any
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.encoders import jsonable_encoder
@@ -33,7 +34,7 @@ from tcms_daq.service.routes.service import STATIC_DIR
 from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
 from tcms_daq.service.settings import ServiceSettings
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
-from tcms_daq.store import STORE_FILENAME, RunStore
+from tcms_daq.store import Store, open_store
 from tcms_daq.store.discrepancy import ANALYSES_DIRNAME
 
 __all__ = ["ServiceSettings", "create_app"]
@@ -54,16 +55,40 @@ def _operation_id(route: APIRoute) -> str:
     return route.name
 
 
-def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastAPI:
+def bench_identity(runner: Runner) -> tuple[str, str]:
+    """(id, name) of the runner's bench, from its config snapshot (``[bench] id``, else made from the name)."""
+    from tcms_daq.config.models import bench_id_from_name
+
+    section = runner.config_snapshot().get("bench") or {}
+    name = str(section.get("name") or "bench")
+    return str(section.get("id") or bench_id_from_name(name)), name
+
+
+def create_app(settings: ServiceSettings, runner: Runner | None = None, store: Store | None = None) -> FastAPI:
+    """The service. ``runner``: the bench (default: composed from ``settings.config_path``); ``store``: an open
+    run store of that bench (default: opened from ``settings.store_url`` or the data directory). Both are
+    closed when the app stops."""
     token, token_source = resolve_token(settings.api_token)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
-        store = RunStore(settings.data_dir / STORE_FILENAME)
         bench: Runner = runner if runner is not None else await asyncio.to_thread(
             BenchRunner.from_config, settings.config_path, sim_speed=settings.sim_speed
         )
+        if store is None:
+            bench_id, bench_name = bench_identity(bench)
+            runs: Store = await asyncio.to_thread(open_store, settings.store_url, settings.data_dir,
+                                                  bench_id=bench_id, bench_name=bench_name)
+        else:
+            runs = store
+        await _serve(app, bench, runs)
+        try:
+            yield
+        finally:
+            await _stop(app)
+
+    async def _serve(app: FastAPI, bench: Runner, store: Store) -> None:
         # the compensation in use is the latest accepted version (a file from before versions is imported once)
         saved_compensation = settings.data_dir / COMPENSATION_FILENAME
         if store.compensation() is None and saved_compensation.is_file():
@@ -82,19 +107,38 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None) -> FastA
         app.state.events, app.state.manager = events, manager
         app.state.discrepancy = DiscrepancyRuns(store, settings.data_dir / ANALYSES_DIRNAME, events)
         app.state.metrics = make_registry(ServiceCollector(live, events, store, lambda: manager.active_id))
-        framer = asyncio.create_task(live.run(), name="live-framer")
-        await asyncio.to_thread(bench.open, live.publish)
-        try:
-            yield
-        finally:
-            await asyncio.to_thread(manager.shutdown)
-            await asyncio.to_thread(bench.close)
-            framer.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await framer
-            for client in tuple(live.clients):
-                client.close()
-            store.close()
+        app.state.framer = asyncio.create_task(live.run(), name="live-framer")
+        app.state.opcua = None
+        sink = live.publish
+        if settings.opcua_port is not None:
+            from tcms_daq.service.opcua import OpcUaBridge
+
+            fallback_id, fallback_name = bench_identity(bench)
+            opcua = OpcUaBridge(store, store.bench_id or fallback_id, store.bench_name or fallback_name,
+                                settings.opcua_port)
+            events.add_listener(opcua.on_event)
+            await asyncio.to_thread(opcua.start)
+            app.state.opcua = opcua
+            print(f"OPC UA server on {opcua.endpoint} (bench {opcua.bench_id})", flush=True)
+
+            def sink(columns: Any) -> None:  # the acquisition thread: the live hub, then a reference for OPC UA
+                live.publish(columns)
+                opcua.live(columns)
+
+        await asyncio.to_thread(bench.open, sink)
+
+    async def _stop(app: FastAPI) -> None:
+        state = app.state
+        await asyncio.to_thread(state.manager.shutdown)
+        await asyncio.to_thread(state.runner.close)
+        if state.opcua is not None:
+            await asyncio.to_thread(state.opcua.stop)
+        state.framer.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await state.framer
+        for client in tuple(state.live.clients):
+            client.close()
+        await asyncio.to_thread(state.store.close)
 
     app = FastAPIOffline(  # /docs and /redoc from packaged assets, no CDN
         title="TCMS-DAQ",

@@ -20,7 +20,8 @@ from tcms_daq.service.runner import Runner
 from tcms_daq.service.schemas import ErrorBody, ValidationErrorBody
 from tcms_daq.service.settings import ServiceSettings
 from tcms_daq.service.testruns import TestManager, UnknownRun
-from tcms_daq.store import RunStore, StoredRun
+from tcms_daq.store import Store as RunStoreType
+from tcms_daq.store import StoredRun
 
 
 def _state(name: str) -> Callable[[Request], Any]:
@@ -33,7 +34,7 @@ def _state(name: str) -> Callable[[Request], Any]:
     return get
 
 
-Store = Annotated[RunStore, Depends(_state("store"))]
+Store = Annotated[RunStoreType, Depends(_state("store"))]
 Bench = Annotated[Runner, Depends(_state("runner"))]
 Manager = Annotated[TestManager, Depends(_state("manager"))]
 Live = Annotated[LiveHub, Depends(_state("live"))]

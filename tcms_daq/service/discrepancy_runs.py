@@ -21,7 +21,7 @@ from tcms_daq.service.events import EventHub
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import DiscrepancyRequest
 from tcms_daq.service.testruns import Conflict, UnknownRun
-from tcms_daq.store import ACTIVE_STATUSES, RunStore
+from tcms_daq.store import ACTIVE_STATUSES, Store
 from tcms_daq.store.discrepancy import (
     AnalysisArchive,
     ProvisionalNames,
@@ -34,7 +34,7 @@ from tcms_daq.store.discrepancy import (
 class DiscrepancyRuns:
     """Runs and keeps discrepancy analyses of the runs in ``store``; files under ``root``."""
 
-    def __init__(self, store: RunStore, root: Path, events: EventHub | None = None):
+    def __init__(self, store: Store, root: Path, events: EventHub | None = None):
         self.store = store
         self.archive = AnalysisArchive(root)
         self.events = events

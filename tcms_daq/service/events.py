@@ -47,6 +47,13 @@ class EventHub:
         self.clients: set[EventClient] = set()
         self._lock = threading.Lock()
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._listeners: list[Callable[[dict], None]] = []
+
+    def add_listener(self, listener: Callable[[dict], None]) -> None:
+        """Call ``listener(event)`` for every event, in order, from the publishing thread (it must return at once,
+        e.g. hand the event to its own loop): the OPC UA bridge follows the test state this way."""
+        with self._lock:
+            self._listeners.append(listener)
 
     def bind_loop(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
@@ -57,6 +64,8 @@ class EventHub:
             self.sequence += 1
             event = {"type": event_type, "seq": self.sequence, "time": time.time(), **fields}
             self.history.append(event)
+            for listener in self._listeners:
+                listener(event)
             loop = self._loop
             # deliver under the lock so events reach the loop in sequence order
             if loop is not None and not loop.is_closed():

@@ -10,11 +10,11 @@ from prometheus_client.registry import Collector
 
 from tcms_daq.service.events import EventHub
 from tcms_daq.service.live import LiveHub
-from tcms_daq.store import RunStore
+from tcms_daq.store import Store
 
 
 class ServiceCollector(Collector):
-    def __init__(self, live: LiveHub, events: EventHub, store: RunStore, active_run: Callable[[], str | None]):
+    def __init__(self, live: LiveHub, events: EventHub, store: Store, active_run: Callable[[], str | None]):
         self.live = live
         self.events = events
         self.store = store

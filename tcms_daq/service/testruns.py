@@ -15,7 +15,7 @@ from tcms_daq.errors import TcmsError
 from tcms_daq.service.events import EventHub
 from tcms_daq.service.runner import RequestRejected, Runner, RunOutcome
 from tcms_daq.service.schemas import TestRequest
-from tcms_daq.store import Recorder, RunStore, StoredRun, new_run_id
+from tcms_daq.store import Recorder, Store, StoredRun, new_run_id
 
 
 class Conflict(TcmsError):
@@ -27,7 +27,7 @@ class UnknownRun(TcmsError):
 
 
 class TestManager:
-    def __init__(self, store: RunStore, runner: Runner, events: EventHub, recorder_flush_s: float = 0.2):
+    def __init__(self, store: Store, runner: Runner, events: EventHub, recorder_flush_s: float = 0.2):
         self.store = store
         self.runner = runner
         self.events = events

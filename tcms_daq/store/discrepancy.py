@@ -24,7 +24,7 @@ from tcms_daq.discrepancy.stored import ForwardModel, resimulate
 from tcms_daq.discrepancy.workflow import DiscrepancyResult
 from tcms_daq.errors import DataFormatError, TcmsError
 from tcms_daq.samples import Samples, write_csv
-from tcms_daq.store.sqlite_store import BenchModelVersion, RunStore, StoredRun, new_run_id
+from tcms_daq.store.base import BenchModelVersion, Store, StoredRun, new_run_id
 
 ModelForReducer = Callable[[str], ForwardModel]
 """Reducer name → its forward model; raises DataFormatError (one line) for an unknown reducer."""
@@ -47,7 +47,7 @@ class StaleAnalysis(TcmsError):
     """An analysis made against an older bench model version cannot be applied to the current one."""
 
 
-def bench_model(store: RunStore) -> tuple[int, DiscrepancyModel]:
+def bench_model(store: Store) -> tuple[int, DiscrepancyModel]:
     """(version, model) of the bench model in use: the effects accepted so far (version 0: none)."""
     latest = store.bench_model()
     if latest is None:
@@ -55,7 +55,7 @@ def bench_model(store: RunStore) -> tuple[int, DiscrepancyModel]:
     return latest[0].version, parse_model(latest[1], f"bench model version {latest[0].version}")
 
 
-def apply_analysis(store: RunStore, found: DiscrepancyModel, *, against_version: int, analysis_id: str,
+def apply_analysis(store: Store, found: DiscrepancyModel, *, against_version: int, analysis_id: str,
                    run_id: str, note: str = "") -> BenchModelVersion:
     """Add the terms an analysis found to the bench model as its next version. The analysis must have been made
     against the version in use (StaleAnalysis otherwise: its terms are what *that* version missed)."""
@@ -72,7 +72,7 @@ def apply_analysis(store: RunStore, found: DiscrepancyModel, *, against_version:
                                  analysis_id=analysis_id, run_id=run_id)
 
 
-def pair_from_store(store: RunStore, run_id: str, model_for: ModelForReducer, where: str = "",
+def pair_from_store(store: Store, run_id: str, model_for: ModelForReducer, where: str = "",
                     effects_model: DiscrepancyModel | None = None) -> tuple[Samples, Samples]:
     """(measured, simulated) of run ``run_id`` of an open store: the simulation is the recorded reducer's model
     on the measured torque, with the terms of ``effects_model`` (the bench model's accepted effects) added.
@@ -131,7 +131,7 @@ class AnalysisArchive:
     def __init__(self, root: str | Path):
         self.root = Path(root)
 
-    def analyse(self, store: RunStore, run_id: str, model_for: ModelForReducer, *,
+    def analyse(self, store: Store, run_id: str, model_for: ModelForReducer, *,
                 signal_period_arcsec: float = 72.0, effects: list[str] | None = None) -> dict[str, Any]:
         """Analyse stored run ``run_id`` against the bench model in use and keep it; returns the document.
         DataFormatError (one line) when the run cannot be compared."""
@@ -165,7 +165,7 @@ class AnalysisArchive:
         tmp.replace(out / RESULT_FILENAME)
         return doc
 
-    def apply(self, store: RunStore, analysis_id: str, *, accept_provisional: bool = False) -> BenchModelVersion:
+    def apply(self, store: Store, analysis_id: str, *, accept_provisional: bool = False) -> BenchModelVersion:
         """Add the effects analysis ``analysis_id`` named to the bench model (its next version). Provisional
         names (the verdict was not ``explained``) only with ``accept_provisional``."""
         doc = self.get(analysis_id)

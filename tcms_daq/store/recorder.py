@@ -12,13 +12,13 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from tcms_daq.store.sqlite_store import RunStore
+from tcms_daq.store.base import Store
 
 
 class Recorder:
     """Buffers column batches of one run and commits them to ``store`` in the background."""
 
-    def __init__(self, store: RunStore, run_id: str, flush_interval_s: float = 0.2):
+    def __init__(self, store: Store, run_id: str, flush_interval_s: float = 0.2):
         self.store = store
         self.run_id = run_id
         self.flush_interval_s = flush_interval_s

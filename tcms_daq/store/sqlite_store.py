@@ -12,27 +12,40 @@ opens with ``recover=False`` and leaves the active run alone.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sqlite3
 import threading
 import time
-import uuid
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from tcms_daq.errors import TcmsError
-from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
+from tcms_daq.identity import decision
 from tcms_daq.samples import Samples, samples_from_columns
+from tcms_daq.store.base import (
+    ACTIVE_STATUSES,
+    FINAL_STATUSES,
+    INTERRUPTED_ERROR,
+    RUN_STATUSES,
+    VERSIONED,
+    BenchModelVersion,
+    CompensationVersion,
+    RunColumns,
+    RunQuery,
+    StoredRun,
+    StoreError,
+    check_new_run,
+    dumps,
+    new_run_id,
+    pack_batches,
+    text_sha256,
+    unpack_blocks,
+)
 
-RUN_STATUSES: tuple[str, ...] = STORED  # tcms_daq.runstate.RunState: one vocabulary
-ACTIVE_STATUSES: tuple[str, ...] = STORED_ACTIVE
-FINAL_STATUSES: tuple[str, ...] = STORED_FINAL
+__all__ = ["ACTIVE_STATUSES", "FINAL_STATUSES", "RUN_STATUSES", "STORE_FILENAME", "BenchModelVersion",
+           "CompensationVersion", "RunStore", "StoreError", "StoredRun", "new_run_id", "text_sha256"]
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -77,111 +90,27 @@ CREATE TABLE IF NOT EXISTS sample_batches (
 );
 """
 
-_LE_F64 = np.dtype("<f8")
+# Columns added since the first schema: (table, column, type). Added on open when missing; the searchable run
+# columns of an older store are filled from its JSON request and results.
+_ADDED_COLUMNS: tuple[tuple[str, str, str], ...] = (
+    ("runs", "compensation_version", "INTEGER"),
+    ("runs", "bench_id", "TEXT"),
+    ("runs", "bench_name", "TEXT"),
+    ("runs", "reducer", "TEXT"),
+    ("runs", "serial_number", "TEXT"),
+    ("runs", "operator", "TEXT"),
+    ("runs", "verdict", "TEXT"),
+    ("compensations", "bench_id", "TEXT"),
+    ("bench_models", "bench_id", "TEXT"),
+)
+_RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profile, results, error, "
+                "config_snapshot, compensator_toml, channels, sample_count, compensation_version, bench_id, "
+                "bench_name")
+_LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
 
 
 #: file name of the run store inside a data directory (``tcms serve --data-dir``)
 STORE_FILENAME = "tcms-runs.sqlite3"
-
-
-class StoreError(TcmsError):
-    """The run store cannot do what was asked (unknown run, bad channel set, closed store)."""
-
-
-@dataclass(frozen=True)
-class StoredRun:
-    """One run as read from the store. Times are UNIX seconds (UTC)."""
-
-    id: str
-    created_at: float
-    started_at: float | None
-    finished_at: float | None
-    status: str
-    request: dict[str, Any]
-    profile: dict[str, Any] | None
-    results: dict[str, Any] | None
-    error: str | None
-    config_snapshot: dict[str, Any] | None
-    compensator_toml: str | None
-    channels: tuple[str, ...]
-    sample_count: int
-    compensation_version: int | None = None  # the accepted upload in use (None: the bench config's file)
-
-    def summary(self) -> dict[str, Any]:
-        """The JSON view used by the REST API (everything but the large snapshot fields)."""
-        return {
-            "id": self.id,
-            "status": self.status,
-            "created_at": _iso(self.created_at),
-            "started_at": _iso(self.started_at),
-            "finished_at": _iso(self.finished_at),
-            "request": self.request,
-            "results": self.results,
-            "error": self.error,
-            "sample_count": self.sample_count,
-            "channels": list(self.channels),
-            "compensation_version": self.compensation_version,
-            "compensation_sha256": None if self.compensator_toml is None else text_sha256(self.compensator_toml),
-        }
-
-
-def text_sha256(text: str) -> str:
-    return hashlib.sha256(text.encode("utf-8")).hexdigest()
-
-
-@dataclass(frozen=True)
-class CompensationVersion:
-    """One accepted compensation upload (the TOML as the service applied it), or a rollback to an earlier one."""
-
-    version: int
-    created_at: float
-    note: str
-    sha256: str
-    rollback_of: int | None = None
-
-    def summary(self) -> dict[str, Any]:
-        return {"version": self.version, "created_at": _iso(self.created_at), "note": self.note,
-                "sha256": self.sha256, "rollback_of": self.rollback_of}
-
-
-@dataclass(frozen=True)
-class BenchModelVersion:
-    """One version of the bench model: the effects accepted into it (a discrepancy model TOML) and where they
-    came from (the analysis of which run). Version 0, the catalogue reducer's model alone, is not stored."""
-
-    version: int
-    created_at: float
-    note: str
-    sha256: str
-    analysis_id: str | None = None
-    run_id: str | None = None
-
-    def summary(self) -> dict[str, Any]:
-        return {"version": self.version, "created_at": _iso(self.created_at), "note": self.note,
-                "sha256": self.sha256, "analysis_id": self.analysis_id, "run_id": self.run_id}
-
-
-def _iso(t: float | None) -> str | None:
-    return None if t is None else datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
-
-
-def new_run_id() -> str:
-    """A time-sortable, human-readable run id: ``20261121-153012-1a2b3c``."""
-    return f"{datetime.now(UTC):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:6]}"
-
-
-def _dumps(obj: Any) -> str | None:
-    return None if obj is None else json.dumps(obj, allow_nan=False, default=_json_default)
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
 def _loads(text: str | None) -> Any:
@@ -192,28 +121,50 @@ class RunStore:
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Each thread gets its own connection (WAL lets readers run beside the one writer); writes are serialised
-    by a lock so batches of one run keep their order.
+    by a lock so batches of one run keep their order. Opened for a bench (``bench_id``, ``bench_name``), it
+    records that bench on every run it creates and keeps that bench's versioned documents; without one it is a
+    store of one bench as before fleets (every run and document is its own).
     """
 
-    def __init__(self, path: str | Path, *, recover: bool = True, synchronous: str = "NORMAL"):
+    def __init__(self, path: str | Path, *, recover: bool = True, synchronous: str = "NORMAL",
+                 bench_id: str | None = None, bench_name: str | None = None):
         """``synchronous``: SQLite's durability level in WAL mode — ``NORMAL`` (a commit survives a crash of the
-        process) or ``FULL`` (also a power cut: every commit is synced to the disk)."""
+        process) or ``FULL`` (also a power cut: every commit is synced to the disk). ``recover``: mark the runs
+        a dead service left active (of this bench, and those recorded before benches) as ``interrupted``."""
         if synchronous not in ("NORMAL", "FULL"):
             raise ValueError(f"synchronous must be NORMAL or FULL, got {synchronous!r}")
         self.synchronous = synchronous
         self.path = Path(path)
+        self.bench_id = bench_id
+        self.bench_name = bench_name
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._local = threading.local()
         self._connections: list[sqlite3.Connection] = []
         self._conn_lock = threading.Lock()
         self._write_lock = threading.Lock()
         self._closed = False
-        conn = self._conn()
-        conn.executescript(_SCHEMA)
-        columns = {row[1] for row in conn.execute("PRAGMA table_info(runs)")}
-        if "compensation_version" not in columns:  # a store from before compensation versions
-            conn.execute("ALTER TABLE runs ADD COLUMN compensation_version INTEGER")
+        self._migrate()
         self.recovered_run_ids: list[str] = self._mark_interrupted() if recover else []
+
+    def describe(self) -> str:
+        return str(self.path.resolve())
+
+    def _migrate(self) -> None:
+        conn = self._conn()
+        with self._write_lock:
+            conn.executescript(_SCHEMA)
+            for table, column, kind in _ADDED_COLUMNS:
+                if column not in {row[1] for row in conn.execute(f"PRAGMA table_info({table})")}:
+                    conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
+            pending = conn.execute("SELECT id, request, results FROM runs WHERE reducer IS NULL AND verdict IS NULL "
+                                   "AND serial_number IS NULL AND request != '{}'").fetchall()
+            for run_id, request, results in pending:  # runs stored before the searchable columns
+                cols = RunColumns.of(_loads(request) or {})
+                conn.execute("UPDATE runs SET reducer=?, serial_number=?, operator=?, verdict=? WHERE id=?",
+                             (cols.reducer, cols.serial_number, cols.operator, decision(_loads(results)), run_id))
+            for index in ("runs_bench ON runs(bench_id, created_at)", "runs_serial ON runs(serial_number)",
+                          "runs_reducer ON runs(reducer)"):
+                conn.execute(f"CREATE INDEX IF NOT EXISTS {index}")
 
     # -- connections -----------------------------------------------------------------------------------------
     def _conn(self) -> sqlite3.Connection:
@@ -250,20 +201,27 @@ class RunStore:
         with self._write_lock:
             return self._conn().execute(sql, params)
 
+    def _own(self, column: str = "bench_id") -> tuple[str, tuple[Any, ...]]:
+        """SQL condition (and parameters) selecting this bench's rows and those recorded before benches."""
+        if self.bench_id is None:
+            return "1=1", ()
+        return f"({column} = ? OR {column} IS NULL)", (self.bench_id,)
+
     # -- runs ------------------------------------------------------------------------------------------------
     def _mark_interrupted(self) -> list[str]:
-        conn = self._conn()
-        rows = conn.execute(
-            "SELECT id FROM runs WHERE status IN (?, ?) ORDER BY created_at", ACTIVE_STATUSES
-        ).fetchall()
-        ids = [r[0] for r in rows]
-        if ids:
-            with self._write_lock:
+        own, own_params = self._own()
+        with self._write_lock:
+            conn = self._conn()
+            rows = conn.execute(
+                f"SELECT id FROM runs WHERE status IN (?, ?) AND {own} ORDER BY created_at",
+                (*ACTIVE_STATUSES, *own_params),
+            ).fetchall()
+            ids = [r[0] for r in rows]
+            if ids:
                 conn.execute(
                     "UPDATE runs SET status='interrupted', finished_at=COALESCE(finished_at, ?), "
-                    "error=COALESCE(error, 'the service stopped while this run was active') "
-                    "WHERE status IN (?, ?)",
-                    (time.time(), *ACTIVE_STATUSES),
+                    f"error=COALESCE(error, ?) WHERE status IN (?, ?) AND {own}",
+                    (time.time(), INTERRUPTED_ERROR, *ACTIVE_STATUSES, *own_params),
                 )
         return ids
 
@@ -279,24 +237,28 @@ class RunStore:
         compensation_version: int | None = None,
         status: str = "queued",
     ) -> StoredRun:
-        if status not in RUN_STATUSES:
-            raise StoreError(f"unknown run status {status!r}")
-        if not channels or len(set(channels)) != len(channels):
-            raise StoreError(f"run {run_id}: channel names must be unique and non-empty, got {list(channels)}")
+        check_new_run(run_id, channels, status)
+        cols = RunColumns.of(request)
         try:
             self._write(
                 "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
-                "channels, compensation_version) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (
                     run_id,
                     time.time(),
                     status,
-                    _dumps(dict(request)),
-                    _dumps(None if profile is None else dict(profile)),
-                    _dumps(None if config_snapshot is None else dict(config_snapshot)),
+                    dumps(dict(request)),
+                    dumps(None if profile is None else dict(profile)),
+                    dumps(None if config_snapshot is None else dict(config_snapshot)),
                     compensator_toml,
                     json.dumps(list(channels)),
                     compensation_version,
+                    self.bench_id,
+                    self.bench_name,
+                    cols.reducer,
+                    cols.serial_number,
+                    cols.operator,
                 ),
             )
         except sqlite3.IntegrityError:
@@ -327,36 +289,38 @@ class RunStore:
             sets.append("error=?")
             params.append(error)
         if results is not None:
-            sets.append("results=?")
-            params.append(_dumps(dict(results)))
+            sets += ["results=?", "verdict=?"]
+            params += [dumps(dict(results)), decision(results)]
         params.append(run_id)
         cur = self._write(f"UPDATE runs SET {', '.join(sets)} WHERE id=?", params)
         if cur.rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
     # -- versioned TOML documents: compensations and bench models ------------------------------------------
-    # Both tables hold (version, created_at, note, sha256, toml, <provenance columns>); one way to add and read.
-    _VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",),
-                                              "bench_models": ("analysis_id", "run_id")}
-
+    # Both tables hold (version, created_at, note, sha256, toml, bench_id, <provenance columns>); one way to add
+    # and read. A bench sees its own versions (and those kept before benches were recorded).
     def _add_version(self, table: str, toml: str, note: str, provenance: Sequence[Any]) -> tuple[int, float]:
-        columns = ("created_at", "note", "sha256", "toml", *self._VERSIONED[table])
+        columns = ("created_at", "note", "sha256", "toml", "bench_id", *VERSIONED[table])
         created = time.time()
         cur = self._write(f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})",
-                          (created, note, text_sha256(toml), toml, *provenance))
+                          (created, note, text_sha256(toml), toml, self.bench_id, *provenance))
         assert cur.lastrowid is not None  # an INSERT into a rowid table always has one
         return cur.lastrowid, created
 
     def _history(self, table: str, limit: int) -> list[tuple[Any, ...]]:
-        columns = ("version", "created_at", "note", "sha256", *self._VERSIONED[table])
-        return self._conn().execute(f"SELECT {', '.join(columns)} FROM {table} ORDER BY version DESC LIMIT ?",
-                                    (limit,)).fetchall()
+        columns = ("version", "created_at", "note", "sha256", *VERSIONED[table])
+        own, own_params = self._own()
+        return self._conn().execute(
+            f"SELECT {', '.join(columns)} FROM {table} WHERE {own} ORDER BY version DESC LIMIT ?",
+            (*own_params, limit)).fetchall()
 
     def _version(self, table: str, version: int | None) -> tuple[Any, ...] | None:
-        """The row (header columns…, toml) of ``version`` (default: the latest)."""
-        sql = f"SELECT {', '.join(('version', 'created_at', 'note', 'sha256', *self._VERSIONED[table]))}, toml FROM {table} "
-        cur = (self._conn().execute(sql + "WHERE version=?", (version,)) if version is not None
-               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1"))
+        """The row (header columns…, toml) of ``version`` (default: the latest) of this bench."""
+        own, own_params = self._own()
+        sql = (f"SELECT {', '.join(('version', 'created_at', 'note', 'sha256', *VERSIONED[table]))}, toml "
+               f"FROM {table} WHERE {own} ")
+        cur = (self._conn().execute(sql + "AND version=?", (*own_params, version)) if version is not None
+               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1", own_params))
         return cur.fetchone()
 
     def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
@@ -390,25 +354,29 @@ class RunStore:
 
     # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:
-        row = self._conn().execute(
-            "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
-            "config_snapshot, compensator_toml, channels, sample_count, compensation_version FROM runs WHERE id=?",
-            (run_id,),
-        ).fetchone()
+        row = self._conn().execute(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id=?", (run_id,)).fetchone()
         return None if row is None else _record(row)
 
-    def list_runs(self, limit: int = 100, offset: int = 0) -> list[StoredRun]:
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
+        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
+        where, params = (query or RunQuery()).where("?", "LIKE")
         rows = self._conn().execute(
-            "SELECT id, created_at, started_at, finished_at, status, request, profile, results, error, "
-            "NULL, NULL, channels, sample_count, compensation_version FROM runs ORDER BY created_at DESC, id DESC "
-            "LIMIT ? OFFSET ?",
-            (limit, offset),
+            f"SELECT {_LIST_COLUMNS} FROM runs {where} "
+            "ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
+            (*params, limit, offset),
         ).fetchall()
         return [_record(r) for r in rows]
 
+    def count_runs(self, query: RunQuery | None = None) -> int:
+        where, params = (query or RunQuery()).where("?", "LIKE")
+        return int(self._conn().execute(f"SELECT COUNT(*) FROM runs {where}", params).fetchone()[0])
+
     def count_by_status(self) -> dict[str, int]:
+        """Runs of this bench (and those recorded before benches) by status."""
         counts = dict.fromkeys(RUN_STATUSES, 0)
-        for status, n in self._conn().execute("SELECT status, COUNT(*) FROM runs GROUP BY status"):
+        own, own_params = self._own()
+        for status, n in self._conn().execute(f"SELECT status, COUNT(*) FROM runs WHERE {own} GROUP BY status",
+                                              own_params):
             counts[status] = n
         return counts
 
@@ -420,17 +388,7 @@ class RunStore:
         """
         if not batches:
             return 0
-        channels = self._channels(run_id)
-        rows: list[tuple[int, bytes]] = []
-        for cols in batches:
-            try:
-                block = np.stack([np.asarray(cols[c], dtype=_LE_F64) for c in channels])
-            except KeyError as exc:
-                raise StoreError(f"run {run_id}: batch lacks channel {exc.args[0]!r}") from None
-            except ValueError:
-                raise StoreError(f"run {run_id}: batch columns differ in length") from None
-            if block.shape[1]:
-                rows.append((block.shape[1], block.tobytes()))
+        rows = pack_batches(run_id, self._channels(run_id), batches)
         if not rows:
             return 0
         total = sum(n for n, _ in rows)
@@ -471,14 +429,13 @@ class RunStore:
             ).fetchall()
             if not rows:
                 return
-            blocks = []
+            blobs: list[tuple[int, bytes]] = []
             for index, n, blob in rows:
-                blocks.append(np.frombuffer(blob, dtype=_LE_F64).reshape(len(channels), n))
+                blobs.append((n, blob))
                 next_index = index + 1
-                if sum(b.shape[1] for b in blocks) >= chunk_samples:
+                if sum(b[0] for b in blobs) >= chunk_samples:
                     break
-            data = np.concatenate(blocks, axis=1)
-            yield {name: data[i].astype(float, copy=True) for i, name in enumerate(channels)}
+            yield unpack_blocks(channels, blobs)
 
     def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
         """All samples of a run as float64 columns by channel name (empty arrays when none were recorded)."""
@@ -508,4 +465,6 @@ def _record(row: Sequence[Any]) -> StoredRun:
         channels=tuple(json.loads(row[11])),
         sample_count=row[12],
         compensation_version=row[13],
+        bench_id=row[14],
+        bench_name=row[15],
     )

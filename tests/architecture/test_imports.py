@@ -17,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("tcms_daq", "drivers", "sim")
 CORE = {"tcms_daq.units", "tcms_daq.errors", "tcms_daq.samples", "tcms_daq.crossval", "tcms_daq.analysis",
         "tcms_daq.compensation", "tcms_daq.discrepancy", "tcms_daq.procedure", "tcms_daq.protocols",
-        "tcms_daq.runstate", "tcms_daq.uncertainty"}
+        "tcms_daq.runstate", "tcms_daq.uncertainty", "tcms_daq.identity", "tcms_daq.spc"}
 SHELL = {"drivers", "sim", "tcms_daq.acquisition", "tcms_daq.store", "tcms_daq.service", "tcms_daq.cli",
          "tcms_daq.settings"}
 IO_LIBRARIES = {"fastapi", "starlette", "uvicorn", "serial", "pymodbus", "can", "canopen", "psycopg", "asyncua",

@@ -33,7 +33,11 @@ class ScriptedRunner:
 
     channels = RUN_CHANNELS
 
-    def __init__(self, rate_hz: float = 2000.0, batch_s: float = 0.01, speed: float = 10.0):
+    def __init__(self, rate_hz: float = 2000.0, batch_s: float = 0.01, speed: float = 10.0,
+                 bench_name: str = "scripted bench", bench_id: str | None = None, results: dict | None = None):
+        self.results = results if results is not None else {"rigidity_nm_per_arcmin": 294.0 * 1.0101, "passed": True}
+        self.bench_name = bench_name
+        self.bench_id = bench_id
         self.rate_hz = rate_hz
         self.batch_s = batch_s
         self.speed = speed  # simulated seconds per real second during a test
@@ -84,7 +88,7 @@ class ScriptedRunner:
                                 "min_step_nm": 0.1, "max_test_duration_s": 3600.0, "max_segments": 20000}}
 
     def config_snapshot(self) -> dict:
-        return {"bench": {"name": "scripted bench"}}
+        return {"bench": {"name": self.bench_name, **({"id": self.bench_id} if self.bench_id else {})}}
 
     def compensator_toml(self) -> str:
         return self.compensation
@@ -122,7 +126,7 @@ class ScriptedRunner:
                     torque_now = nxt
                     time.sleep(self.batch_s / self.speed)
             on_phase("evaluating")
-            return RunOutcome("completed", results={"rigidity_nm_per_arcmin": 294.0 * 1.0101, "passed": True})
+            return RunOutcome("completed", results=self.results)
         finally:
             self._test_active.clear()
 
@@ -205,3 +209,32 @@ def stop_process(proc: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
+
+
+def _u_entry(value: float, u: float, k: float, unit: str, dominant: str) -> dict:
+    """One entry of the shared result contract's ``uncertainty`` table (issue 11's shape)."""
+    return {"value": value, "u": u, "U": k * u, "k": k, "dof": 41.0, "unit": unit, "dominant": dominant,
+            "budget": [{"source": dominant, "type": "B", "u_input": 0.001, "sensitivity": value,
+                        "contribution": u}]}
+
+
+def results_with_uncertainty(decision: str = "pass") -> dict:
+    """Results as an evaluation with issue 11's uncertainty and decision keys writes them (injected by tests of
+    their consumers): rigidity 293.94 ± 2.3 (k = 2.05), lost motion 41.27 ± 0.82 (k = 2.0), backlash 18.6 ±
+    1.2 (k = 2.0); a guarded decision."""
+    return {
+        "rigidity_nm_per_arcmin": 293.94, "lost_motion_arcsec": 41.27, "backlash_arcsec": 18.6,
+        "loading_rate_nm_per_s": 400.0, "test_torque_nm": 200.0, "n_loops": 1,
+        "uncertainty": {
+            "rigidity_nm_per_arcmin": _u_entry(293.94, 1.1219512, 2.05, "N·m/arcmin", "torque scale"),
+            "lost_motion_arcsec": _u_entry(41.27, 0.41, 2.0, "arcsec", "encoder interpolation"),
+            "backlash_arcsec": _u_entry(18.6, 0.6, 2.0, "arcsec", "loop-to-loop scatter"),
+        },
+        "uncertainty_basis": "declared chain: bench config",
+        "verdict": {"passed": decision == "pass", "decision": decision, "rule": "guarded", "checks": {
+            "rigidity_min_nm_per_arcmin": {"label": "rigidity ≥ 235.2 N·m/arcmin", "value": 293.94, "limit": 235.2,
+                                           "passed": True, "decision": "pass", "guard_band": 2.3},
+            "lost_motion_max_arcsec": {"label": "lost motion ≤ 60 arcsec", "value": 41.27, "limit": 60.0,
+                                       "passed": decision == "pass", "decision": decision, "guard_band": 0.82}}},
+        "warnings": [],
+    }

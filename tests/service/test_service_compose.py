@@ -32,9 +32,9 @@ def _published(service: dict) -> dict[int, int]:
 def test_compose_services_commands_ports_and_healthchecks():
     compose = _compose()
     services = compose["services"]
-    assert set(services) == {"sim", "tcms"}
+    assert set(services) == {"postgres", "sim", "tcms", "sim-2", "tcms-2"}
     sim, tcms = services["sim"], services["tcms"]
-    for svc in (sim, tcms):
+    for svc in (sim, tcms, services["sim-2"], services["tcms-2"]):
         assert svc["build"] == "."
         check = svc["healthcheck"]
         assert check["test"][0] == "CMD" and check["interval"] and check["retries"] >= 3
@@ -92,3 +92,39 @@ def test_dockerfile_installs_the_package_and_runs_the_service():
     assert "TCMS_DATA_DIR=/data" in text
     assert any(ln.startswith("EXPOSE 8000") for ln in lines)
     assert lines[-1].startswith('CMD ["tcms", "serve"')
+
+
+def _bench_of(service: dict):
+    """The bench config a compose `tcms serve` service runs: its --config with its --set overrides."""
+    args = build_parser().parse_args(service["command"][1:])
+    return args, load_bench_config(args.config, args.overrides)
+
+
+def test_two_benches_share_the_postgres_service_with_their_own_instruments_and_ids():
+    services = _compose()["services"]
+    pg = services["postgres"]
+    assert pg["image"].startswith("postgres:") and "pg_isready" in pg["healthcheck"]["test"]
+    user, db = pg["environment"]["POSTGRES_USER"], pg["environment"]["POSTGRES_DB"]
+    assert any(v.endswith(":/var/lib/postgresql/data") for v in pg["volumes"])
+    ids, ports = set(), set()
+    for name, sim_name in (("tcms", "sim"), ("tcms-2", "sim-2")):
+        svc = services[name]
+        url = urlparse(svc["environment"]["TCMS_STORE_URL"].replace("${TCMS_DB_PASSWORD:-tcms}", "pw"))
+        assert url.scheme == "postgresql" and url.hostname == "postgres" and url.port == 5432
+        assert url.username == user and url.path == f"/{db}"
+        assert svc["depends_on"]["postgres"]["condition"] == "service_healthy"
+        assert svc["depends_on"][sim_name]["condition"] == "service_healthy"
+        args, cfg = _bench_of(svc)
+        assert args.store is None  # the URL comes from TCMS_STORE_URL
+        for kind in ("angle", "torque", "loader"):
+            assert urlparse(getattr(cfg.instruments, kind).url).hostname == sim_name, (name, kind)
+        ids.add(cfg.bench.bench_id)
+        ports.add(args.port)
+        assert _published(svc)[args.port] == args.port and str(args.port) in " ".join(svc["healthcheck"]["test"])
+        data_dir = args.data_dir
+        assert any(v.endswith(":" + str(data_dir)) for v in svc["volumes"])
+    assert ids == {"compose-1", "compose-2"} and len(ports) == 2  # each bench its own id: no run of the other
+    # is ever marked interrupted by its restart
+    sim2 = build_parser().parse_args(services["sim-2"]["command"][1:])
+    assert sim2.command == "sim" and "ports" not in services["sim-2"]  # the second bench's instruments stay inside
+    assert load_bench_config(sim2.config, sim2.overrides).sim.seed == 2

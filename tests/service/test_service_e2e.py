@@ -118,7 +118,7 @@ def test_serve_banner_shows_dashboard_url_with_token_and_the_bench(sim_config, t
     assert banner[1].startswith(f"API token:  {TOKEN}  (from TCMS_API_TOKEN;")
     assert banner[2] == f"API docs:   {base}/docs"
     assert banner[3] == f"Bench:      simulated bench ({sim_config}), simulated clock at 5× real time"
-    assert banner[4] == f"Run store:  {(tmp_path / 'fresh' / 'tcms-runs.sqlite3').resolve()}"
+    assert banner[4] == f"Run store:  {(tmp_path / 'fresh' / 'tcms-runs.sqlite3').resolve()} (bench id sim-1)"
     assert banner[5].startswith("Stop with Ctrl+C") and rest.startswith("TCMS-DAQ service stopping: ")
 
 

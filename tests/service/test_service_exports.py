@@ -35,7 +35,7 @@ def stored(tmp_path):
 def _body(fmt: exports.ExportFormat, store: RunStore, chunk_samples: int) -> tuple[bytes, int]:
     exporter = exports.EXPORTERS[fmt][0]
     source = exports.ChunkSource(lambda: store.iter_columns("r1", chunk_samples=chunk_samples))
-    pieces = list(exporter(source, list(CHANNELS), "r1"))
+    pieces = list(exporter(source, list(CHANNELS), exports.ExportMeta("r1")))
     return b"".join(pieces), len(pieces)
 
 

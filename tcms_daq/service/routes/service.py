@@ -30,3 +30,9 @@ def metrics(request: Request) -> PlainTextResponse:
 @router.get("/", include_in_schema=False)
 def dashboard() -> FileResponse:
     return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+
+@router.get("/fleet", include_in_schema=False)
+def fleet() -> FileResponse:
+    """The fleet page: every bench's runs (search, downloads, overlay of two loops) and SPC."""
+    return FileResponse(STATIC_DIR / "fleet.html", media_type="text/html")

@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Query
-from fastapi.responses import HTMLResponse, StreamingResponse
+import numpy as np
+from fastapi import APIRouter, Depends, Query, Response
+from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
+from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.service import exports
 from tcms_daq.service.deps import AUTH, Manager, Store, StoredRunDep, errors
 from tcms_daq.service.report import render_report
-from tcms_daq.service.schemas import TestAccepted, TestRequest, TestSummary
+from tcms_daq.service.runner import RequestRejected
+from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary
+from tcms_daq.store import RunQuery, StoreError
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
 
@@ -25,11 +30,43 @@ def create_test(body: TestRequest, manager: Manager) -> TestAccepted:
     return TestAccepted(id=record.id, status=record.status)
 
 
-@router.get("", response_model=list[TestSummary], responses=errors(422))
-def list_tests(store: Store, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+StoredStatus = Literal["queued", "running", "completed", "aborted", "failed", "interrupted"]
+_Text = Annotated[str | None, Query(min_length=1, max_length=200)]
+
+
+def unix_seconds(t: datetime | None) -> float | None:
+    """An ISO 8601 instant as UNIX seconds; without a zone it is UTC."""
+    if t is None:
+        return None
+    return (t if t.tzinfo is not None else t.replace(tzinfo=UTC)).timestamp()
+
+
+def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, status: StoredStatus | None = None,
+              verdict: Literal["pass", "fail", "undecided"] | None = None, q: _Text = None,
+              since: Annotated[datetime | None, Query(description="created at or after (ISO 8601; UTC without a zone)")] = None,
+              until: Annotated[datetime | None, Query(description="created at or before (ISO 8601; UTC without a zone)")] = None,
+              ) -> RunQuery:
+    """The filters of ``GET /api/tests`` (and of the SPC views): 422 with one line when they contradict."""
+    try:
+        return RunQuery(bench=bench, reducer=reducer, serial=serial, status=status, verdict=verdict, text=q,
+                        since=unix_seconds(since), until=unix_seconds(until))
+    except StoreError as exc:
+        raise RequestRejected(str(exc)) from None
+
+
+@router.get("", response_model=list[TestSummary], responses={
+    **errors(422), 200: {"description": "the page of tests, newest first",
+                         "headers": {"X-Total-Count": {"description": "tests matching the filters, all pages",
+                                                       "schema": {"type": "integer"}}}}})
+def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depends(run_query)],
+               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
                offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[dict[str, Any]]:
-    """Stored tests, newest first."""
-    return [r.summary() for r in store.list_runs(limit, offset)]
+    """Stored tests of every bench sharing the store, newest first, one page at a time (``limit``, ``offset``;
+    the header ``X-Total-Count`` counts all pages). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
+    (exact, any case), ``status``, ``verdict`` (pass / fail / undecided), ``q`` (a substring of the id, serial
+    number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601)."""
+    response.headers["X-Total-Count"] = str(store.count_runs(query))
+    return [r.summary() for r in store.list_runs(limit, offset, query)]
 
 
 @router.get("/{run_id}", response_model=TestSummary, responses=errors(404))
@@ -60,13 +97,56 @@ def get_samples(run: StoredRunDep, store: Store, format: Annotated[
     """Every recorded sample (canonical columns first), streamed from the store chunk by chunk."""
     exporter, media_type, ext = exports.EXPORTERS[format]
     chunks = exports.ChunkSource(lambda: store.iter_columns(run.id))
-    return StreamingResponse(
-        exporter(chunks, list(run.channels), run.id), media_type=media_type,
-        headers={"Content-Disposition": f'attachment; filename="tcms-{run.id}.{ext}"'},
-    )
+    headers = {"Content-Disposition": f'attachment; filename="tcms-{run.id}.{ext}"'}
+    if format == exports.ExportFormat.CSV:  # its identity is in the sidecar
+        headers["Link"] = f'</api/tests/{run.id}/metadata>; rel="describedby"; type="application/json"'
+    return StreamingResponse(exporter(chunks, list(run.channels), exports.ExportMeta.of(run)),
+                             media_type=media_type, headers=headers)
+
+
+@router.get("/{run_id}/metadata", response_model=dict[str, Any], responses=errors(404))
+def get_metadata(run: StoredRunDep, store: Store) -> JSONResponse:
+    """The sample CSV's sidecar (``tcms-<id>.json``): the test's identity (reducer, serial number, bench,
+    operator, parameters, compensation version, results ± U, verdict), its start time and full results; the
+    same as the Parquet schema metadata and the MDF4 header carry."""
+    doc = exports.sidecar(exports.ExportMeta.of(run), store.iter_columns(run.id, chunk_samples=1))
+    return JSONResponse(jsonable(doc), headers={"Content-Disposition": f'inline; filename="tcms-{run.id}.json"'})
+
+
+@router.get("/{run_id}/certificate.pdf", response_class=Response, responses={
+    **errors(404), 200: {"description": "the test certificate", "content": {"application/pdf": {
+        "schema": {"type": "string", "format": "binary"}}}}})
+def get_certificate(run: StoredRunDep, store: Store) -> Response:
+    """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
+    the instruments with their calibration and the compensation version (``tcms certificate`` writes the same)."""
+    from tcms_daq.service.certificate import render_certificate
+
+    pdf = render_certificate(run, store.read_columns(run.id))
+    return Response(pdf, media_type="application/pdf",
+                    headers={"Content-Disposition": f'inline; filename="tcms-certificate-{run.id}.pdf"'})
 
 
 @router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404))
 def get_report(run: StoredRunDep, store: Store) -> HTMLResponse:
     """A self-contained HTML report: the loop, the results and the verdict."""
     return HTMLResponse(render_report(run, store.read_columns(run.id)))
+
+
+@router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 422))
+def get_loop(run: StoredRunDep, store: Store,
+             max_points: Annotated[int, Query(ge=100, le=100_000)] = 4000) -> dict[str, Any]:
+    """The run's hysteresis loop (torque and compensated angle) for plotting, at most ``max_points`` measured
+    pairs: per bucket the samples holding the extremes of torque and angle, in time order."""
+    from tcms_daq.service.live import minmax_rows
+
+    cols = store.read_columns(run.id)
+    torque, angle = cols.get("torque_nm"), cols.get("angle_arcsec")
+    if torque is None or angle is None or not len(torque):
+        return {"id": run.id, "samples": 0, "torque_nm": [], "angle_arcsec": []}
+    rows = minmax_rows({"time_s": cols.get("time_s", torque), "torque_nm": torque, "angle_arcsec": angle}, max_points)
+    if rows is not None:
+        torque, angle = torque[rows], angle[rows]
+    finite = [bool(v) for v in (np.isfinite(torque) & np.isfinite(angle))]
+    return {"id": run.id, "samples": int(len(cols["torque_nm"])),
+            "torque_nm": [float(v) for v, ok in zip(torque, finite, strict=True) if ok],
+            "angle_arcsec": [float(v) for v, ok in zip(angle, finite, strict=True) if ok]}

@@ -460,7 +460,8 @@
     for (const r of runs) {
       const tr = document.createElement("tr");
       tr.innerHTML = `<td>${escapeHtml(r.id)}</td><td>${escapeHtml(String(r.request.reducer || ""))}</td>` +
-        `<td>${escapeHtml(r.status)}</td><td><a href="${escapeHtml(withToken("/api/tests/" + encodeURIComponent(r.id) + "/report"))}" target="_blank">report</a></td>`;
+        `<td>${escapeHtml(r.status)}</td><td><a href="${escapeHtml(withToken("/api/tests/" + encodeURIComponent(r.id) + "/report"))}" target="_blank">report</a> ` +
+        `<a href="${escapeHtml(withToken("/api/tests/" + encodeURIComponent(r.id) + "/certificate.pdf"))}" target="_blank">certificate</a></td>`;
       body.appendChild(tr);
     }
   }

@@ -1,0 +1,214 @@
+"""A test's identity and headline results as they leave the bench: exports, the certificate, OPC UA, the fleet.
+
+Pure functions over the plain dicts a run record holds (its request, its results, its bench); nothing here reads a
+file or the store. Results are rendered as "value ± U (k = …)" when the evaluation stated an expanded uncertainty
+for them (the ``uncertainty`` entry of the shared result contract), rounded to two significant digits of U, and
+as "value (U not stated)" otherwise; results without these keys (older runs) render all the same.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+NOT_STATED = "U not stated"
+
+
+@dataclass(frozen=True)
+class Headline:
+    """One headline result: its key in the results dict, a label for people, its unit, its OPC UA name."""
+
+    key: str
+    label: str
+    unit: str
+    browse_name: str
+
+
+HEADLINES: tuple[Headline, ...] = (
+    Headline("rigidity_nm_per_arcmin", "torsional rigidity", "N·m/arcmin", "RigidityNmPerArcmin"),
+    Headline("lost_motion_arcsec", "lost motion", "arcsec", "LostMotionArcsec"),
+    Headline("backlash_arcsec", "backlash", "arcsec", "BacklashArcsec"),
+)
+
+DECISIONS: tuple[str, ...] = ("pass", "fail", "undecided")
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value) if math.isfinite(value) else None
+
+
+def uncertainty_entry(results: Mapping[str, Any] | None, key: str) -> dict[str, Any] | None:
+    """The ``uncertainty[key]`` entry of a results dict when it states a finite expanded uncertainty U ≥ 0."""
+    table = (results or {}).get("uncertainty")
+    entry = table.get(key) if isinstance(table, Mapping) else None
+    if not isinstance(entry, Mapping):
+        return None
+    expanded = _number(entry.get("U"))
+    if expanded is None or expanded < 0:
+        return None
+    return dict(entry)
+
+
+def expanded_uncertainty(results: Mapping[str, Any] | None, key: str) -> float | None:
+    """U of result ``key`` (in the result's unit), None when not stated."""
+    entry = uncertainty_entry(results, key)
+    return None if entry is None else float(entry["U"])
+
+
+def _decimals_for_two_digits(u: float) -> int:
+    """Decimal places that show ``u`` with two significant digits (negative: round to tens, hundreds …)."""
+    return 1 - math.floor(math.log10(abs(u)))
+
+
+def format_value(value: float, decimals: int) -> str:
+    if decimals > 0:
+        return f"{value:.{decimals}f}"
+    return f"{round(value, decimals):.0f}"
+
+
+def format_result(results: Mapping[str, Any] | None, key: str, unit: str = "") -> str:
+    """``"293.9 ± 2.3 N·m/arcmin (k = 2.05)"`` when U is stated, ``"293.94 N·m/arcmin (U not stated)"``
+    otherwise, ``"—"`` when there is no finite value."""
+    value = _number((results or {}).get(key))
+    suffix = f" {unit}" if unit else ""
+    if value is None:
+        return "—"
+    entry = uncertainty_entry(results, key)
+    if entry is None:
+        return f"{value:.6g}{suffix} ({NOT_STATED})"
+    expanded = float(entry["U"])
+    if expanded == 0.0:
+        return f"{value:.6g} ± 0{suffix}"
+    decimals = _decimals_for_two_digits(expanded)
+    # rounding U may carry into a third digit (0.0996 -> 0.10): take the rounded U's own digits
+    rounded_u = round(expanded, decimals)
+    decimals = _decimals_for_two_digits(rounded_u)
+    k = _number(entry.get("k"))
+    coverage = f" (k = {k:.3g})" if k is not None else ""
+    return f"{format_value(value, decimals)} ± {format_value(rounded_u, decimals)}{suffix}{coverage}"
+
+
+def decision(results: Mapping[str, Any] | None) -> str | None:
+    """The verdict's decision: ``pass`` | ``fail`` | ``undecided`` (ISO 14253-1), from ``verdict.decision`` when
+    the evaluation states one, else from ``verdict.passed`` (older runs); None when there is no verdict."""
+    if not isinstance(results, Mapping):
+        return None
+    verdict = results.get("verdict")
+    if isinstance(verdict, Mapping):
+        stated = verdict.get("decision")
+        if isinstance(stated, str) and stated in DECISIONS:
+            return stated
+        if isinstance(verdict.get("passed"), bool):
+            return "pass" if verdict["passed"] else "fail"
+    if isinstance(results.get("passed"), bool):
+        return "pass" if results["passed"] else "fail"
+    return None
+
+
+def decision_rule(results: Mapping[str, Any] | None) -> str:
+    """The decision rule in words: ``guarded`` acceptance (ISO 14253-1 guard bands of U) or ``simple``."""
+    verdict = (results or {}).get("verdict")
+    rule = verdict.get("rule") if isinstance(verdict, Mapping) else None
+    if rule == "guarded":
+        return ("guarded acceptance (ISO 14253-1): a result passes only when value ± U lies within its limits, "
+                "fails when value ± U lies outside them, and is undecided otherwise")
+    if rule == "simple":
+        return "simple acceptance: the measured value against its limits (measurement uncertainty not applied)"
+    return "simple acceptance: the measured value against its limits (no decision rule stated with the results)"
+
+
+def headline_results(results: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
+    """Each headline result: value, expanded uncertainty U, coverage factor k, unit and the rendered text."""
+    out: dict[str, dict[str, Any]] = {}
+    for h in HEADLINES:
+        entry = uncertainty_entry(results, h.key)
+        out[h.key] = {
+            "label": h.label,
+            "value": _number((results or {}).get(h.key)),
+            "U": None if entry is None else float(entry["U"]),
+            "k": None if entry is None else _number(entry.get("k")),
+            "unit": h.unit,
+            "text": format_result(results, h.key, h.unit),
+        }
+    return out
+
+
+def run_parameters(request: Mapping[str, Any], profile: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The parameters a result depends on: test torque, loops, profile, torque rate, steps and dwell."""
+    keys = ("max_torque_nm", "cycles", "profile", "rate_nm_per_s", "step_nm", "dwell_s")
+    params = {k: request[k] for k in keys if request.get(k) is not None}
+    for key in ("rate_nm_per_s", "conditioning_loops", "tip_dwell_s", "start"):
+        if profile and profile.get(key) is not None and key not in params:
+            params[key] = profile[key]
+    return params
+
+
+def run_identity(*, run_id: str, request: Mapping[str, Any], profile: Mapping[str, Any] | None,
+                  results: Mapping[str, Any] | None, bench_id: str | None, bench_name: str | None,
+                  status: str, started_at_iso: str | None, compensation_version: int | None,
+                  compensation_sha256: str | None) -> dict[str, Any]:
+    """Everything that names a test and its outcome, as a flat JSON-able dict (the exports' metadata)."""
+    return {
+        "run_id": run_id,
+        "status": status,
+        "reducer": request.get("reducer"),
+        "serial_number": request.get("serial_number"),
+        "operator": request.get("operator"),
+        "bench_id": bench_id,
+        "bench_name": bench_name,
+        "started_at": started_at_iso,
+        "parameters": run_parameters(request, profile),
+        "compensation_version": compensation_version,
+        "compensation_sha256": compensation_sha256,
+        "verdict": decision(results),
+        "results": headline_results(results),
+    }
+
+
+PARAMETER_LABELS: dict[str, tuple[str, str]] = {
+    "max_torque_nm": ("test torque", "N·m"),
+    "cycles": ("evaluated loops", ""),
+    "profile": ("profile", ""),
+    "rate_nm_per_s": ("torque rate", "N·m/s"),
+    "step_nm": ("torque step", "N·m"),
+    "dwell_s": ("dwell per step", "s"),
+    "conditioning_loops": ("conditioning loops", ""),
+    "tip_dwell_s": ("dwell at ±T", "s"),
+    "start": ("first load direction", ""),
+}
+
+
+def parameter_text(parameters: Mapping[str, Any]) -> list[str]:
+    """``["test torque 500 N·m", "evaluated loops 3", …]`` in the order of :data:`PARAMETER_LABELS`."""
+    out = []
+    for key, (label, unit) in PARAMETER_LABELS.items():
+        if key in parameters:
+            value = parameters[key]
+            shown = f"{value:g}" if isinstance(value, float) else str(value)
+            out.append(f"{label} {shown}{' ' + unit if unit else ''}")
+    return out
+
+
+def identity_lines(identity: Mapping[str, Any]) -> list[str]:
+    """The identity of :func:`run_identity` as lines for people (file comments, logs)."""
+    bench = identity.get("bench_name") or "—"
+    if identity.get("bench_id"):
+        bench += f" (id {identity['bench_id']})"
+    version = identity.get("compensation_version")
+    compensation = (f"version {version}" if version is not None else "the bench config's file") + (
+        f", sha256 {str(identity['compensation_sha256'])[:12]}" if identity.get("compensation_sha256") else "")
+    lines = [
+        f"run {identity.get('run_id')} ({identity.get('status')}), started {identity.get('started_at') or '—'} UTC",
+        f"reducer {identity.get('reducer') or '—'}, serial number {identity.get('serial_number') or '—'}",
+        f"bench {bench}, operator {identity.get('operator') or '—'}",
+        "parameters: " + (", ".join(parameter_text(identity.get("parameters") or {})) or "—"),
+        f"compensation: {compensation}",
+    ]
+    results = identity.get("results") or {}
+    lines += [f"{r['label']}: {r['text']}" for r in results.values() if isinstance(r, Mapping)]
+    lines.append(f"verdict: {identity.get('verdict') or 'none'}")
+    return lines

@@ -1,0 +1,172 @@
+// TCMS-DAQ fleet page: GET /api/tests with filters and paging (X-Total-Count), per-run links, the overlay of two
+// runs' loops (GET /api/tests/{id}/loop) and SPC (GET /api/spc/chart, /api/spc/bias). Results are shown as the
+// API renders them (run.headline: "value ± U (k = …)" or "U not stated").
+"use strict";
+(() => {
+  const $ = (id) => document.getElementById(id);
+  const state = { offset: 0, total: 0, selected: [], runs: new Map() };
+
+  const params = new URLSearchParams(location.search);
+  if (params.get("token")) {
+    sessionStorage.setItem("tcmsToken", params.get("token"));
+    params.delete("token");
+    history.replaceState(null, "", location.pathname + (params.toString() ? "?" + params : ""));
+  }
+  $("f-token").value = sessionStorage.getItem("tcmsToken") || "";
+  $("f-token").addEventListener("change", () => { sessionStorage.setItem("tcmsToken", $("f-token").value.trim()); search(); });
+
+  function message(text, isError) { $("message").textContent = text || ""; $("message").className = isError ? "error" : ""; }
+  function withToken(path) {
+    const token = $("f-token").value.trim();
+    return token ? path + (path.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(token) : path;
+  }
+  async function api(path) {
+    const headers = {};
+    const token = $("f-token").value.trim();
+    if (token) headers["Authorization"] = "Bearer " + token;
+    const res = await fetch(path, { headers });
+    let data = null;
+    try { data = await res.json(); } catch (e) { data = null; }
+    if (!res.ok) throw new Error(`${res.status}: ${data && data.detail ? data.detail : res.statusText}`);
+    return { data, total: res.headers.get("X-Total-Count") };
+  }
+  function esc(s) { return String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
+  function utc(local) { return local ? local + (local.length === 16 ? ":00" : "") + "Z" : ""; }  // datetime-local as UTC
+  function width(el) { return Math.max(300, el.clientWidth - 4); }
+
+  // ---- the table ----
+  function query() {
+    const q = new URLSearchParams();
+    const set = (k, v) => { if (v) q.set(k, v); };
+    set("q", $("q").value.trim()); set("bench", $("f-bench").value.trim()); set("reducer", $("f-reducer").value.trim());
+    set("serial", $("f-serial").value.trim()); set("status", $("f-status").value); set("verdict", $("f-verdict").value);
+    set("since", utc($("f-since").value)); set("until", utc($("f-until").value));
+    q.set("limit", $("f-limit").value); q.set("offset", state.offset);
+    return q;
+  }
+
+  async function search() {
+    let answer;
+    try { answer = await api("/api/tests?" + query()); } catch (e) { message(e.message, true); return; }
+    message("");
+    state.total = parseInt(answer.total || "0", 10);
+    $("total").textContent = state.total;
+    const limit = parseInt($("f-limit").value, 10);
+    const first = state.total ? state.offset + 1 : 0;
+    $("page").textContent = `${first}–${Math.min(state.offset + limit, state.total)} of ${state.total}`;
+    $("prev").disabled = state.offset === 0;
+    $("next").disabled = state.offset + limit >= state.total;
+    const body = $("runs").tBodies[0];
+    body.innerHTML = "";
+    for (const r of answer.data) {
+      state.runs.set(r.id, r);
+      const id = encodeURIComponent(r.id);
+      const file = (label, path) => `<a href="${esc(withToken(path))}" target="_blank">${label}</a>`;
+      const h = r.headline || {};
+      const tr = document.createElement("tr");
+      tr.dataset.id = r.id;
+      if (state.selected.includes(r.id)) tr.classList.add("selected");
+      tr.innerHTML =
+        `<td><input type="checkbox" class="pick" ${state.selected.includes(r.id) ? "checked" : ""}></td>` +
+        `<td>${esc(r.id)}</td><td>${esc((r.created_at || "").replace("T", " ").slice(0, 19))}</td>` +
+        `<td title="${esc(r.bench_name)}">${esc(r.bench_id || "—")}</td><td>${esc(r.request.reducer)}</td>` +
+        `<td>${esc(r.request.serial_number || "—")}</td><td>${esc(r.request.operator || "—")}</td>` +
+        `<td>${esc(r.status)}</td><td class="${esc(r.verdict || "")}">${esc(r.verdict || "—")}</td>` +
+        `<td>${esc(h.rigidity_nm_per_arcmin || "—")}</td><td>${esc(h.lost_motion_arcsec || "—")}</td>` +
+        `<td>${esc(h.backlash_arcsec || "—")}</td>` +
+        `<td class="files">${file("report", `/api/tests/${id}/report`)}${file("certificate", `/api/tests/${id}/certificate.pdf`)}` +
+        `${file("CSV", `/api/tests/${id}/samples?format=csv`)}${file("JSON", `/api/tests/${id}/metadata`)}` +
+        `${file("Parquet", `/api/tests/${id}/samples?format=parquet`)}${file("MDF4", `/api/tests/${id}/samples?format=mdf4`)}</td>`;
+      body.appendChild(tr);
+    }
+    if (!answer.data.length) body.innerHTML = `<tr><td colspan="13" class="muted">no test matches</td></tr>`;
+  }
+
+  $("filters").addEventListener("submit", (ev) => { ev.preventDefault(); state.offset = 0; search(); });
+  $("f-limit").addEventListener("change", () => { state.offset = 0; search(); });
+  $("prev").addEventListener("click", () => { state.offset = Math.max(0, state.offset - parseInt($("f-limit").value, 10)); search(); });
+  $("next").addEventListener("click", () => { state.offset += parseInt($("f-limit").value, 10); search(); });
+  $("runs").addEventListener("change", (ev) => {
+    if (!ev.target.classList.contains("pick")) return;
+    const id = ev.target.closest("tr").dataset.id;
+    state.selected = state.selected.filter((x) => x !== id);
+    if (ev.target.checked) state.selected.push(id);
+    while (state.selected.length > 2) state.selected.shift();
+    for (const tr of $("runs").tBodies[0].rows) {
+      const on = state.selected.includes(tr.dataset.id);
+      tr.classList.toggle("selected", on);
+      const box = tr.querySelector(".pick");
+      if (box) box.checked = on;
+    }
+    overlay();
+  });
+
+  // ---- overlay of two loops ----
+  const COLORS = ["#1f5fa8", "#d9771e"];
+  let overlayPlot = null;
+  async function overlay() {
+    const ids = state.selected.slice();
+    $("overlay-ids").textContent = ids.length ? ids.join(" vs ") : "select two runs (⊕)";
+    let loops = [];
+    try { loops = await Promise.all(ids.map((id) => api(`/api/tests/${encodeURIComponent(id)}/loop?max_points=3000`).then((a) => a.data))); }
+    catch (e) { message(e.message, true); return; }
+    if (overlayPlot) { overlayPlot.destroy(); overlayPlot = null; }
+    if (!loops.length) return;
+    const label = (l) => { const r = state.runs.get(l.id) || { request: {} }; return `${l.id} · ${r.bench_id || ""} · ${r.request.serial_number || ""}`; };
+    overlayPlot = new uPlot({
+      mode: 2, width: width($("plot-overlay")), height: 380,
+      scales: { x: { time: false, auto: true }, y: { auto: true } },
+      axes: [{ label: "torque / N·m" }, { label: "compensated angle / arcsec", size: 70 }],
+      series: [{}, ...loops.map((l, i) => ({ label: label(l), stroke: COLORS[i], width: 1.2, paths: uPlot.paths.linear(),
+        points: { show: false }, facets: [{ scale: "x", auto: true }, { scale: "y", auto: true }] }))],
+      legend: { show: true, live: false }, cursor: { show: false },
+    }, [null, ...loops.map((l) => [l.torque_nm, l.angle_arcsec])], $("plot-overlay"));
+  }
+
+  // ---- SPC ----
+  let spcPlot = null, mrPlot = null;
+  function line(n, v) { return Array.from({ length: n }, () => v); }
+  $("spc-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const q = new URLSearchParams({ reducer: $("s-reducer").value.trim(), quantity: $("s-quantity").value });
+    if ($("s-bench").value.trim()) q.set("bench", $("s-bench").value.trim());
+    if ($("s-baseline").value) q.set("baseline_runs", $("s-baseline").value);
+    let chart;
+    try { chart = (await api("/api/spc/chart?" + q)).data; } catch (e) { $("spc-summary").textContent = e.message; return; }
+    const c = chart.chart, n = c.values.length, x = Array.from({ length: n }, (_, i) => i + 1);
+    const flagged = c.values.map((v, i) => (c.flags[i].length ? v : null));
+    $("spc-summary").textContent = `${n} runs of ${chart.reducer}${chart.bench ? " on " + chart.bench : " (fleet)"}; ` +
+      `baseline ${c.baseline_n}: centre ${c.center.toPrecision(5)}, σ̂ ${c.sigma.toPrecision(3)} ${chart.unit}; ` +
+      `out of control: ${c.out_of_control.length ? c.out_of_control.map((i) => chart.runs[i].id).join(", ") : "none"}`;
+    if (spcPlot) spcPlot.destroy();
+    if (mrPlot) mrPlot.destroy();
+    spcPlot = new uPlot({
+      width: width($("plot-spc")), height: 240, scales: { x: { time: false } },
+      axes: [{ label: "run (test order)" }, { label: chart.unit, size: 70 }],
+      series: [{ label: "run" }, { label: "value", stroke: "#1f5fa8", width: 1, points: { show: true, size: 4 } },
+        { label: "centre", stroke: "#157a2e", dash: [4, 4], points: { show: false } },
+        { label: "UCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } },
+        { label: "LCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } },
+        { label: "out of control", stroke: "transparent", points: { show: true, size: 9, stroke: "#b3261e", fill: "#b3261e" } }],
+    }, [x, c.values, line(n, c.center), line(n, c.ucl), line(n, c.lcl), flagged], $("plot-spc"));
+    mrPlot = new uPlot({
+      width: width($("plot-mr")), height: 140, scales: { x: { time: false } },
+      axes: [{}, { label: "moving range", size: 70 }],
+      series: [{}, { label: "MR", stroke: "#5b6678", width: 1 },
+        { label: "MR̄", stroke: "#157a2e", dash: [4, 4], points: { show: false } },
+        { label: "UCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } }],
+    }, [x, c.moving_range, line(n, c.mr_center), line(n, c.mr_ucl)], $("plot-mr"));
+    const b = new URLSearchParams({ reducer: chart.reducer, quantity: chart.quantity });
+    if ($("s-reference").value.trim()) b.set("reference", $("s-reference").value.trim());
+    const body = $("bias").tBodies[0];
+    try {
+      const bias = (await api("/api/spc/bias?" + b)).data;
+      body.innerHTML = bias.benches.map((r) => `<tr><td>${esc(r.bench)}${bias.reference === r.bench ? " (reference)" : ""}</td>` +
+        `<td>${r.bias.toFixed(3)} ${esc(bias.unit)}</td><td>± ${r.U.toPrecision(2)} (k = ${r.k.toFixed(2)})</td>` +
+        `<td>${r.runs}</td><td>${r.units}</td></tr>`).join("");
+    } catch (e) { body.innerHTML = `<tr><td colspan="5" class="muted">${esc(e.message)}</td></tr>`; }
+  });
+
+  window.tcmsFleet = { state };
+  search();
+})();

@@ -1,0 +1,336 @@
+"""What every run store offers (:class:`Store`, a typing Protocol) and what its backends share: the records they
+return, the query of ``GET /api/tests`` (:class:`RunQuery`) and the packing of sample batches.
+
+Two backends implement it: SQLite (:mod:`tcms_daq.store.sqlite_store`, one file per bench, the embedded default)
+and PostgreSQL (:mod:`tcms_daq.store.postgres_store`, a plant's benches sharing one database). A store is opened
+for one bench (``bench_id``/``bench_name``): every run it creates records that bench; versioned documents
+(compensations, bench models) are that bench's; when it starts a service it marks only that bench's runs left
+active as ``interrupted``. Reads of runs see every bench.
+
+Samples are kept as one channel-major little-endian float64 blob per batch, the run's channel names on its record.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+import uuid
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from tcms_daq.errors import TcmsError
+from tcms_daq.identity import DECISIONS, decision, headline_results, run_identity
+from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
+from tcms_daq.samples import Samples
+
+RUN_STATUSES: tuple[str, ...] = STORED  # tcms_daq.runstate.RunState: one vocabulary
+ACTIVE_STATUSES: tuple[str, ...] = STORED_ACTIVE
+FINAL_STATUSES: tuple[str, ...] = STORED_FINAL
+VERDICTS: tuple[str, ...] = DECISIONS
+
+LE_F64 = np.dtype("<f8")
+INTERRUPTED_ERROR = "the service stopped while this run was active"
+#: a bench id as configs write it ([bench] id): letters, digits, '.', '_' and '-'
+BENCH_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+
+
+class StoreError(TcmsError):
+    """The run store cannot do what was asked (unknown run, bad channel set, closed store, unreachable database)."""
+
+
+@dataclass(frozen=True)
+class StoredRun:
+    """One run as read from the store. Times are UNIX seconds (UTC)."""
+
+    id: str
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    status: str
+    request: dict[str, Any]
+    profile: dict[str, Any] | None
+    results: dict[str, Any] | None
+    error: str | None
+    config_snapshot: dict[str, Any] | None
+    compensator_toml: str | None
+    channels: tuple[str, ...]
+    sample_count: int
+    compensation_version: int | None = None  # the accepted upload in use (None: the bench config's file)
+    bench_id: str | None = None  # the bench that ran it ([bench] id of its config; None: before fleets)
+    bench_name: str | None = None
+    compensation_sha256: str | None = None  # of compensator_toml (kept when the listing leaves the TOML out)
+
+    @property
+    def verdict(self) -> str | None:
+        return decision(self.results)
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON view used by the REST API (everything but the large snapshot fields)."""
+        sha = self.compensation_sha256 or (None if self.compensator_toml is None else text_sha256(self.compensator_toml))
+        return {
+            "id": self.id,
+            "status": self.status,
+            "created_at": iso(self.created_at),
+            "started_at": iso(self.started_at),
+            "finished_at": iso(self.finished_at),
+            "bench_id": self.bench_id,
+            "bench_name": self.bench_name,
+            "request": self.request,
+            "results": self.results,
+            "verdict": self.verdict,
+            "headline": {key: entry["text"] for key, entry in headline_results(self.results).items()},
+            "error": self.error,
+            "sample_count": self.sample_count,
+            "channels": list(self.channels),
+            "compensation_version": self.compensation_version,
+            "compensation_sha256": sha,
+        }
+
+    def identity(self) -> dict[str, Any]:
+        """The test's identity and headline results (:func:`tcms_daq.identity.run_identity`)."""
+        summary = self.summary()
+        return run_identity(run_id=self.id, request=self.request, profile=self.profile, results=self.results,
+                            bench_id=self.bench_id, bench_name=self.bench_name, status=self.status,
+                            started_at_iso=summary["started_at"],
+                            compensation_version=self.compensation_version,
+                            compensation_sha256=summary["compensation_sha256"])
+
+
+def text_sha256(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class CompensationVersion:
+    """One accepted compensation upload (the TOML as the service applied it), or a rollback to an earlier one."""
+
+    version: int
+    created_at: float
+    note: str
+    sha256: str
+    rollback_of: int | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {"version": self.version, "created_at": iso(self.created_at), "note": self.note,
+                "sha256": self.sha256, "rollback_of": self.rollback_of}
+
+
+@dataclass(frozen=True)
+class BenchModelVersion:
+    """One version of the bench model: the effects accepted into it (a discrepancy model TOML) and where they
+    came from (the analysis of which run). Version 0, the catalogue reducer's model alone, is not stored."""
+
+    version: int
+    created_at: float
+    note: str
+    sha256: str
+    analysis_id: str | None = None
+    run_id: str | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {"version": self.version, "created_at": iso(self.created_at), "note": self.note,
+                "sha256": self.sha256, "analysis_id": self.analysis_id, "run_id": self.run_id}
+
+
+#: the versioned TOML documents: table -> its provenance columns (besides version, created_at, note, sha256, toml)
+VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",), "bench_models": ("analysis_id", "run_id")}
+
+
+def iso(t: float | None) -> str | None:
+    return None if t is None else datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
+
+
+def new_run_id() -> str:
+    """A time-sortable, human-readable run id: ``20261121-153012-1a2b3c``."""
+    return f"{datetime.now(UTC):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:6]}"
+
+
+def dumps(obj: Any) -> str | None:
+    return None if obj is None else json.dumps(obj, allow_nan=False, default=_json_default)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+# -- the query of GET /api/tests -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunQuery:
+    """Which runs to list. Every field narrows the list; None leaves it open. ``bench`` matches a bench's id or
+    its name; ``serial`` and ``reducer`` match exactly (case-insensitive); ``text`` is a substring of the run id,
+    serial number, reducer, operator or bench; ``since``/``until`` bound the creation time (UNIX seconds,
+    inclusive; ``until`` to the millisecond, as the API shows times)."""
+
+    bench: str | None = None
+    reducer: str | None = None
+    serial: str | None = None
+    status: str | None = None
+    verdict: str | None = None
+    text: str | None = None
+    since: float | None = None
+    until: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.status is not None and self.status not in RUN_STATUSES:
+            raise StoreError(f"unknown status {self.status!r} (known: {', '.join(RUN_STATUSES)})")
+        if self.verdict is not None and self.verdict not in VERDICTS:
+            raise StoreError(f"unknown verdict {self.verdict!r} (known: {', '.join(VERDICTS)})")
+        for name in ("since", "until"):
+            value = getattr(self, name)
+            if value is not None and not math.isfinite(value):
+                raise StoreError(f"{name} must be a finite time")
+        if self.since is not None and self.until is not None and self.since > self.until:
+            raise StoreError(f"since ({iso(self.since)}) is after until ({iso(self.until)})")
+
+    def where(self, placeholder: str, like: str) -> tuple[str, list[Any]]:
+        """(``WHERE …`` or ``""``, parameters) for a backend's placeholder (``?``/``%s``) and its
+        case-insensitive LIKE operator."""
+        clauses: list[str] = []
+        params: list[Any] = []
+        p = placeholder
+
+        if self.bench is not None:
+            clauses.append(f"(bench_id = {p} OR lower(bench_name) = lower({p}))")
+            params += [self.bench, self.bench]
+        for column, value in (("reducer", self.reducer), ("serial_number", self.serial)):
+            if value is not None:
+                clauses.append(f"lower({column}) = lower({p})")
+                params.append(value)
+        for column, value in (("status", self.status), ("verdict", self.verdict)):
+            if value is not None:
+                clauses.append(f"{column} = {p}")
+                params.append(value)
+        if self.since is not None:
+            clauses.append(f"created_at >= {p}")
+            params.append(self.since)
+        if self.until is not None:
+            clauses.append(f"created_at < {p}")  # the millisecond ``until`` names is in (times show ms)
+            params.append(self.until + 0.001)
+        if self.text:
+            pattern = "%" + self.text.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_") + "%"
+            columns = ("id", "serial_number", "reducer", "operator", "bench_id", "bench_name")
+            clauses.append("(" + " OR ".join(f"COALESCE({c}, '') {like} {p} ESCAPE '\\'" for c in columns) + ")")
+            params += [pattern] * len(columns)
+        return ("WHERE " + " AND ".join(clauses)) if clauses else "", params
+
+
+@dataclass(frozen=True)
+class RunColumns:
+    """The searchable columns a run record keeps beside its JSON request and results."""
+
+    reducer: str | None = None
+    serial_number: str | None = None
+    operator: str | None = None
+
+    @classmethod
+    def of(cls, request: Mapping[str, Any]) -> RunColumns:
+        def text(key: str) -> str | None:
+            value = request.get(key)
+            return value if isinstance(value, str) else None
+
+        return cls(text("reducer"), text("serial_number"), text("operator"))
+
+
+# -- samples ----------------------------------------------------------------------------------------------------
+def pack_batches(run_id: str, channels: Sequence[str],
+                 batches: Sequence[Mapping[str, np.ndarray]]) -> list[tuple[int, bytes]]:
+    """Each non-empty batch as (n_samples, channel-major little-endian float64 bytes); StoreError when a batch
+    lacks a channel or its columns differ in length."""
+    rows: list[tuple[int, bytes]] = []
+    for cols in batches:
+        try:
+            block = np.stack([np.asarray(cols[c], dtype=LE_F64) for c in channels])
+        except KeyError as exc:
+            raise StoreError(f"run {run_id}: batch lacks channel {exc.args[0]!r}") from None
+        except ValueError:
+            raise StoreError(f"run {run_id}: batch columns differ in length") from None
+        if block.shape[1]:
+            rows.append((block.shape[1], block.tobytes()))
+    return rows
+
+
+def unpack_blocks(channels: Sequence[str], blobs: Sequence[tuple[int, bytes]]) -> dict[str, np.ndarray]:
+    """Stored (n_samples, blob) batches back to float64 columns by channel name."""
+    blocks = [np.frombuffer(blob, dtype=LE_F64).reshape(len(channels), n) for n, blob in blobs]
+    data = np.concatenate(blocks, axis=1)
+    return {name: data[i].astype(float, copy=True) for i, name in enumerate(channels)}
+
+
+def check_new_run(run_id: str, channels: Sequence[str], status: str) -> None:
+    if status not in RUN_STATUSES:
+        raise StoreError(f"unknown run status {status!r}")
+    if not channels or len(set(channels)) != len(channels):
+        raise StoreError(f"run {run_id}: channel names must be unique and non-empty, got {list(channels)}")
+
+
+class Store(Protocol):
+    """The run store the service, the CLI and the recorder use; both backends implement it."""
+
+    bench_id: str | None
+    bench_name: str | None
+    recovered_run_ids: list[str]
+
+    def describe(self) -> str:
+        """Where the runs are, for people (a file path, or a database URL without its password)."""
+        ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Store: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+    # runs
+    def create_run(self, run_id: str, request: Mapping[str, Any], channels: Sequence[str], *,
+                   profile: Mapping[str, Any] | None = None, config_snapshot: Mapping[str, Any] | None = None,
+                   compensator_toml: str | None = None, compensation_version: int | None = None,
+                   status: str = "queued") -> StoredRun: ...
+
+    def set_status(self, run_id: str, status: str, *, error: str | None = None,
+                   results: Mapping[str, Any] | None = None) -> None: ...
+
+    def get_run(self, run_id: str) -> StoredRun | None: ...
+
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]: ...
+
+    def count_runs(self, query: RunQuery | None = None) -> int: ...
+
+    def count_by_status(self) -> dict[str, int]:
+        """This bench's runs by status (the service's metrics)."""
+        ...
+
+    # samples
+    def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int: ...
+
+    def iter_columns(self, run_id: str, chunk_samples: int = 65_536) -> Iterator[dict[str, np.ndarray]]: ...
+
+    def read_columns(self, run_id: str) -> dict[str, np.ndarray]: ...
+
+    def read_samples(self, run_id: str) -> Samples: ...
+
+    # versioned documents of this bench
+    def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion: ...
+
+    def compensation_history(self, limit: int = 100) -> list[CompensationVersion]: ...
+
+    def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None: ...
+
+    def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                        run_id: str | None = None) -> BenchModelVersion: ...
+
+    def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]: ...
+
+    def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None: ...

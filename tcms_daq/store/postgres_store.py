@@ -1,0 +1,424 @@
+"""The run store on PostgreSQL: a plant's benches share one database (psycopg 3 and its connection pool).
+
+Opening migrates the schema to the version this code knows (``schema_version``; concurrent starts serialise on an
+advisory lock), then — when it starts a service (``recover=True``) — takes the bench's own advisory lock for
+as long as the store is open, so a second service of the same bench is refused instead of interrupting the
+first one's test, and marks the runs this bench left active as ``interrupted`` (never another bench's).
+
+Samples go in bulk: one ``COPY … FROM STDIN (FORMAT BINARY)`` per commit of the recorder, one row per acquisition
+batch (a channel-major little-endian float64 ``bytea``), in the same transaction as the run's sample count. A
+committed batch survives a kill of the service (PostgreSQL's commit is durable: ``synchronous_commit`` on).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import psycopg
+from psycopg.types.json import Jsonb
+from psycopg_pool import ConnectionPool, PoolTimeout
+
+from tcms_daq.identity import decision
+from tcms_daq.samples import Samples, samples_from_columns
+from tcms_daq.store.base import (
+    ACTIVE_STATUSES,
+    FINAL_STATUSES,
+    INTERRUPTED_ERROR,
+    RUN_STATUSES,
+    VERSIONED,
+    BenchModelVersion,
+    CompensationVersion,
+    RunColumns,
+    RunQuery,
+    StoredRun,
+    StoreError,
+    check_new_run,
+    dumps,
+    pack_batches,
+    text_sha256,
+    unpack_blocks,
+)
+from tcms_daq.store.opening import redact_url
+
+# Each entry moves the schema one version up; applied in order, each in its own transaction. Never edit an
+# applied entry: add the next one.
+MIGRATIONS: tuple[str, ...] = (
+    """
+    CREATE TABLE runs (
+        id text PRIMARY KEY,
+        created_at double precision NOT NULL,
+        started_at double precision,
+        finished_at double precision,
+        status text NOT NULL,
+        request jsonb NOT NULL,
+        profile jsonb,
+        results jsonb,
+        error text,
+        config_snapshot jsonb,
+        compensator_toml text,
+        channels jsonb NOT NULL,
+        sample_count bigint NOT NULL DEFAULT 0,
+        compensation_version integer,
+        bench_id text,
+        bench_name text,
+        reducer text,
+        serial_number text,
+        operator text,
+        verdict text
+    );
+    CREATE INDEX runs_created ON runs (created_at DESC, id DESC);
+    CREATE INDEX runs_bench ON runs (bench_id, created_at);
+    CREATE INDEX runs_serial ON runs (lower(serial_number));
+    CREATE INDEX runs_reducer ON runs (lower(reducer));
+    CREATE INDEX runs_active ON runs (bench_id) WHERE status IN ('queued', 'running');
+    CREATE TABLE compensations (
+        version integer GENERATED ALWAYS AS IDENTITY PRIMARY KEY,
+        created_at double precision NOT NULL,
+        note text NOT NULL,
+        sha256 text NOT NULL,
+        toml text NOT NULL,
+        bench_id text,
+        rollback_of integer
+    );
+    CREATE TABLE bench_models (
+        version integer GENERATED ALWAYS AS IDENTITY PRIMARY KEY,
+        created_at double precision NOT NULL,
+        note text NOT NULL,
+        sha256 text NOT NULL,
+        toml text NOT NULL,
+        bench_id text,
+        analysis_id text,
+        run_id text
+    );
+    CREATE TABLE sample_batches (
+        run_id text NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+        batch_index integer NOT NULL,
+        n_samples integer NOT NULL,
+        data bytea NOT NULL,
+        PRIMARY KEY (run_id, batch_index)
+    );
+    """,
+)
+
+_MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)
+_BENCH_LOCK_CLASS = 0x7C45_0002
+_RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profile, results, error, "
+                "config_snapshot, compensator_toml, channels, sample_count, compensation_version, bench_id, "
+                "bench_name")
+_LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
+
+
+def _json_text(obj: Any) -> str:
+    return dumps(obj) or "null"
+
+
+def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
+    return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
+
+
+class PostgresRunStore:
+    """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
+    pool)."""
+
+    def __init__(self, url: str, *, recover: bool = True, bench_id: str | None = None,
+                 bench_name: str | None = None, pool_size: int = 4, connect_timeout_s: float = 10.0):
+        self.url = url
+        self.bench_id = bench_id
+        self.bench_name = bench_name
+        self._closed = False
+        self._bench_lock: psycopg.Connection[Any] | None = None
+        try:
+            self._pool = ConnectionPool(url, min_size=1, max_size=max(1, pool_size), open=False,
+                                        name=f"tcms-{bench_id or 'reader'}", timeout=connect_timeout_s,
+                                        kwargs={"connect_timeout": max(1, round(connect_timeout_s))})
+            self._pool.open(wait=True, timeout=connect_timeout_s)
+        except (PoolTimeout, psycopg.Error) as exc:
+            self._pool.close()
+            raise StoreError(f"run store {self.describe()}: cannot connect ({_reason(exc)})") from None
+        try:
+            self._migrate()
+            if recover and bench_id is not None:
+                self._lock_bench(bench_id)
+            self.recovered_run_ids: list[str] = self._mark_interrupted() if recover else []
+        except BaseException:
+            self.close()
+            raise
+
+    def describe(self) -> str:
+        return redact_url(self.url)
+
+    # -- life cycle ------------------------------------------------------------------------------------------
+    def _migrate(self) -> None:
+        with self._pool.connection() as conn:
+            conn.execute("SELECT pg_advisory_xact_lock(%s::bigint)", (_MIGRATION_LOCK,))
+            conn.execute("CREATE TABLE IF NOT EXISTS schema_version (version integer NOT NULL)")
+            row = conn.execute("SELECT max(version) FROM schema_version").fetchone()
+            current = int(row[0]) if row and row[0] is not None else 0
+            if current > len(MIGRATIONS):
+                raise StoreError(f"run store {self.describe()} has schema version {current}, newer than this "
+                                 f"program's {len(MIGRATIONS)}: update TCMS-DAQ")
+            for version in range(current + 1, len(MIGRATIONS) + 1):
+                conn.execute(MIGRATIONS[version - 1])  # our own SQL, no parameters
+                conn.execute("INSERT INTO schema_version (version) VALUES (%s)", (version,))
+
+    @property
+    def schema_version(self) -> int:
+        with self._pool.connection() as conn:
+            row = conn.execute("SELECT max(version) FROM schema_version").fetchone()
+        return int(row[0]) if row and row[0] is not None else 0
+
+    def _lock_bench(self, bench_id: str) -> None:
+        """Hold this bench's advisory lock while the store is open (released by PostgreSQL when the process
+        dies): a second service of the same bench on this database is refused."""
+        conn = psycopg.connect(self.url, autocommit=True, connect_timeout=10)
+        got = conn.execute("SELECT pg_try_advisory_lock(%s::int4, hashtext(%s))", (_BENCH_LOCK_CLASS, bench_id)).fetchone()
+        if not (got and got[0]):
+            conn.close()
+            raise StoreError(f"bench {bench_id!r} is already served by another service on {self.describe()}; "
+                             "give each bench its own [bench] id")
+        self._bench_lock = conn
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self._bench_lock is not None:
+            self._bench_lock.close()
+        self._pool.close()
+
+    def __enter__(self) -> PostgresRunStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _connection(self) -> Any:
+        if self._closed:
+            raise StoreError(f"run store {self.describe()} is closed")
+        return self._pool.connection()
+
+    def _own(self) -> tuple[str, tuple[Any, ...]]:
+        """SQL condition (and parameters) selecting this bench's rows (every row for a store without a bench)."""
+        if self.bench_id is None:
+            return "TRUE", ()
+        return "bench_id = %s", (self.bench_id,)
+
+    # -- runs ------------------------------------------------------------------------------------------------
+    def _mark_interrupted(self) -> list[str]:
+        if self.bench_id is None:
+            return []  # a store without a bench never decides that another service is dead
+        with self._connection() as conn:
+            rows = conn.execute(
+                "UPDATE runs SET status = 'interrupted', finished_at = COALESCE(finished_at, %s), "
+                "error = COALESCE(error, %s) WHERE status = ANY(%s) AND bench_id = %s RETURNING id, created_at",
+                (time.time(), INTERRUPTED_ERROR, list(ACTIVE_STATUSES), self.bench_id),
+            ).fetchall()
+        return [r[0] for r in sorted(rows, key=lambda r: r[1])]
+
+    def create_run(self, run_id: str, request: Mapping[str, Any], channels: Sequence[str], *,
+                   profile: Mapping[str, Any] | None = None, config_snapshot: Mapping[str, Any] | None = None,
+                   compensator_toml: str | None = None, compensation_version: int | None = None,
+                   status: str = "queued") -> StoredRun:
+        check_new_run(run_id, channels, status)
+        cols = RunColumns.of(request)
+        try:
+            with self._connection() as conn:
+                conn.execute(
+                    "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
+                    "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator) "
+                    "VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s)",
+                    (run_id, time.time(), status, _jsonb(request), _jsonb(profile), _jsonb(config_snapshot),
+                     compensator_toml, Jsonb(list(channels)), compensation_version, self.bench_id,
+                     self.bench_name, cols.reducer, cols.serial_number, cols.operator),
+                )
+        except psycopg.errors.UniqueViolation:
+            raise StoreError(f"run {run_id} already exists") from None
+        return self.get_run(run_id)  # type: ignore[return-value]
+
+    def set_status(self, run_id: str, status: str, *, error: str | None = None,
+                   results: Mapping[str, Any] | None = None) -> None:
+        """Move a run to ``status``; ``running`` stamps the start time, a final status the finish time."""
+        if status not in RUN_STATUSES:
+            raise StoreError(f"unknown run status {status!r}")
+        now = time.time()
+        sets = ["status = %s"]
+        params: list[Any] = [status]
+        if status == "running":
+            sets.append("started_at = COALESCE(started_at, %s)")
+            params.append(now)
+        if status in FINAL_STATUSES:
+            sets.append("finished_at = %s")
+            params.append(now)
+        if error is not None:
+            sets.append("error = %s")
+            params.append(error)
+        if results is not None:
+            sets += ["results = %s", "verdict = %s"]
+            params += [_jsonb(results), decision(results)]
+        params.append(run_id)
+        with self._connection() as conn:
+            cur = conn.execute(f"UPDATE runs SET {', '.join(sets)} WHERE id = %s", params)
+            if cur.rowcount == 0:
+                raise StoreError(f"unknown run {run_id!r}")
+
+    def get_run(self, run_id: str) -> StoredRun | None:
+        with self._connection() as conn:
+            row = conn.execute(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id = %s", (run_id,)).fetchone()
+        return None if row is None else _record(row)
+
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
+        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
+        where, params = (query or RunQuery()).where("%s", "ILIKE")
+        with self._connection() as conn:
+            rows = conn.execute(
+                f"SELECT {_LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC "
+                "LIMIT %s OFFSET %s", (*params, limit, offset)).fetchall()
+        return [_record(r) for r in rows]
+
+    def count_runs(self, query: RunQuery | None = None) -> int:
+        where, params = (query or RunQuery()).where("%s", "ILIKE")
+        with self._connection() as conn:
+            row = conn.execute(f"SELECT count(*) FROM runs {where}", params).fetchone()
+        return int(row[0]) if row else 0
+
+    def count_by_status(self) -> dict[str, int]:
+        """Runs of this bench by status (every bench's for a store without one)."""
+        counts = dict.fromkeys(RUN_STATUSES, 0)
+        own, own_params = self._own()
+        with self._connection() as conn:
+            rows = conn.execute(f"SELECT status, count(*) FROM runs WHERE {own} GROUP BY status", own_params)
+            for status, n in rows.fetchall():
+                counts[status] = int(n)
+        return counts
+
+    # -- versioned TOML documents of this bench ---------------------------------------------------------------
+    def _add_version(self, table: str, toml: str, note: str, provenance: Sequence[Any]) -> tuple[int, float]:
+        columns = ("created_at", "note", "sha256", "toml", "bench_id", *VERSIONED[table])
+        created = time.time()
+        with self._connection() as conn:
+            row = conn.execute(
+                f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join(['%s'] * len(columns))}) "
+                "RETURNING version", (created, note, text_sha256(toml), toml, self.bench_id, *provenance)).fetchone()
+        assert row is not None
+        return int(row[0]), created
+
+    def _history(self, table: str, limit: int) -> list[tuple[Any, ...]]:
+        columns = ("version", "created_at", "note", "sha256", *VERSIONED[table])
+        own, own_params = self._own()
+        with self._connection() as conn:
+            return [tuple(r) for r in conn.execute(
+                f"SELECT {', '.join(columns)} FROM {table} WHERE {own} ORDER BY version DESC LIMIT %s",
+                (*own_params, limit)).fetchall()]
+
+    def _version(self, table: str, version: int | None) -> tuple[Any, ...] | None:
+        own, own_params = self._own()
+        sql = (f"SELECT {', '.join(('version', 'created_at', 'note', 'sha256', *VERSIONED[table]))}, toml "
+               f"FROM {table} WHERE {own} ")
+        with self._connection() as conn:
+            if version is not None:
+                row = conn.execute(sql + "AND version = %s", (*own_params, version)).fetchone()
+            else:
+                row = conn.execute(sql + "ORDER BY version DESC LIMIT 1", own_params).fetchone()
+        return None if row is None else tuple(row)
+
+    def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
+        version, created = self._add_version("compensations", toml, note, (rollback_of,))
+        return CompensationVersion(version, created, note, text_sha256(toml), rollback_of)
+
+    def compensation_history(self, limit: int = 100) -> list[CompensationVersion]:
+        return [CompensationVersion(*row) for row in self._history("compensations", limit)]
+
+    def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None:
+        row = self._version("compensations", version)
+        return None if row is None else (CompensationVersion(*row[:-1]), row[-1])
+
+    def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                        run_id: str | None = None) -> BenchModelVersion:
+        version, created = self._add_version("bench_models", toml, note, (analysis_id, run_id))
+        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
+
+    def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
+        return [BenchModelVersion(*row) for row in self._history("bench_models", limit)]
+
+    def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
+        row = self._version("bench_models", version)
+        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
+
+    # -- samples ---------------------------------------------------------------------------------------------
+    def _channels(self, run_id: str, conn: Any = None) -> tuple[str, ...]:
+        if conn is None:
+            with self._connection() as own:
+                return self._channels(run_id, own)
+        row = conn.execute("SELECT channels FROM runs WHERE id = %s", (run_id,)).fetchone()
+        if row is None:
+            raise StoreError(f"unknown run {run_id!r}")
+        return tuple(row[0])
+
+    def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int:
+        """Append column batches in one transaction: one binary COPY, a row per batch. Returns samples written."""
+        if not batches:
+            return 0
+        with self._connection() as conn:
+            rows = pack_batches(run_id, self._channels(run_id, conn), batches)
+            if not rows:
+                return 0
+            total = sum(n for n, _ in rows)
+            # the run's row lock orders concurrent appends to one run; other runs are not held up
+            conn.execute("SELECT 1 FROM runs WHERE id = %s FOR UPDATE", (run_id,))
+            start_row = conn.execute("SELECT COALESCE(max(batch_index) + 1, 0) FROM sample_batches WHERE run_id = %s",
+                                     (run_id,)).fetchone()
+            start = int(start_row[0]) if start_row else 0
+            with conn.cursor() as cur, cur.copy(
+                    "COPY sample_batches (run_id, batch_index, n_samples, data) FROM STDIN (FORMAT BINARY)") as copy:
+                copy.set_types(["text", "int4", "int4", "bytea"])
+                for i, (n, blob) in enumerate(rows):
+                    copy.write_row((run_id, start + i, n, blob))
+            conn.execute("UPDATE runs SET sample_count = sample_count + %s WHERE id = %s", (total, run_id))
+        return total
+
+    def iter_columns(self, run_id: str, chunk_samples: int = 65_536) -> Iterator[dict[str, np.ndarray]]:
+        """A run's samples in consecutive chunks of about ``chunk_samples`` (whole stored batches); each chunk
+        is its own query."""
+        channels = self._channels(run_id)
+        next_index = 0
+        while True:
+            with self._connection() as conn:
+                rows = conn.execute(
+                    "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND batch_index >= %s "
+                    "ORDER BY batch_index LIMIT %s", (run_id, next_index, max(1, chunk_samples // 64))).fetchall()
+            if not rows:
+                return
+            blobs: list[tuple[int, bytes]] = []
+            for index, n, blob in rows:
+                blobs.append((n, bytes(blob)))
+                next_index = index + 1
+                if sum(b[0] for b in blobs) >= chunk_samples:
+                    break
+            yield unpack_blocks(channels, blobs)
+
+    def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
+        channels = self._channels(run_id)
+        chunks = list(self.iter_columns(run_id))
+        if not chunks:
+            return {name: np.empty(0) for name in channels}
+        return {name: np.concatenate([c[name] for c in chunks]) for name in channels}
+
+    def read_samples(self, run_id: str) -> Samples:
+        return samples_from_columns(self.read_columns(run_id))
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def _record(row: Sequence[Any]) -> StoredRun:
+    return StoredRun(
+        id=row[0], created_at=row[1], started_at=row[2], finished_at=row[3], status=row[4],
+        request=row[5] or {}, profile=row[6], results=row[7], error=row[8], config_snapshot=row[9],
+        compensator_toml=row[10], channels=tuple(row[11]), sample_count=int(row[12]),
+        compensation_version=row[13], bench_id=row[14], bench_name=row[15],
+    )
