@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-NOT_STATED = "U not stated"
+from tcms_daq.analysis.rounding import with_uncertainty
 
 
 @dataclass(frozen=True)
@@ -59,37 +59,13 @@ def expanded_uncertainty(results: Mapping[str, Any] | None, key: str) -> float |
     return None if entry is None else float(entry["U"])
 
 
-def _decimals_for_two_digits(u: float) -> int:
-    """Decimal places that show ``u`` with two significant digits (negative: round to tens, hundreds …)."""
-    return 1 - math.floor(math.log10(abs(u)))
-
-
-def format_value(value: float, decimals: int) -> str:
-    if decimals > 0:
-        return f"{value:.{decimals}f}"
-    return f"{round(value, decimals):.0f}"
-
-
 def format_result(results: Mapping[str, Any] | None, key: str, unit: str = "") -> str:
     """``"293.9 ± 2.3 N·m/arcmin (k = 2.05)"`` when U is stated, ``"293.94 N·m/arcmin (U not stated)"``
-    otherwise, ``"—"`` when there is no finite value."""
+    otherwise, ``"—"`` when there is no finite value (the one rendering: ``analysis.rounding``)."""
     value = _number((results or {}).get(key))
-    suffix = f" {unit}" if unit else ""
     if value is None:
         return "—"
-    entry = uncertainty_entry(results, key)
-    if entry is None:
-        return f"{value:.6g}{suffix} ({NOT_STATED})"
-    expanded = float(entry["U"])
-    if expanded == 0.0:
-        return f"{value:.6g} ± 0{suffix}"
-    decimals = _decimals_for_two_digits(expanded)
-    # rounding U may carry into a third digit (0.0996 -> 0.10): take the rounded U's own digits
-    rounded_u = round(expanded, decimals)
-    decimals = _decimals_for_two_digits(rounded_u)
-    k = _number(entry.get("k"))
-    coverage = f" (k = {k:.3g})" if k is not None else ""
-    return f"{format_value(value, decimals)} ± {format_value(rounded_u, decimals)}{suffix}{coverage}"
+    return with_uncertainty(value, uncertainty_entry(results, key), unit)
 
 
 def decision(results: Mapping[str, Any] | None) -> str | None:

@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 
 from tcms_daq import __version__
+from tcms_daq.analysis.rounding import NOT_STATED
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import HEADLINES, NOT_STATED, PARAMETER_LABELS, decision, decision_rule, format_result
+from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision, decision_rule, format_result
 from tcms_daq.service.report import hysteresis_svg
 from tcms_daq.store import StoredRun
 
