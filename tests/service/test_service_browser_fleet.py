@@ -73,7 +73,7 @@ def test_fleet_page_searches_links_overlays_and_charts(settings_factory, tmp_pat
             page.wait_for_function("document.querySelectorAll('#runs tbody tr[data-id]').length === 12")
             assert page.inner_text("#total") == "12"
             first = page.inner_text("#runs tbody tr[data-id='run-01']")
-            assert "± 2.3 N·m/arcmin (k = 2.05)" in first and "41.27 ± 0.82 arcsec (k = 2)" in first
+            assert "± 2.3 N·m/arcmin (k = 2.05)" in first and "41.27 ± 0.82″ (k = 2.00)" in first
             assert "U not stated" in page.inner_text("#runs tbody tr[data-id='run-02']")
             hrefs = page.eval_on_selector_all("#runs tbody tr[data-id='run-02'] td.files a", "els => els.map(e => e.href)")
             assert any(h.endswith(f"/api/tests/run-02/certificate.pdf?token={TOKEN}") for h in hrefs)

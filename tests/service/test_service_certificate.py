@@ -15,8 +15,8 @@ from svc_helpers import ScriptedRunner, results_with_uncertainty, serve, wait_fo
 from tcms_daq.store import RunStore, open_store
 
 RIGIDITY = "293.9 ± 2.3 N·m/arcmin (k = 2.05)"
-LOST_MOTION = "41.27 ± 0.82 arcsec (k = 2)"
-BACKLASH = "18.6 ± 1.2 arcsec (k = 2)"
+LOST_MOTION = "41.27 ± 0.82″ (k = 2.00)"
+BACKLASH = "18.6 ± 1.2″ (k = 2.00)"
 CHANNELS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec")
 
 
@@ -106,7 +106,7 @@ def test_certificate_cli_from_another_directory(stored_runs, tmp_path):
     assert _cli("old", "--data-dir", str(data_dir), "-o", str(out), cwd=elsewhere).returncode == 0
     old = pdf_text(out.read_bytes())
     assert "Serial number SN-OLD-1" in old and "torsional rigidity 201.5 N·m/arcmin (U not stated)" in old
-    assert "backlash 24 arcsec (U not stated)" in old and "lost motion — U not stated" in old
+    assert "backlash 24″ (U not stated)" in old and "lost motion — U not stated" in old
     assert "simple acceptance" in old and "Verdict: PASS" in old
 
     for args, message in ((("nope", "--data-dir", str(data_dir)), "unknown run 'nope'"),

@@ -19,8 +19,8 @@ REQUEST = {"reducer": "RV-110E", "max_torque_nm": 200, "cycles": 1, "rate_nm_per
            "serial_number": "SN-4711", "operator": "Ada Lovelace"}
 # the renderings the contract asks for, written out by hand from the injected numbers
 RIGIDITY = "293.9 ± 2.3 N·m/arcmin (k = 2.05)"
-LOST_MOTION = "41.27 ± 0.82 arcsec (k = 2)"
-BACKLASH = "18.6 ± 1.2 arcsec (k = 2)"
+LOST_MOTION = "41.27 ± 0.82″ (k = 2.00)"
+BACKLASH = "18.6 ± 1.2″ (k = 2.00)"
 
 
 @pytest.fixture

@@ -92,7 +92,7 @@ async def test_client_reads_latest_result_and_receives_result_ready(settings_fac
             assert await value(latest, "RigidityNmPerArcmin") == pytest.approx(293.94)
             assert await value(latest, "RigidityNmPerArcminExpandedU") == pytest.approx(2.05 * 1.1219512)
             assert await value(latest, "LostMotionArcsecExpandedU") == pytest.approx(0.82)
-            assert await value(latest, "BacklashArcsecText") == "18.6 ± 1.2 arcsec (k = 2)"
+            assert await value(latest, "BacklashArcsecText") == "18.6 ± 1.2″ (k = 2.00)"
             assert await value(bench, "State") == "completed" and await value(bench, "ActiveRunId") == ""
 
             run_id, text, error = await manager.call_method(f"{ns}:GetLatestResult")
