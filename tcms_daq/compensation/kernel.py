@@ -23,7 +23,8 @@ For every sample the kernel computes, in arcsec,
   its gain and offset (that tangent is linear in θ), and the same pass checks that every sample rounds to that
   grid point (their rounded bit patterns are compared). If one does not — the block crosses a cell edge, or
   holds NaN, ±inf or a reading out of the domain — the block is computed again with the table looked up per
-  sample. The results agree to rounding (≤ 1e-9″), so folding changes the cost, not the result.
+  sample. The two agree to the rounding of the arithmetic (a few units in the last place of θ: below 1e-9″
+  within ±1000 revolutions), so folding changes the cost, not the result.
 * **Four samples at a time.** The pass over a block is emitted as LLVM IR on vectors of four float64 (numba
   intrinsics built with llvmlite): LLVM does not vectorise a loop with table lookups well by itself — it cannot
   tell that the output does not overwrite the tables, and where the CPU has no fast gather it recomputes every
@@ -71,6 +72,7 @@ _ROUNDING_SHIFT = 1.5 * 2.0**52  # x + this = 1.5·2^52 + round(x), exactly, for
 _MAX_POINTS_PER_ARCSEC = 2.0**51 / MAX_ABS_ANGLE_ARCSEC  # so that |θ/step| < 2^51 for every θ in the domain
 _VERIFY_POINTS_PER_CELL = 9  # the tangent's error is measured at 9 points across each cell, both edges included
 _VECTOR_ALIGN_BYTES = 32  # a non-temporal vector store needs its address aligned to the vector's size
+_CACHE_LINE_BYTES = 64
 
 # compiled once per machine and argument types, then loaded from numba's cache; no GIL held while it runs; no
 # bounds checks (every index is masked into its table); fused multiply-add allowed, nothing else of fast-math
@@ -432,7 +434,7 @@ def compensate(angle, torque, out, gain, arcsec_per_nm, offset_arcsec, short_tab
     streaming = not is_input and out.nbytes >= STREAMING_MIN_BYTES and out_address % 8 == 0
     # the blocks lie on a grid that starts where out is aligned to a cache line when streaming, so that no
     # cache line is written both ways (the samples before it form a short first block)
-    grid_start = (-out_address % 64) // 8 if streaming else 0
+    grid_start = (-out_address % _CACHE_LINE_BYTES) // 8 if streaming else 0
     destination = np.empty(BLOCK_SAMPLES) if is_input else out
     for block_start in range(grid_start - BLOCK_SAMPLES if grid_start > 0 else 0, n, BLOCK_SAMPLES):
         start = max(block_start, 0)
