@@ -91,8 +91,9 @@ def _compensation(r: Result) -> list[tuple[str, str, str]]:
         rows.append((
             f"compensation, full compensator (scale, torsion, eccentricity, 72″ and 36″ terms), 10 M samples, {what}",
             f"{_spread(m, f'{span}_ratio_to_copy')} × `np.copyto` (`np.add` of the two inputs: "
-            f"{_spread(m, f'{span}_np_add_ratio_to_copy')} ×); within {m[f'{span}_max_abs_fast_vs_exact_arcsec']:.2g}″ "
-            "of direct evaluation",
+            f"{_spread(m, f'{span}_np_add_ratio_to_copy')} ×; copy {_spread(m, f'{span}_copy_ms')} ms, compensation "
+            f"{_spread(m, f'{span}_compensate_ms')} ms; in the cache {_spread(m, f'{span}_in_cache_ns_per_sample', 2)} "
+            f"ns/sample); within {m[f'{span}_max_abs_fast_vs_exact_arcsec']:.2g}″ of direct evaluation",
             f"≤ 2 × median, ≤ 2.5 × worst: {_met(r, f'{span}_ratio_to_copy_median', f'{span}_ratio_to_copy_max')}",
         ))
     rows.append((

@@ -10,14 +10,19 @@ position:
 * ``revolution_0``: the same over 0 … 1 296 000″.
 
 Per span, three runs; each run times, interleaved in rounds whose order rotates, ``np.copyto`` of the angle into
-a preallocated output (the memory floor of the target: glibc copies large arrays with non-temporal stores, so
-the copy moves two streams), ``np.add(angle, torque, out)`` (one pass reading both inputs with ordinary stores:
-four streams, the output's cache lines are read before they are written) and ``Compensator.apply(angle, torque,
+a preallocated output (the memory floor of the target; glibc's memcpy writes copies above its
+``x86_non_temporal_threshold``, a fraction of the L3 size, with non-temporal stores: two streams),
+``np.add(angle, torque, out)`` (one pass reading both inputs with ordinary stores: four streams, the output's
+cache lines are read before they are written) and ``Compensator.apply(angle, torque,
 out=out)`` (three streams: two inputs, the output written with non-temporal stores), on the same arrays. A run's
 figure is the median over its rounds of the calling thread's CPU time (a call preempted by another process is
-not charged for the wait; memory contention still counts); the report gives min/median/max of the three runs. Also: the kernel's compile time (cold, in a fresh numba cache, and loaded from the
-cache), the exact path's time, the deviation of the fast path from the exact path on the benchmark data, and a
-per-sample Python loop (timed on a subset and extrapolated).
+not charged for the wait; memory contention still counts); the report gives min/median/max of the three runs.
+
+Also: the kernel's own cost with the data in the cache (``in_cache_ns_per_sample``: the compiled kernel on
+16 384 samples from the middle of the data, called again and again — no memory traffic, one call's dispatch per
+16 384 samples; what the kernel costs where the copy baseline is fast), the kernel's compile time (cold, in a
+fresh numba cache, and loaded from the cache), the exact path's time, the deviation of the fast path from the
+exact path on the benchmark data, and a per-sample Python loop (timed on a subset and extrapolated).
 """
 
 from __future__ import annotations
@@ -106,6 +111,30 @@ def _cpu_seconds(fn: Callable[[], object]) -> float:
     return time.thread_time() - c0
 
 
+IN_CACHE_SAMPLES = 16_384  # 384 KiB of inputs and output: in the L2 cache
+
+
+def in_cache_ns_per_sample(comp: Compensator, angle: np.ndarray, torque: np.ndarray, calls: int) -> float:
+    """CPU ns per sample of the compiled kernel (``comp``'s fast path, no direct terms) on ``IN_CACHE_SAMPLES``
+    samples from the middle of the data, ``calls`` times over the same arrays: its cost without memory traffic."""
+    middle = angle.size // 2
+    a = angle[middle: middle + IN_CACHE_SAMPLES].copy()
+    t = torque[middle: middle + IN_CACHE_SAMPLES].copy()
+    out = np.empty_like(a)
+    plan = comp.fast_path
+    assert not plan.direct_terms, "the benchmark's compensator is all in the kernel"
+
+    def call() -> None:
+        kernel.compensate(a, t, out, plan.gain, plan.arcsec_per_nm, plan.offset_arcsec, plan.short_table,
+                          plan.long_table)
+
+    call()
+    started = time.thread_time()
+    for _ in range(calls):
+        call()
+    return (time.thread_time() - started) / calls / IN_CACHE_SAMPLES * 1e9
+
+
 def _one_run(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
     """Median CPU seconds per call of each function over ``rounds`` rounds, one call of each per round, the order
     rotating every round (no function always runs right after the same neighbour on a shared machine)."""
@@ -167,6 +196,8 @@ def run(quick: bool = False) -> dict:
         fns["compensate"]()  # touch ``out`` and the tables
         per_run = [_one_run(fns, rounds) for _ in range(RUNS)]
         ratios = spread(f"{name}_ratio_to_copy", [r["compensate"] / r["copy"] for r in per_run])
+        metrics |= spread(f"{name}_in_cache_ns_per_sample",
+                          [in_cache_ns_per_sample(comp, angle, torque, 100 if quick else 500) for _ in range(RUNS)])
         fast_result = comp.apply(angle, torque)
         exact_s = _cpu_seconds(lambda: comp.apply(angle, torque, out=out, exact=True))  # noqa: B023 (called here)
         compensate_s = float(np.median([r["compensate"] for r in per_run]))
