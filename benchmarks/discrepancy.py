@@ -9,15 +9,14 @@ catalogue column at once (what a naive "fit everything" would cost), so the rati
 
 from __future__ import annotations
 
-import os
-import statistics
 import time
 
 import numpy as np
 
+from benchmarks._runs import RUNS, spread
+
 CASE = "time_skew+interpolation_error"
 SIZES = (100_000, 1_000_000)
-RUNS = 3
 MAX_TIME_RATIO_10X = 4.0
 MAX_SECONDS_1M = 20.0
 
@@ -55,7 +54,7 @@ def run(quick: bool = False) -> dict:
 
     sizes = (20_000, 200_000) if quick else SIZES
     runs = 1 if quick else RUNS
-    metrics: dict[str, object] = {"load_average_1min_before": os.getloadavg()[0]}
+    metrics: dict[str, object] = {}
     targets: dict[str, dict] = {}
     medians = []
     notes = []
@@ -70,14 +69,12 @@ def run(quick: bool = False) -> dict:
             result = run_discrepancy(measured, simulated)
             seconds.append(time.perf_counter() - t0)
         assert result is not None
-        seconds.sort()
-        medians.append(statistics.median(seconds))
+        workflow = spread(f"{key}_workflow_s", seconds)
+        medians.append(workflow[f"{key}_workflow_s_median"])
         named = result.names
         metrics.update({
             f"{key}_samples": n,
-            f"{key}_workflow_s_min": seconds[0],
-            f"{key}_workflow_s_median": statistics.median(seconds),
-            f"{key}_workflow_s_max": seconds[-1],
+            **workflow,
             f"{key}_baseline_prepare_and_one_lstsq_s": _baseline_s(measured, simulated),
             f"{key}_named": ",".join(named),
             f"{key}_named_correctly": sorted(named) == sorted(CASES[CASE]),
@@ -96,7 +93,6 @@ def run(quick: bool = False) -> dict:
     targets["time_ratio_10x_samples"] = {"limit": MAX_TIME_RATIO_10X, "met": medians[-1] / medians[0] <= MAX_TIME_RATIO_10X}
     if not quick:
         targets[f"{big}_workflow_s_max"] = {"limit": MAX_SECONDS_1M, "met": metrics[f"{big}_workflow_s_max"] <= MAX_SECONDS_1M}
-    metrics["load_average_1min_after"] = os.getloadavg()[0]
     return {
         "name": "discrepancy",
         "metrics": metrics,

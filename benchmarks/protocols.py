@@ -29,6 +29,8 @@ import can
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient
 
+from benchmarks._runs import RUNS, spread
+
 CHAR_BITS_7E2 = 11
 CHAR_BITS_RTU = 11
 RTU_SILENCE_S = 1.75e-3
@@ -89,27 +91,18 @@ def _pdo_round_trips(url_options: dict, duration_s: float, node_id: int = 1) -> 
         bus.shutdown()
 
 
-RUNS = 3
-
-
 def run(quick: bool = False) -> dict:
-    """Every rate measured in ``RUNS`` runs: the median under its own name, ``_min`` and ``_max`` beside it; a
-    target is met when the slowest run reaches the link limit."""
-    import os
-    import statistics
-
-    load_before = os.getloadavg()[0]
+    """Every rate measured in ``RUNS`` runs (min/median/max); a target is met when the slowest run reaches the
+    link limit."""
     runs = [_measure(quick) for _ in range(1 if quick else RUNS)]
-    metrics: dict[str, float] = {"runs": len(runs), "load_average_1min_before": load_before}
+    metrics: dict[str, float] = {"runs": len(runs)}
     for key in runs[0]:
-        values = sorted(r[key] for r in runs)
-        metrics[key] = statistics.median(values)
-        metrics[f"{key}_min"], metrics[f"{key}_max"] = values[0], values[-1]
+        metrics.update(spread(key, [r[key] for r in runs]))
     limits = link_limits()
     metrics.update(limits)
     metrics["modbus_rtu_serial_line_speedup_vs_stock_client"] = (
-        metrics["modbus_rtu_serial_line_transactions_per_s"] / metrics["modbus_rtu_serial_client_transactions_per_s"])
-    metrics["load_average_1min_after"] = os.getloadavg()[0]
+        metrics["modbus_rtu_serial_line_transactions_per_s_median"]
+        / metrics["modbus_rtu_serial_client_transactions_per_s_median"])
     # each measured rate must reach the link limit of its bus (metric -> limit key of link_limits())
     minimums = {
         "nd287_readings_per_s": "nd287_limit_115200_per_s",
@@ -118,13 +111,13 @@ def run(quick: bool = False) -> dict:
         "canopen_pdo_round_trips_virtual_per_s": "can_pdo_round_trip_limit_1mbit_per_s",
         "canopen_pdo_round_trips_socketcand_per_s": "can_pdo_round_trip_limit_1mbit_per_s",
     }
-    targets = {f"{metric}_min": {"limit": limits[limit], "met": metrics[f"{metric}_min"] >= limits[limit]}
+    targets = {f"{metric}_min": {"limit": limits[limit], "met": bool(metrics[f"{metric}_min"] >= limits[limit])}
                for metric, limit in minimums.items()}
     return {
         "name": "protocols",
         "metrics": metrics,
         "targets": targets,
-        "notes": (f"median (min, max) of {len(runs)} runs; loopback rates against the simulators (driver + simulator "
+        "notes": (f"min/median/max of {len(runs)} runs; loopback rates against the simulators (driver + simulator "
                   "in one process, 2 shared cores) "
                   "beside the real link limits from frame sizes: ND 287 7E2 at 115 200 Bd (9600 Bd limit "
                   "also listed), Modbus RTU at 115 200 Bd with the 1.75 ms inter-frame silence, CAN at 1 Mbit/s "

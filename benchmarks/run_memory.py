@@ -11,6 +11,7 @@ test of about 500 000 samples runs to completion; the service is then idle for a
   the size of the file.
 
 If the kernel refuses ``clear_refs`` the peak is taken from VmRSS sampled every 10 ms (a lower bound).
+``RUNS`` runs, each with a fresh service; min/median/max over the runs, a target judged on the worst run.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import httpx
 
+from benchmarks._runs import RUNS, spread
 from benchmarks.live_pipeline import TOKEN, _bench_config, _start_service
 
 SAMPLE_RATE_HZ = 5_000.0
@@ -63,7 +65,7 @@ def _run_test(client: httpx.Client, body: dict, timeout_s: float) -> dict:
     raise RuntimeError(f"test {run_id} did not finish within {timeout_s} s")
 
 
-def run(quick: bool = False) -> dict:
+def _one_run(quick: bool) -> dict:
     target = TARGET_SAMPLES // 5 if quick else TARGET_SAMPLES
     rate = 10.0 * REQUEST["max_torque_nm"] / (target / SAMPLE_RATE_HZ)
     with tempfile.TemporaryDirectory(prefix="tcms-mem-") as tmp:
@@ -114,24 +116,37 @@ def run(quick: bool = False) -> dict:
                 proc.wait(timeout=20)
             except Exception:
                 proc.kill()
-    peak_b = (peak_kb - baseline_kb) * 1024.0 / samples
-    retained_mb = (after_kb - baseline_kb) / 1024.0
-    metrics = {
+    return {
         "samples": samples,
-        "baseline_rss_mb": round(baseline_kb / 1024.0, 1),
-        "peak_growth_b_per_sample": round(peak_b, 1),
-        "retained_mb": round(retained_mb, 1),
+        "baseline_rss_mb": baseline_kb / 1024.0,
+        "peak_growth_b_per_sample": (peak_kb - baseline_kb) * 1024.0 / samples,
+        "retained_mb": (after_kb - baseline_kb) / 1024.0,
         "peak_measured_by": "VmHWM" if exact_peak else "VmRSS every 10 ms",
-        **{f"{fmt}_export_peak_mb": round(kb / 1024.0, 1) for fmt, (kb, _) in export_peak_kb.items()},
-        **{f"{fmt}_export_size_mb": round(size / 2**20, 1) for fmt, (_, size) in export_peak_kb.items()},
+        **{f"{fmt}_export_peak_mb": kb / 1024.0 for fmt, (kb, _) in export_peak_kb.items()},
+        **{f"{fmt}_export_size_mb": size / 2**20 for fmt, (_, size) in export_peak_kb.items()},
     }
+
+
+def run(quick: bool = False) -> dict:
+    runs = [_one_run(quick) for _ in range(1 if quick else RUNS)]
+    metrics: dict[str, float | str] = {
+        "runs": len(runs),
+        "peak_measured_by": ", ".join(sorted({r["peak_measured_by"] for r in runs})),
+    }
+    for key in runs[0]:
+        if key != "peak_measured_by":
+            metrics.update(spread(key, [r[key] for r in runs]))
+    peak_b = float(metrics["peak_growth_b_per_sample_max"])
+    retained_mb = float(metrics["retained_mb_max"])
     return {
         "name": "run_memory",
         "metrics": metrics,
         "targets": {
-            "peak_growth_b_per_sample": {"limit": PEAK_LIMIT_B_PER_SAMPLE, "met": peak_b <= PEAK_LIMIT_B_PER_SAMPLE},
-            "retained_mb": {"limit": RETAINED_LIMIT_MB, "met": retained_mb <= RETAINED_LIMIT_MB},
+            "peak_growth_b_per_sample_max": {"limit": PEAK_LIMIT_B_PER_SAMPLE, "met": peak_b <= PEAK_LIMIT_B_PER_SAMPLE},
+            "retained_mb_max": {"limit": RETAINED_LIMIT_MB, "met": retained_mb <= RETAINED_LIMIT_MB},
         },
+        "notes": (f"{len(runs)} runs, a fresh tcms serve each (5 kHz simulated bench at sim speed {SIM_SPEED:g}); "
+                  "min/median/max over the runs; targets judged on the worst run."),
     }
 
 

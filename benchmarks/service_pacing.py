@@ -9,8 +9,6 @@ over the test. min/median/max of ``RUNS`` runs per speed.
 
 from __future__ import annotations
 
-import os
-import statistics
 import sys
 import tempfile
 import time
@@ -19,11 +17,11 @@ from pathlib import Path
 
 import httpx
 
+from benchmarks._runs import RUNS, spread
 from benchmarks.live_pipeline import TOKEN, _cpu_seconds, _start_service
 
 REPO = Path(__file__).resolve().parents[1]
 SPEEDS = (1.0, 25.0, 100.0)
-RUNS = 3
 IDLE_CORES_LIMIT_AT_100 = 0.1
 ACHIEVED_SPEED_LIMIT_AT_100 = 60.0
 TEST = {"reducer": "RV-110E", "max_torque_nm": 800, "cycles": 3, "rate_nm_per_s": 100}
@@ -70,18 +68,14 @@ def _one(speed: float, tmp: Path, idle_s: float, run_test: bool) -> dict[str, fl
 
 def run(quick: bool = False) -> dict:
     idle_s = 3.0 if quick else 10.0
-    metrics: dict[str, float | str] = {"load_average_1min_before": os.getloadavg()[0]}
+    metrics: dict[str, float | str] = {}
     targets: dict[str, dict] = {}
     with tempfile.TemporaryDirectory(prefix="tcms-bench-pacing-") as tmp:
         for speed in SPEEDS:
             runs = [_one(speed, Path(tmp), idle_s, run_test=speed > 1) for _ in range(1 if quick else RUNS)]
             k = f"speed_{speed:g}"
             for key in runs[0]:
-                values = sorted(r[key] for r in runs)
-                metrics[f"{k}_{key}_min"] = values[0]
-                metrics[f"{k}_{key}_median"] = statistics.median(values)
-                metrics[f"{k}_{key}_max"] = values[-1]
-    metrics["load_average_1min_after"] = os.getloadavg()[0]
+                metrics.update(spread(f"{k}_{key}", [r[key] for r in runs]))
     if "speed_100_idle_cores_max" in metrics:
         targets["speed_100_idle_cores_max"] = {"limit": IDLE_CORES_LIMIT_AT_100,
                                                "met": metrics["speed_100_idle_cores_max"] <= IDLE_CORES_LIMIT_AT_100}

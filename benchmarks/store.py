@@ -16,13 +16,13 @@ min/median/max over three runs; the rounds alternate store and file.
 from __future__ import annotations
 
 import os
-import statistics
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks._runs import RUNS, spread
 from tcms_daq.store import RunStore
 
 CHANNELS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec")
@@ -71,18 +71,13 @@ def _file_rate(directory: Path, batches: list[dict[str, np.ndarray]], fsync: boo
     return n / elapsed
 
 
-def _spread(values: list[float]) -> tuple[float, float, float]:
-    v = sorted(values)
-    return v[0], statistics.median(v), v[-1]
-
-
 def run(quick: bool = False) -> dict:
     n_batches = 500 if quick else 5000  # 0.5 M / 5 M samples (16 / 160 MB of float64)
-    repeats = 1 if quick else 3
+    repeats = 1 if quick else RUNS
     batches = _batches(n_batches)
     n = n_batches * BATCH_SAMPLES
     limit = TARGET_HEADROOM * FASTEST_SOURCE_HZ
-    metrics: dict[str, float] = {"samples": n, "load_average_1min_before": os.getloadavg()[0]}
+    metrics: dict[str, float] = {"samples": n}
     targets = {}
     for level, synchronous, fsync in (("crash_safe", "NORMAL", False), ("power_safe", "FULL", True)):
         store_rates, file_rates = [], []
@@ -94,12 +89,10 @@ def run(quick: bool = False) -> dict:
         ratios = [s / f for s, f in zip(store_rates, file_rates, strict=True)]
         for name, values in (("store_samples_per_s", store_rates), ("file_samples_per_s", file_rates),
                              ("store_to_file_ratio", ratios)):
-            lo, mid, hi = _spread(values)
-            metrics.update({f"{level}_{name}_min": lo, f"{level}_{name}_median": mid, f"{level}_{name}_max": hi})
+            metrics.update(spread(f"{level}_{name}", values))
         metrics[f"{level}_store_mb_per_s_median"] = metrics[f"{level}_store_samples_per_s_median"] * 8 * len(CHANNELS) / 1e6
         metrics[f"{level}_headroom_over_50khz_source_min"] = min(store_rates) / FASTEST_SOURCE_HZ
         targets[f"{level}_store_samples_per_s_min"] = {"limit": limit, "met": min(store_rates) >= limit}
-    metrics["load_average_1min_after"] = os.getloadavg()[0]
     return {
         "name": "store",
         "metrics": metrics,

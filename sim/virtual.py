@@ -7,6 +7,12 @@ someone calls :meth:`VirtualBench.advance` (the acquisition's simulated clock do
 advance appends the high-rate samples the physics produced to per-channel buffers, and ``read()`` drains them.
 Samples are stamped with the simulated clock, i.e. at the "driver".
 
+On the real-time clock (``virtual://sim?clock=real-time``) the physics follows the bench's real-time clock
+instead: every reading and command first runs it up to the clock's present (:meth:`VirtualBench.catch_up`), and
+the samples are stamped on that clock. The drivers then look like real instruments with a buffer (no simulated
+time source), so the bench runs on the threaded scheduler — its reader threads, coordinator and status poller —
+at the simulated sample rate, with no protocol between (``benchmarks/live_pipeline.py`` measures that path).
+
 Fault hooks (:class:`VirtualFaults`) let tests trip every interlock without a protocol simulator: encoder
 fault, muted channels (stale data), torque offset spike, drive fault (with an error code, as an EMCY would
 carry) and a lost loader.
@@ -18,10 +24,11 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
-from urllib.parse import urlparse
+from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
@@ -103,11 +110,16 @@ class VirtualBench:
     """One simulated bench shared by the virtual drivers: physics, simulated clock, per-channel buffers.
 
     ``physics`` follows the SimulatedBench contract. Thread-safe: one lock around every physics call.
+    real_time_clock: None — the simulated clock (time moves in :meth:`advance` only); else the bench clock's
+    ``now`` (s, real time): the physics follows it (:meth:`catch_up`), time stamps are on it.
     """
 
-    def __init__(self, physics: Any, name: str = "sim"):
+    def __init__(self, physics: Any, name: str = "sim", real_time_clock: Callable[[], float] | None = None):
         self.name = name
         self.physics = physics
+        self.real_time_clock = real_time_clock
+        # bench clock time at the physics' time 0 (0 on the simulated clock: the physics' time is the clock)
+        self._clock_origin_s = real_time_clock() - float(physics.now_s) if real_time_clock is not None else 0.0
         self.faults = VirtualFaults()
         self._lock = threading.RLock()
         self._angle = _ChannelBuffer()
@@ -116,6 +128,7 @@ class VirtualBench:
         self._target_nm = 0.0
         self._applied_nm = 0.0
         self._scheduled: list[tuple[float, Callable[[], Any]]] = []
+        self._advancing = False  # a scheduled action that commands the bench does not catch up inside advance
 
     def at(self, time_s: float, action: Callable[[], Any]) -> None:
         """Run ``action()`` when the simulated clock reaches ``time_s`` (fault injection at a known instant)."""
@@ -123,30 +136,57 @@ class VirtualBench:
             self._scheduled.append((float(time_s), action))
             self._scheduled.sort(key=lambda item: item[0])
 
-    # -- the simulated clock ------------------------------------------------------------------------
+    # -- the clock ----------------------------------------------------------------------------------
+    @property
+    def real_time(self) -> bool:
+        return self.real_time_clock is not None
+
     def now_s(self) -> float:
+        """The bench clock's time of the physics' present (s)."""
         with self._lock:
-            return float(self.physics.now_s)
+            return float(self.physics.now_s) + self._clock_origin_s
 
     def advance(self, duration_s: float) -> None:
-        """Run the physics for ``duration_s`` simulated seconds and buffer what the sensors produced."""
+        """Run the physics for ``duration_s`` seconds and buffer what the sensors produced."""
         if duration_s <= 0:
             return
         with self._lock:
-            end_s = float(self.physics.now_s) + duration_s
-            while self._scheduled and self._scheduled[0][0] <= end_s:
-                when, action = self._scheduled.pop(0)
-                self._advance(when - float(self.physics.now_s))
-                action()
-            self._advance(end_s - float(self.physics.now_s))
+            self._advancing = True
+            try:
+                end_s = self.now_s() + duration_s
+                while self._scheduled and self._scheduled[0][0] <= end_s:
+                    when, action = self._scheduled.pop(0)
+                    self._advance(when - self.now_s())
+                    action()
+                self._advance(end_s - self.now_s())
+            finally:
+                self._advancing = False
+
+    def catch_up(self) -> None:
+        """On the real-time clock: run the physics up to the clock's present (nothing on the simulated clock)."""
+        if self.real_time_clock is not None:
+            with self._lock:
+                if not self._advancing:
+                    self.advance(self.real_time_clock() - self.now_s())
+
+    def let_pass(self, duration_s: float) -> None:
+        """Let ``duration_s`` of bench time pass: advance the simulation, or wait for the real-time clock."""
+        if self.real_time_clock is None:
+            self.advance(duration_s)
+            return
+        until_s = self.real_time_clock() + duration_s
+        while self.real_time_clock() < until_s:
+            time.sleep(0.001)
+        self.catch_up()
 
     def _advance(self, duration_s: float) -> None:
         if duration_s > 1e-12:
             samples = self.physics.advance(duration_s)
             if len(samples) == 0:
                 return
-            self._angle.append(samples.time_s, samples.angle_arcsec, samples.extra)
-            self._torque.append(samples.time_s, samples.torque_nm)
+            stamps_s = samples.time_s + self._clock_origin_s
+            self._angle.append(stamps_s, samples.angle_arcsec, samples.extra)
+            self._torque.append(stamps_s, samples.torque_nm)
             applied = samples.extra.get("applied_torque_nm")
             self._applied_nm = float(applied[-1]) if applied is not None else float(samples.torque_nm[-1])
 
@@ -168,6 +208,7 @@ class VirtualBench:
 
     def set_drive_enabled(self, enabled: bool) -> None:
         with self._lock:
+            self.catch_up()  # the command acts from the clock's present on
             self._drive_enabled = bool(enabled)
             if not enabled:
                 self._target_nm = 0.0
@@ -175,6 +216,7 @@ class VirtualBench:
 
     def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None:
         with self._lock:
+            self.catch_up()
             self._target_nm = float(target_nm)
             self.physics.set_torque_target(float(target_nm), float(slope_nm_per_s))
 
@@ -198,6 +240,7 @@ class VirtualBench:
     @property
     def applied_torque_nm(self) -> float:
         with self._lock:
+            self.catch_up()
             return self._applied_nm
 
     def inject_drive_fault(self, code: int = GENERIC_DRIVE_FAULT) -> None:
@@ -225,25 +268,42 @@ class VirtualContext:
     config: Any = None
     physics_factory: PhysicsFactory | None = None
     config_dir: Any = None
+    real_time_clock: Callable[[], float] = time.monotonic  # the bench's real-time clock (its ``now``)
     benches: dict[str, VirtualBench] = field(default_factory=dict)
 
-    def bench(self, name: str) -> VirtualBench:
+    def bench(self, name: str, *, real_time: bool = False) -> VirtualBench:
         if name not in self.benches:
             if self.physics_factory is not None:
                 physics = self.physics_factory(self.config)
             else:
                 physics = SimulatedBench.from_config(self.config, config_dir=self.config_dir)
-            self.benches[name] = VirtualBench(physics, name=name)
-        return self.benches[name]
+            self.benches[name] = VirtualBench(physics, name=name,
+                                              real_time_clock=self.real_time_clock if real_time else None)
+        bench = self.benches[name]
+        if bench.real_time != real_time:
+            raise ConfigError(f"the instruments of virtual://{name} must all run on one clock "
+                              "(all with ?clock=real-time, or none)")
+        return bench
 
 
 def parse_virtual_url(url: str) -> str:
-    """``virtual://name`` → ``name``; ConfigError for anything else."""
+    """``virtual://name`` (optionally ``?clock=simulated|real-time``) → ``name``; ConfigError for anything else."""
     parsed = urlparse(url)
     name = parsed.netloc or parsed.path.lstrip("/")
     if parsed.scheme != "virtual" or not name:
         raise ConfigError(f"virtual driver needs a url like 'virtual://sim', got {url!r}")
+    virtual_url_on_real_time(url)  # a bad query is refused here too
     return name
+
+
+def virtual_url_on_real_time(url: str) -> bool:
+    """Whether ``virtual://name?clock=real-time`` asks for the real-time clock (default: the simulated clock)."""
+    query = parse_qs(urlparse(url).query, keep_blank_values=True)
+    unknown = sorted(set(query) - {"clock"})
+    clocks = query.get("clock", ["simulated"])
+    if unknown or len(clocks) != 1 or clocks[0] not in ("simulated", "real-time"):
+        raise ConfigError(f"virtual driver url {url!r}: the only option is ?clock=simulated or ?clock=real-time")
+    return clocks[0] == "real-time"
 
 
 class VirtualAngleSource:
@@ -252,11 +312,12 @@ class VirtualAngleSource:
     def __init__(self, bench: VirtualBench, name: str = "virtual angle"):
         self.name = name
         self.bench = bench
-        self.time_source = bench
+        self.time_source = None if bench.real_time else bench  # on real time: an instrument like any other
         self.connected = False
 
     def connect(self) -> None:
         self.connected = True
+        self.bench.catch_up()
         self.bench.take_angle()  # start fresh: no stale samples from before the connection
 
     def close(self) -> None:
@@ -265,6 +326,7 @@ class VirtualAngleSource:
     def read(self) -> Batch:
         if not self.connected:
             raise Disconnected(self.name, "not connected")
+        self.bench.catch_up()
         if self.bench.faults.encoder_fault:
             self.bench.take_angle()
             raise DeviceFault(self.name, "encoder fault (display shows '?')")
@@ -278,13 +340,14 @@ class VirtualTorqueSource:
     def __init__(self, bench: VirtualBench, name: str = "virtual torque"):
         self.name = name
         self.bench = bench
-        self.time_source = bench
+        self.time_source = None if bench.real_time else bench
         self.connected = False
         self.tare_nm = 0.0
         self._last_raw_nm: float | None = None
 
     def connect(self) -> None:
         self.connected = True
+        self.bench.catch_up()
         self.bench.take_torque()
 
     def close(self) -> None:
@@ -293,6 +356,7 @@ class VirtualTorqueSource:
     def read(self) -> Batch:
         if not self.connected:
             raise Disconnected(self.name, "not connected")
+        self.bench.catch_up()
         batch = self.bench.take_torque()
         if len(batch):
             self._last_raw_nm = float(np.mean(batch.value[-20:]))
@@ -303,7 +367,7 @@ class VirtualTorqueSource:
     def tare(self) -> None:
         """Zero the channel at the present load (mean of the latest readings; advances nothing)."""
         if self._last_raw_nm is None:
-            self.bench.advance(0.01)
+            self.bench.let_pass(0.01)
             batch = self.bench.take_torque()
             if not len(batch):
                 raise DeviceFault(self.name, "no reading to tare on")
@@ -320,7 +384,7 @@ class VirtualLoader:
             raise ConfigError(f"{name}: rated_torque_nm must be > 0, got {rated_torque_nm}")
         self.name = name
         self.bench = bench
-        self.time_source = bench
+        self.time_source = None if bench.real_time else bench
         self.rated_torque_nm = float(rated_torque_nm)
         self.max_torque_nm = float(max_torque_nm if max_torque_nm is not None else rated_torque_nm)
         self.connected = False
@@ -422,7 +486,7 @@ class VirtualDriver:
     def __new__(cls, *, kind: str, url: str = "virtual://sim", context: VirtualContext | None = None,
                 **options: Any):
         ctx = context or VirtualContext()
-        bench = ctx.bench(parse_virtual_url(url))
+        bench = ctx.bench(parse_virtual_url(url), real_time=virtual_url_on_real_time(url))
         if kind == "angle":
             return VirtualAngleSource(bench)
         if kind == "torque":
@@ -439,7 +503,8 @@ class VirtualDriver:
         ctx = context.get("virtual")
         if ctx is None:
             ctx = context["virtual"] = VirtualContext(context.get("config"), context.get("physics_factory"),
-                                                      context.get("config_dir"))
+                                                      context.get("config_dir"),
+                                                      context.get("real_time_clock", time.monotonic))
         opts = dict(options)
         if kind == "loader":
             bench_max_nm = float(context.get("bench_max_torque_nm", math.inf))

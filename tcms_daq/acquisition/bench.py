@@ -161,13 +161,14 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
     if unknown:
         raise ConfigError(f"bench config: unknown key {unknown[0]!r} in [interlocks] "
                           f"(known: {', '.join(InterlockLimits.__dataclass_fields__)})")
+    real_clock = MonotonicClock(1.0 if speed is None or not math.isfinite(speed) else speed)
     context: dict[str, Any] = {
         "config": config,
         "physics_factory": physics_factory,
         "bench_max_torque_nm": max_torque_nm,
         "config_dir": config_dir,
+        "real_time_clock": real_clock.now,  # instruments simulated on real time follow this clock
     }
-    real_clock = MonotonicClock(1.0 if speed is None or not math.isfinite(speed) else speed)
     drivers: dict[str, Any] = {}
     description: dict[str, Any] = {}
     for kind in KINDS:

@@ -271,19 +271,22 @@ class Compensator:
         """Compensated angle θ_c = θ − Σ term(θ, T, t) in arcsec for raw readings θ (arcsec), torque T (N·m, an
         array of θ's shape or a scalar) and time t (s, needed only by time-dependent terms).
 
-        ``out``: a preallocated float64 C-contiguous array of θ's shape (it may be θ itself). ``exact=True``
-        evaluates every term directly instead of from the tables (which are within tolerance_arcsec/2).
+        θ and T may be of any real dtype and memory layout (they are read as float64, C-contiguous: converted
+        or copied when they are not). ``out``: a preallocated aligned C-contiguous float64 array of θ's shape
+        (it may be θ or T itself). ``exact=True`` evaluates every term directly instead of from the tables
+        (which are within tolerance_arcsec/2).
         """
-        angle = np.ascontiguousarray(angle_arcsec, dtype=float)
+        angle = _as_samples(angle_arcsec)
         shape = angle.shape
         if out is None:
             out = np.empty(shape)
-        elif out.shape != shape or out.dtype != np.float64 or not out.flags.c_contiguous:
-            raise ValueError("out must be a C-contiguous float64 array of the angle's shape")
-        if np.may_share_memory(angle, out) and angle.ctypes.data != out.ctypes.data:
-            angle = angle.copy()  # out overlaps the input shifted: read from a copy
+        elif out.shape != shape or out.dtype != np.float64 or not (out.flags.c_contiguous and out.flags.aligned):
+            raise ValueError("out must be an aligned C-contiguous float64 array of the angle's shape")
+        angle = _unless_overlapping(angle, out)
         angle_flat, out_flat = angle.reshape(-1), out.reshape(-1)
         torque = _torque_samples(torque_nm, shape)
+        if isinstance(torque, np.ndarray):
+            torque = _unless_overlapping(torque, out_flat)
         time = None if time_s is None else np.broadcast_to(np.asarray(time_s, dtype=float), shape).reshape(-1)
         if exact:
             correction = _sum_of_terms(self.terms, angle_flat, torque, time)
@@ -416,6 +419,19 @@ class Compensator:
     __hash__ = None  # type: ignore[assignment]
 
 
+def _as_samples(values) -> np.ndarray:
+    """``values`` as an aligned C-contiguous float64 array (the array itself when it already is one)."""
+    return np.require(values, dtype=np.float64, requirements=("C", "A"))
+
+
+def _unless_overlapping(samples: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``samples``, or a copy of it when ``out`` overlaps it without being the same memory (writing the result
+    would change inputs not read yet)."""
+    if np.may_share_memory(samples, out) and samples.ctypes.data != out.ctypes.data:
+        return samples.copy()
+    return samples
+
+
 def _torque_samples(torque_nm, shape: tuple[int, ...]) -> np.ndarray | float:
     """Torque (N·m) as a float (one value for the batch) or a flat float64 array of ``shape``'s size."""
     torque = np.asarray(torque_nm, dtype=float)
@@ -426,7 +442,7 @@ def _torque_samples(torque_nm, shape: tuple[int, ...]) -> np.ndarray | float:
             torque = np.broadcast_to(torque, shape)
         except ValueError:
             raise DataFormatError(f"torque shape {torque.shape} does not match angle shape {shape}") from None
-    return np.ascontiguousarray(torque).reshape(-1)
+    return _as_samples(torque).reshape(-1)
 
 
 def _sum_of_terms(terms: Sequence[Term], angle: np.ndarray, torque: np.ndarray | float, time: np.ndarray | None) -> np.ndarray:

@@ -136,3 +136,38 @@ def test_a_paced_simulated_clock_steps_by_real_time_and_waits_for_conditions_fin
     start = bench.clock.now()
     assert acq.wait(5.0, check_trips=False, until=lambda: bench.clock.now() >= start + 0.1)
     assert passed and max(passed) == pytest.approx(0.02)
+
+
+def test_virtual_instruments_on_the_real_time_clock_run_on_the_threaded_scheduler(make_spring, profile):
+    # virtual://sim?clock=real-time: the physics follows the bench's real-time clock (here at 20× real time), the
+    # drivers look like real instruments (no simulated time source), so the acquisition reads them in threads
+    from tcms_daq.acquisition import AcquisitionLoop, TestRun
+    from tcms_daq.acquisition.schedulers import ThreadedScheduler
+
+    real_time = {"driver": "virtual", "url": "virtual://sim?clock=real-time"}
+    bench = compose_bench(config(angle=real_time, torque=real_time, loader=real_time), speed=20.0,
+                          physics_factory=lambda _c: make_spring())
+    assert isinstance(bench.clock, MonotonicClock) and not bench.clock.stepped
+    assert bench.angle.time_source is None and bench.angle.bench.real_time
+    assert isinstance(AcquisitionLoop(bench).scheduler, ThreadedScheduler)
+    started_s = bench.clock.now()
+    record = TestRun(bench, profile).run()  # ±300 N·m
+    assert record.state == "completed", record.reason
+    s = record.samples
+    # stamped on the bench clock, at the simulated sample rate, from the run's own time on
+    assert started_s <= s.time_s[0] and s.time_s[-1] <= bench.clock.now()
+    np.testing.assert_allclose(np.diff(s.time_s), 1e-3, rtol=1e-6)
+    # the spring's compliance (300 N·m/arcmin) on each side, where its backlash term is saturated
+    for sign in (1, -1):
+        sel = (sign * s.torque_nm > 150.0) & (sign * s.torque_nm < 285.0)
+        slope_arcsec_per_nm = np.polyfit(s.torque_nm[sel], s.angle_arcsec[sel], 1)[0]
+        assert 60.0 / slope_arcsec_per_nm == pytest.approx(300.0, rel=0.02)
+
+
+def test_the_instruments_of_one_virtual_bench_share_its_clock(make_spring):
+    real_time = {"driver": "virtual", "url": "virtual://sim?clock=real-time"}
+    with pytest.raises(ConfigError, match="one clock"):
+        compose_bench(config(angle=real_time), physics_factory=lambda _c: make_spring())
+    with pytest.raises(ConfigError, match=r"\?clock=simulated or \?clock=real-time"):
+        compose_bench(config(angle={"driver": "virtual", "url": "virtual://sim?clock=fast"}),
+                      physics_factory=lambda _c: make_spring())

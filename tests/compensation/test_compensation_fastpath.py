@@ -222,3 +222,107 @@ def test_a_compensator_is_immutable_and_pickles():
     assert again == comp
     x = np.linspace(-1000, 1000, 777)
     np.testing.assert_array_equal(again.apply(x, x), comp.apply(x, x))
+
+
+# ---- the vectorised pass: lanes, tails, streaming output, input layouts ----
+
+
+def _by_hand(comp: Compensator, angle: np.ndarray, torque) -> np.ndarray:
+    """θ − Σ term(θ, T), each term evaluated on its own; NaN where θ is out of the domain."""
+    angle = np.asarray(angle, dtype=float)
+    with np.errstate(invalid="ignore"):
+        result = angle - sum(t.evaluate(angle, torque, None) for t in comp.terms)
+    result[~(np.abs(angle) <= MAX_ABS_ANGLE_ARCSEC)] = np.nan
+    return result
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 4, 5, 7, 8, 9, 511, 512, 513, 515, 1027, 2 * BLOCK_SAMPLES + 3])
+@pytest.mark.parametrize("span", [SPANS["hysteresis ±230″"], SPANS["±1 revolution"]], ids=["hysteresis", "revolution"])
+def test_every_batch_length_agrees_with_the_terms(n, span):
+    # four samples at a time and the samples left over, in blocks folded and not
+    comp = full_compensator()
+    rng = np.random.default_rng(n)
+    angle = np.sort(rng.uniform(*span, n))
+    torque = rng.uniform(-1500, 1500, n)
+    fast = comp.apply(angle, torque)
+    assert fast.shape == (n,)
+    assert np.max(np.abs(fast - _by_hand(comp, angle, torque)), initial=0.0) <= comp.tolerance_arcsec / 2
+
+
+def test_a_streamed_output_agrees_with_the_terms_and_with_the_in_place_result():
+    # outputs of STREAMING_MIN_BYTES and more are written with non-temporal stores from a cache-line boundary on;
+    # an output starting 1 … 7 samples past such a boundary exercises the short first block
+    comp = full_compensator()
+    n = kernel.STREAMING_MIN_BYTES // 8 + 2 * BLOCK_SAMPLES + 3
+    rng = np.random.default_rng(21)
+    angle = np.linspace(-REVOLUTION / 2, REVOLUTION / 2, n) + rng.normal(0, 0.2, n)
+    torque = 1000 * np.sin(np.linspace(0, 30, n))
+    bad_at = [0, 5, BLOCK_SAMPLES + 1, n // 2, n - 2]
+    for i, value in zip(bad_at, [np.nan, np.inf, -np.inf, 2 * MAX_ABS_ANGLE_ARCSEC, np.nan], strict=True):
+        angle[i] = value
+    expected = _by_hand(comp, angle, torque)
+    backing = np.empty(n + 8)
+    for shift in range(8):
+        out = backing[shift: shift + n]
+        comp.apply(angle, torque, out=out)
+        assert np.flatnonzero(np.isnan(out)).tolist() == bad_at
+        ok = ~np.isnan(out)
+        assert np.max(np.abs(out[ok] - expected[ok])) <= comp.tolerance_arcsec / 2
+    in_place = angle.copy()
+    comp.apply(in_place, torque, out=in_place)  # an output that is an input is not streamed
+    np.testing.assert_allclose(in_place, out, rtol=0, atol=1e-9)
+
+
+def test_inputs_of_any_dtype_and_layout_give_the_float64_result():
+    comp = full_compensator()
+    rng = np.random.default_rng(22)
+    n = 3 * BLOCK_SAMPLES + 5
+    wide_angle = rng.uniform(-REVOLUTION, REVOLUTION, 2 * n)
+    wide_torque = rng.uniform(-1500, 1500, 2 * n)
+    angle, torque = wide_angle[::2], wide_torque[::2]  # strided views
+    reference = comp.apply(angle.copy(), torque.copy())
+    np.testing.assert_array_equal(comp.apply(angle, torque), reference)
+    np.testing.assert_array_equal(comp.apply(angle.astype(">f8"), torque.astype(">f8")), reference)  # big-endian
+    np.testing.assert_array_equal(comp.apply(angle.reshape(-1, 1), torque.reshape(-1, 1)).ravel(), reference)
+    single = angle.astype(np.float32)  # read as the float64 of each float32 value
+    np.testing.assert_array_equal(comp.apply(single, torque), comp.apply(single.astype(float), torque))
+    unaligned = np.frombuffer(b"\0" * 4 + angle.tobytes(), dtype=np.float64, offset=4)
+    assert not unaligned.flags.aligned
+    np.testing.assert_array_equal(comp.apply(unaligned, torque), reference)
+    with pytest.raises(ValueError, match="aligned"):
+        comp.apply(angle.copy(), torque, out=np.frombuffer(bytearray(8 * n + 4), dtype=np.float64, offset=4))
+
+
+def test_an_output_that_is_the_torque_or_overlaps_it_reads_the_torque_first():
+    comp = full_compensator()
+    rng = np.random.default_rng(23)
+    n = 2 * BLOCK_SAMPLES + 9
+    angle = rng.uniform(-REVOLUTION, REVOLUTION, n)
+    torque = rng.uniform(-1500, 1500, n + 1)
+    expected = comp.apply(angle, torque[1:])
+    same = torque[1:].copy()
+    comp.apply(angle, same, out=same)
+    np.testing.assert_array_equal(same, expected)
+    comp.apply(angle, torque[1:], out=torque[:-1])  # out one sample before the torque it reads
+    np.testing.assert_array_equal(torque[:-1], expected)
+
+
+@pytest.mark.parametrize("offset_in_group", [0, 1, 2, 3])
+def test_a_sample_out_of_the_domain_gives_nan_in_its_lane_only(offset_in_group):
+    # in a group of four computed together, and in a block that is otherwise folded
+    comp = full_compensator()
+    n = 2 * BLOCK_SAMPLES + 3
+    angle = np.linspace(-100.0, 100.0, n)
+    torque = np.linspace(-500.0, 500.0, n)
+    clean = comp.apply(angle, torque)
+    for bad in (np.nan, np.inf, -np.inf, np.nextafter(MAX_ABS_ANGLE_ARCSEC, np.inf), -1e300):
+        for first in (4 * 10, BLOCK_SAMPLES + 4 * 7, n - 3):  # a vector group, another block, the left-over tail
+            at = min(first + offset_in_group, n - 1)
+            damaged = angle.copy()
+            damaged[at] = bad
+            result = comp.apply(damaged, torque)
+            assert np.flatnonzero(np.isnan(result)).tolist() == [at]
+            keep = np.arange(n) != at
+            np.testing.assert_allclose(result[keep], clean[keep], rtol=0, atol=1e-9)
+    at_the_limit = np.full(5, MAX_ABS_ANGLE_ARCSEC)
+    assert np.all(np.isfinite(comp.apply(at_the_limit, 0.0)))
