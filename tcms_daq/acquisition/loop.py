@@ -328,12 +328,14 @@ class AcquisitionLoop:
 
     # -- waiting (the procedure's only way to let time pass) ----------------------------------------
     def wait(self, duration_s: float, *, abort_event: threading.Event | None = None,
-             until: Callable[[], bool] | None = None, check_trips: bool = True) -> bool:
+             until: Callable[[], bool] | None = None, check_trips: bool = True, step_s: float | None = None) -> bool:
         """Let ``duration_s`` of clock time pass while acquiring; returns early (True) when ``until()`` holds.
 
         A wait for a condition (``until``) steps at the configured period even on a fast paced clock, so a test
-        does not hold at each setpoint for a long step. Raises InterlockTripped on a trip and AbortRequested when ``abort_event`` is set (unless
-        ``check_trips`` is False: used while ramping down after a trip).
+        does not hold at each setpoint for a long step. ``step_s`` (clock time) replaces the step period for this
+        wait (the service's idle pump steps longer between tests). Raises InterlockTripped on a trip and
+        AbortRequested when ``abort_event`` is set (unless ``check_trips`` is False: used while ramping down after a
+        trip).
         """
         deadline = self.clock.now() + duration_s
         while True:
@@ -347,7 +349,8 @@ class AcquisitionLoop:
             now = self.clock.now()
             if now >= deadline - 1e-9:
                 return False
-            dt = min(self.period_s if until is None else self.condition_period_s, deadline - now)
+            step = step_s if step_s is not None else self.period_s if until is None else self.condition_period_s
+            dt = min(step, deadline - now)
             self.scheduler.pass_time(self, now, dt)
 
     def channel_stats(self) -> dict[str, dict]:

@@ -91,6 +91,9 @@ def _columns(samples: Any) -> dict[str, np.ndarray]:
     }
 
 
+IDLE_STEP_PERIODS = 2  # the idle pump's step in loop steps: 2 × 20 ms of real time = one live frame (25 /s)
+
+
 class BenchRunner:
     """The service's bench: an :class:`~tcms_daq.acquisition.AcquisitionLoop` that runs for the life of the
     service (feeding the live hub while idle, too) and :class:`~tcms_daq.acquisition.TestRun` state machines
@@ -98,8 +101,9 @@ class BenchRunner:
 
     On a simulated clock, time only moves when someone waits on the loop: an idle pump thread waits in short
     steps between tests, and a test holds ``_clock_lock`` for its whole run so exactly one thread drives the
-    clock. ``sim_speed`` sets simulated seconds per real second; the idle pump lets one loop step pass at a time
-    (``idle_step_s``, default the loop's step, which on a paced clock is about 20 ms of real time).
+    clock. ``sim_speed`` sets simulated seconds per real second; the idle pump lets one step of ``idle_step_s``
+    pass at a time (default ``IDLE_STEP_PERIODS`` loop steps: on a paced clock about 40 ms of real time, the live
+    view's frame period, so an idle service wakes 25 times a real second whatever the speed).
     """
 
     channels = RUN_CHANNELS
@@ -174,7 +178,8 @@ class BenchRunner:
             if not self._clock_lock.acquire(timeout=0.1):
                 continue
             try:
-                self.acq.wait(self.idle_step_s or self.acq.period_s, check_trips=False)
+                idle_step_s = self.idle_step_s or IDLE_STEP_PERIODS * self.acq.period_s
+                self.acq.wait(idle_step_s, step_s=idle_step_s, check_trips=False)
             except TcmsError:
                 pass
             finally:
