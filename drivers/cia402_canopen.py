@@ -63,6 +63,7 @@ logging.getLogger("can.interfaces.socketcand.socketcand").addFilter(_QuietStream
 
 DEVICE_TYPE_402 = 0x0192  # low word of 0x1000
 LINK_ERROR_BACKOFF_S = 0.1  # the receive thread's pause after a failed bus read
+SOCKETCAND_HANDSHAKE_ATTEMPTS = 3  # connects tried when python-can's socketcand handshake meets bus traffic
 TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
 TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
 RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
@@ -222,10 +223,20 @@ class CiA402Canopen(CiA402Loader):
         network.NOTIFIER_CYCLE = 0.1  # receive-thread poll period: bounds how long close() waits for it
         # without a listener's on_error, python-can's receive thread dies with the CanError of a lost link
         network.listeners.append(_LinkErrorListener(self._on_link_error))  # type: ignore[arg-type]  # any can.Listener
-        try:
-            network.connect(**options)
-        except (can.CanError, OSError, TimeoutError, ValueError) as exc:
-            raise Disconnected(self.name, f"cannot open CAN bus {self.url}: {exc}") from None
+        for attempt in range(SOCKETCAND_HANDSHAKE_ATTEMPTS if options["interface"] == "socketcand" else 1):
+            try:
+                network.connect(**options)
+                break
+            except can.CanError as exc:
+                # python-can's socketcand client reads the handshake's "< ok >" with one recv(): on a busy bus the
+                # first frames can arrive in the same read and fail the handshake; a second connect succeeds
+                if "Expected '< ok >'" in str(exc) and attempt + 1 < SOCKETCAND_HANDSHAKE_ATTEMPTS:
+                    log.debug("%s: socketcand handshake met bus traffic, connecting again: %s", self.name, exc)
+                    network.disconnect()
+                    continue
+                raise Disconnected(self.name, f"cannot open CAN bus {self.url}: {exc}") from None
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise Disconnected(self.name, f"cannot open CAN bus {self.url}: {exc}") from None
         node = canopen.RemoteNode(self.node_id, self.eds)
         node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout_s  # canopen's 0.3 s default is flaky on a loaded CI
         node.sdo.MAX_RETRIES = 1

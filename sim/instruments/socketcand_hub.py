@@ -26,6 +26,7 @@ from sim.instruments.tcp import TcpServer
 
 SEND_RE = re.compile(r"^< send ([0-9A-Fa-f]{1,8}) ([0-9A-Fa-f])((?: [0-9A-Fa-f]{1,2})*) *>$")
 FAULTS = ("mute",)
+RAWMODE_SETTLE_S = 0.05  # frames reach a new raw-mode client this long after its "< ok >"
 
 
 class _Client:
@@ -77,8 +78,13 @@ class SocketcandHub(TcpServer):
             client.channel = message[7:-2].strip()
             client.writer.write(b"< ok >")
         elif message == "< rawmode >" and client.channel is not None:
-            client.raw = True
             client.writer.write(b"< ok >")
+            await client.writer.drain()
+            # python-can's client reads the handshake's "< ok >" with one recv() and wants nothing after it: frames
+            # relayed right away can arrive in the same read on a busy bus ("Expected '< ok >' got: '< ok >< frame
+            # …'"). The client is served frames a moment later, once it has read its "< ok >".
+            await asyncio.sleep(RAWMODE_SETTLE_S)
+            client.raw = True
         elif message.startswith("< send ") and client.raw:
             self._relay(client, message)
         else:
