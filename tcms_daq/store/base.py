@@ -276,6 +276,52 @@ def check_new_run(run_id: str, channels: Sequence[str], status: str) -> None:
         raise StoreError(f"run {run_id}: channel names must be unique and non-empty, got {list(channels)}")
 
 
+
+class VersionedDocuments:
+    """The versioned TOML documents of a bench — compensations and bench models — over a backend's three
+    primitives: ``_add_version(table, toml, note, provenance) -> (version, created_at)``, ``_history(table,
+    limit) -> rows`` and ``_version(table, version) -> row | None`` (header columns…, toml). Both backends
+    inherit it, so the documents behave the same on SQLite and PostgreSQL."""
+
+    def _add_version(self, table: str, toml: str, note: str, provenance: Sequence[Any]) -> tuple[int, float]:
+        raise NotImplementedError
+
+    def _history(self, table: str, limit: int) -> list[tuple[Any, ...]]:
+        raise NotImplementedError
+
+    def _version(self, table: str, version: int | None) -> tuple[Any, ...] | None:
+        raise NotImplementedError
+
+    def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
+        """Keep an accepted compensation (the TOML as applied) as the next version; returns it."""
+        version, created = self._add_version("compensations", toml, note, (rollback_of,))
+        return CompensationVersion(version, created, note, text_sha256(toml), rollback_of)
+
+    def compensation_history(self, limit: int = 100) -> list[CompensationVersion]:
+        """Accepted compensations, newest first."""
+        return [CompensationVersion(*row) for row in self._history("compensations", limit)]
+
+    def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None:
+        """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
+        row = self._version("compensations", version)
+        return None if row is None else (CompensationVersion(*row[:-1]), row[-1])
+
+    def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                        run_id: str | None = None) -> BenchModelVersion:
+        """Keep the next version of the bench model (its whole discrepancy model TOML); returns it."""
+        version, created = self._add_version("bench_models", toml, note, (analysis_id, run_id))
+        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
+
+    def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
+        """Bench model versions, newest first."""
+        return [BenchModelVersion(*row) for row in self._history("bench_models", limit)]
+
+    def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
+        """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
+        row = self._version("bench_models", version)
+        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
+
+
 class Store(Protocol):
     """The run store the service, the CLI and the recorder use; both backends implement it."""
 

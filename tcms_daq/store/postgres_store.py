@@ -29,12 +29,11 @@ from tcms_daq.store.base import (
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
-    BenchModelVersion,
-    CompensationVersion,
     RunColumns,
     RunQuery,
     StoredRun,
     StoreError,
+    VersionedDocuments,
     check_new_run,
     dumps,
     pack_batches,
@@ -119,7 +118,7 @@ def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
     return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
 
 
-class PostgresRunStore:
+class PostgresRunStore(VersionedDocuments):
     """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
     pool)."""
 
@@ -323,29 +322,6 @@ class PostgresRunStore:
             else:
                 row = conn.execute(sql + "ORDER BY version DESC LIMIT 1", own_params).fetchone()
         return None if row is None else tuple(row)
-
-    def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
-        version, created = self._add_version("compensations", toml, note, (rollback_of,))
-        return CompensationVersion(version, created, note, text_sha256(toml), rollback_of)
-
-    def compensation_history(self, limit: int = 100) -> list[CompensationVersion]:
-        return [CompensationVersion(*row) for row in self._history("compensations", limit)]
-
-    def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None:
-        row = self._version("compensations", version)
-        return None if row is None else (CompensationVersion(*row[:-1]), row[-1])
-
-    def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
-                        run_id: str | None = None) -> BenchModelVersion:
-        version, created = self._add_version("bench_models", toml, note, (analysis_id, run_id))
-        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
-
-    def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
-        return [BenchModelVersion(*row) for row in self._history("bench_models", limit)]
-
-    def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
-        row = self._version("bench_models", version)
-        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
 
     # -- samples ---------------------------------------------------------------------------------------------
     def _channels(self, run_id: str, conn: Any = None) -> tuple[str, ...]:

@@ -36,6 +36,7 @@ from tcms_daq.store.base import (
     RunQuery,
     StoredRun,
     StoreError,
+    VersionedDocuments,
     check_new_run,
     dumps,
     new_run_id,
@@ -117,7 +118,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-class RunStore:
+class RunStore(VersionedDocuments):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Each thread gets its own connection (WAL lets readers run beside the one writer); writes are serialised
@@ -322,35 +323,6 @@ class RunStore:
         cur = (self._conn().execute(sql + "AND version=?", (*own_params, version)) if version is not None
                else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1", own_params))
         return cur.fetchone()
-
-    def add_compensation(self, toml: str, note: str = "", rollback_of: int | None = None) -> CompensationVersion:
-        """Keep an accepted compensation (the TOML as applied) as the next version; returns it."""
-        version, created = self._add_version("compensations", toml, note, (rollback_of,))
-        return CompensationVersion(version, created, note, text_sha256(toml), rollback_of)
-
-    def compensation_history(self, limit: int = 100) -> list[CompensationVersion]:
-        """Accepted compensations, newest first."""
-        return [CompensationVersion(*row) for row in self._history("compensations", limit)]
-
-    def compensation(self, version: int | None = None) -> tuple[CompensationVersion, str] | None:
-        """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
-        row = self._version("compensations", version)
-        return None if row is None else (CompensationVersion(*row[:-1]), row[-1])
-
-    def add_bench_model(self, toml: str, note: str = "", analysis_id: str | None = None,
-                        run_id: str | None = None) -> BenchModelVersion:
-        """Keep the next version of the bench model (its whole discrepancy model TOML); returns it."""
-        version, created = self._add_version("bench_models", toml, note, (analysis_id, run_id))
-        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
-
-    def bench_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
-        """Bench model versions, newest first."""
-        return [BenchModelVersion(*row) for row in self._history("bench_models", limit)]
-
-    def bench_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
-        """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
-        row = self._version("bench_models", version)
-        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
 
     # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:
