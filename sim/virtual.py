@@ -420,17 +420,21 @@ class VirtualLoader:
         self.bench.set_drive_enabled(False)
         self.commands.append(("disable", 0.0, self.bench.now_s()))
 
-    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
-        if not np.isfinite(target_nm) or abs(target_nm) > self.max_torque_nm:
-            raise CommandRejected(self.name, f"target torque {target_nm} N·m outside ±{self.max_torque_nm} N·m")
-        if slope_nm_per_s is not None and not (np.isfinite(slope_nm_per_s) and slope_nm_per_s > 0):
-            raise CommandRejected(self.name, f"torque slope must be > 0 N·m/s, got {slope_nm_per_s}")
+    def _check_operation_enabled(self) -> None:
+        """The drive answers, is not in FAULT and is in OPERATION ENABLED; else the error a drive would give."""
         self._check()
         code = self.bench.faults.drive_fault_code
         if code:
             raise DeviceFault(self.name, f"drive in FAULT (error 0x{code:04X})", code)
         if not self.bench.drive_enabled:
             raise CommandRejected(self.name, "drive not in OPERATION ENABLED")
+
+    def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
+        if not np.isfinite(target_nm) or abs(target_nm) > self.max_torque_nm:
+            raise CommandRejected(self.name, f"target torque {target_nm} N·m outside ±{self.max_torque_nm} N·m")
+        if slope_nm_per_s is not None and not (np.isfinite(slope_nm_per_s) and slope_nm_per_s > 0):
+            raise CommandRejected(self.name, f"torque slope must be > 0 N·m/s, got {slope_nm_per_s}")
+        self._check_operation_enabled()
         slope = float(slope_nm_per_s) if slope_nm_per_s is not None else self.max_torque_nm
         self.bench.set_torque_target(float(target_nm), slope)
         self.commands.append(("torque", float(target_nm), self.bench.now_s()))
@@ -441,12 +445,7 @@ class VirtualLoader:
         if not (np.isfinite(position_deg) and np.isfinite(velocity_deg_per_s) and velocity_deg_per_s > 0):
             raise CommandRejected(self.name, f"move to {position_deg} deg at {velocity_deg_per_s} deg/s: need a "
                                   "finite position and a velocity > 0")
-        self._check()
-        code = self.bench.faults.drive_fault_code
-        if code:
-            raise DeviceFault(self.name, f"drive in FAULT (error 0x{code:04X})", code)
-        if not self.bench.drive_enabled:
-            raise CommandRejected(self.name, "drive not in OPERATION ENABLED")
+        self._check_operation_enabled()
         torque = self.bench.applied_torque_nm
         if abs(torque) > self.move_torque_window_nm:
             raise CommandRejected(self.name, f"{torque:.3g} N·m on the output: no move under torque "

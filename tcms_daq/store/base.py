@@ -16,8 +16,9 @@ import hashlib
 import json
 import math
 import re
+import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -275,6 +276,32 @@ def check_new_run(run_id: str, channels: Sequence[str], status: str) -> None:
     if not channels or len(set(channels)) != len(channels):
         raise StoreError(f"run {run_id}: channel names must be unique and non-empty, got {list(channels)}")
 
+
+
+def status_update(status: str, *, error: str | None, results: Mapping[str, Any] | None,
+                  encode_results: Callable[[Mapping[str, Any]], Any], placeholder: str) -> tuple[str, list[Any]]:
+    """The ``SET`` clause and its parameters that move a run to ``status`` (both backends; ``placeholder`` is the
+    driver's, ``?`` or ``%s``): ``running`` stamps the start time once, a final status the finish time; results
+    are stored with their decision. Raises StoreError for an unknown status."""
+    if status not in RUN_STATUSES:
+        raise StoreError(f"unknown run status {status!r}")
+    now = time.time()
+    p = placeholder
+    sets: list[str] = [f"status = {p}"]
+    params: list[Any] = [status]
+    if status == "running":
+        sets.append(f"started_at = COALESCE(started_at, {p})")
+        params.append(now)
+    if status in FINAL_STATUSES:
+        sets.append(f"finished_at = {p}")
+        params.append(now)
+    if error is not None:
+        sets.append(f"error = {p}")
+        params.append(error)
+    if results is not None:
+        sets += [f"results = {p}", f"verdict = {p}"]
+        params += [encode_results(results), decision(results)]
+    return ", ".join(sets), params
 
 
 class VersionedDocuments:

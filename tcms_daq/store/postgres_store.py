@@ -21,11 +21,9 @@ import psycopg
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
-from tcms_daq.identity import decision
 from tcms_daq.samples import Samples, samples_from_columns
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
-    FINAL_STATUSES,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
@@ -37,6 +35,7 @@ from tcms_daq.store.base import (
     check_new_run,
     dumps,
     pack_batches,
+    status_update,
     text_sha256,
     unpack_blocks,
 )
@@ -239,27 +238,11 @@ class PostgresRunStore(VersionedDocuments):
 
     def set_status(self, run_id: str, status: str, *, error: str | None = None,
                    results: Mapping[str, Any] | None = None) -> None:
-        """Move a run to ``status``; ``running`` stamps the start time, a final status the finish time."""
-        if status not in RUN_STATUSES:
-            raise StoreError(f"unknown run status {status!r}")
-        now = time.time()
-        sets = ["status = %s"]
-        params: list[Any] = [status]
-        if status == "running":
-            sets.append("started_at = COALESCE(started_at, %s)")
-            params.append(now)
-        if status in FINAL_STATUSES:
-            sets.append("finished_at = %s")
-            params.append(now)
-        if error is not None:
-            sets.append("error = %s")
-            params.append(error)
-        if results is not None:
-            sets += ["results = %s", "verdict = %s"]
-            params += [_jsonb(results), decision(results)]
+        """Move a run to ``status`` (:func:`~tcms_daq.store.base.status_update`)."""
+        sets, params = status_update(status, error=error, results=results, encode_results=_jsonb, placeholder="%s")
         params.append(run_id)
         with self._connection() as conn:
-            cur = conn.execute(f"UPDATE runs SET {', '.join(sets)} WHERE id = %s", params)
+            cur = conn.execute(f"UPDATE runs SET {sets} WHERE id = %s", params)
             if cur.rowcount == 0:
                 raise StoreError(f"unknown run {run_id!r}")
 

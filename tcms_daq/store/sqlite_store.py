@@ -41,6 +41,7 @@ from tcms_daq.store.base import (
     dumps,
     new_run_id,
     pack_batches,
+    status_update,
     text_sha256,
     unpack_blocks,
 )
@@ -274,26 +275,11 @@ class RunStore(VersionedDocuments):
         error: str | None = None,
         results: Mapping[str, Any] | None = None,
     ) -> None:
-        """Move a run to ``status``; ``running`` stamps the start time, a final status the finish time."""
-        if status not in RUN_STATUSES:
-            raise StoreError(f"unknown run status {status!r}")
-        now = time.time()
-        sets = ["status=?"]
-        params: list[Any] = [status]
-        if status == "running":
-            sets.append("started_at=COALESCE(started_at, ?)")
-            params.append(now)
-        if status in FINAL_STATUSES:
-            sets.append("finished_at=?")
-            params.append(now)
-        if error is not None:
-            sets.append("error=?")
-            params.append(error)
-        if results is not None:
-            sets += ["results=?", "verdict=?"]
-            params += [dumps(dict(results)), decision(results)]
+        """Move a run to ``status`` (:func:`~tcms_daq.store.base.status_update`)."""
+        sets, params = status_update(status, error=error, results=results,
+                                     encode_results=lambda r: dumps(dict(r)), placeholder="?")
         params.append(run_id)
-        cur = self._write(f"UPDATE runs SET {', '.join(sets)} WHERE id=?", params)
+        cur = self._write(f"UPDATE runs SET {sets} WHERE id=?", params)
         if cur.rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
