@@ -29,7 +29,7 @@ import numpy as np
 from tcms_daq.errors import TcmsError
 from tcms_daq.identity import DECISIONS, decision, headline_results, run_identity
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
-from tcms_daq.samples import Samples
+from tcms_daq.samples import Samples, samples_from_columns
 
 RUN_STATUSES: tuple[str, ...] = STORED  # tcms_daq.runstate.RunState: one vocabulary
 ACTIVE_STATUSES: tuple[str, ...] = STORED_ACTIVE
@@ -302,6 +302,49 @@ def status_update(status: str, *, error: str | None, results: Mapping[str, Any] 
         sets += [f"results = {p}", f"verdict = {p}"]
         params += [encode_results(results), decision(results)]
     return ", ".join(sets), params
+
+
+class StoredSamples:
+    """Reading a run's samples back, over a backend's two primitives: ``_channels(run_id)`` (the run's channel
+    names; StoreError for an unknown run) and ``_batch_rows(run_id, from_index, limit)`` (rows of (batch_index,
+    n_samples, data) from ``from_index`` on, in order). Both backends inherit it."""
+
+    def _channels(self, run_id: str) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    def _batch_rows(self, run_id: str, from_index: int, limit: int) -> list[tuple[Any, ...]]:
+        raise NotImplementedError
+
+    def iter_columns(self, run_id: str, chunk_samples: int = 65_536) -> Iterator[dict[str, np.ndarray]]:
+        """A run's samples in consecutive chunks of about ``chunk_samples`` (whole stored batches), as float64
+        columns by channel name: for exports that stream. Each chunk is its own query, so the iterator may be
+        advanced from different threads."""
+        channels = self._channels(run_id)
+        next_index = 0
+        while True:
+            rows = self._batch_rows(run_id, next_index, max(1, chunk_samples // 64))
+            if not rows:
+                return
+            blobs: list[tuple[int, bytes]] = []
+            collected = 0
+            for index, n, blob in rows:
+                blobs.append((n, bytes(blob)))
+                collected += n
+                next_index = index + 1
+                if collected >= chunk_samples:
+                    break
+            yield unpack_blocks(channels, blobs)
+
+    def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
+        """All samples of a run as float64 columns by channel name (empty arrays when none were recorded)."""
+        channels = self._channels(run_id)
+        chunks = list(self.iter_columns(run_id))
+        if not chunks:
+            return {name: np.empty(0) for name in channels}
+        return {name: np.concatenate([c[name] for c in chunks]) for name in channels}
+
+    def read_samples(self, run_id: str) -> Samples:
+        return samples_from_columns(self.read_columns(run_id))
 
 
 class VersionedDocuments:

@@ -13,7 +13,7 @@ committed batch survives a kill of the service (PostgreSQL's commit is durable: 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,7 +21,6 @@ import psycopg
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
-from tcms_daq.samples import Samples, samples_from_columns
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
     INTERRUPTED_ERROR,
@@ -30,6 +29,7 @@ from tcms_daq.store.base import (
     RunColumns,
     RunQuery,
     StoredRun,
+    StoredSamples,
     StoreError,
     VersionedDocuments,
     check_new_run,
@@ -37,7 +37,6 @@ from tcms_daq.store.base import (
     pack_batches,
     status_update,
     text_sha256,
-    unpack_blocks,
 )
 from tcms_daq.store.opening import redact_url
 
@@ -117,7 +116,7 @@ def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
     return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
 
 
-class PostgresRunStore(VersionedDocuments):
+class PostgresRunStore(VersionedDocuments, StoredSamples):
     """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
     pool)."""
 
@@ -338,35 +337,11 @@ class PostgresRunStore(VersionedDocuments):
             conn.execute("UPDATE runs SET sample_count = sample_count + %s WHERE id = %s", (total, run_id))
         return total
 
-    def iter_columns(self, run_id: str, chunk_samples: int = 65_536) -> Iterator[dict[str, np.ndarray]]:
-        """A run's samples in consecutive chunks of about ``chunk_samples`` (whole stored batches); each chunk
-        is its own query."""
-        channels = self._channels(run_id)
-        next_index = 0
-        while True:
-            with self._connection() as conn:
-                rows = conn.execute(
-                    "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND batch_index >= %s "
-                    "ORDER BY batch_index LIMIT %s", (run_id, next_index, max(1, chunk_samples // 64))).fetchall()
-            if not rows:
-                return
-            blobs: list[tuple[int, bytes]] = []
-            for index, n, blob in rows:
-                blobs.append((n, bytes(blob)))
-                next_index = index + 1
-                if sum(b[0] for b in blobs) >= chunk_samples:
-                    break
-            yield unpack_blocks(channels, blobs)
-
-    def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
-        channels = self._channels(run_id)
-        chunks = list(self.iter_columns(run_id))
-        if not chunks:
-            return {name: np.empty(0) for name in channels}
-        return {name: np.concatenate([c[name] for c in chunks]) for name in channels}
-
-    def read_samples(self, run_id: str) -> Samples:
-        return samples_from_columns(self.read_columns(run_id))
+    def _batch_rows(self, run_id: str, from_index: int, limit: int) -> list[tuple[Any, ...]]:
+        with self._connection() as conn:
+            return conn.execute(
+                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND batch_index >= %s "
+                "ORDER BY batch_index LIMIT %s", (run_id, from_index, limit)).fetchall()
 
 
 def _reason(exc: BaseException) -> str:

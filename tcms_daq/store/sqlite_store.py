@@ -16,14 +16,13 @@ import json
 import sqlite3
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tcms_daq.identity import decision
-from tcms_daq.samples import Samples, samples_from_columns
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
     FINAL_STATUSES,
@@ -35,6 +34,7 @@ from tcms_daq.store.base import (
     RunColumns,
     RunQuery,
     StoredRun,
+    StoredSamples,
     StoreError,
     VersionedDocuments,
     check_new_run,
@@ -43,7 +43,6 @@ from tcms_daq.store.base import (
     pack_batches,
     status_update,
     text_sha256,
-    unpack_blocks,
 )
 
 __all__ = ["ACTIVE_STATUSES", "FINAL_STATUSES", "RUN_STATUSES", "STORE_FILENAME", "BenchModelVersion",
@@ -119,7 +118,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-class RunStore(VersionedDocuments):
+class RunStore(VersionedDocuments, StoredSamples):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Each thread gets its own connection (WAL lets readers run beside the one writer); writes are serialised
@@ -374,37 +373,10 @@ class RunStore(VersionedDocuments):
             raise StoreError(f"unknown run {run_id!r}")
         return tuple(json.loads(row[0]))
 
-    def iter_columns(self, run_id: str, chunk_samples: int = 65_536) -> Iterator[dict[str, np.ndarray]]:
-        """A run's samples in consecutive chunks of about ``chunk_samples`` (whole stored batches), as float64
-        columns by channel name: for exports that stream. Each chunk is its own query, so the iterator may be
-        advanced from different threads."""
-        channels = self._channels(run_id)
-        next_index = 0
-        while True:
-            rows = self._conn().execute(
-                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id=? AND batch_index >= ? "
-                "ORDER BY batch_index LIMIT ?", (run_id, next_index, max(1, chunk_samples // 64)),
-            ).fetchall()
-            if not rows:
-                return
-            blobs: list[tuple[int, bytes]] = []
-            for index, n, blob in rows:
-                blobs.append((n, blob))
-                next_index = index + 1
-                if sum(b[0] for b in blobs) >= chunk_samples:
-                    break
-            yield unpack_blocks(channels, blobs)
-
-    def read_columns(self, run_id: str) -> dict[str, np.ndarray]:
-        """All samples of a run as float64 columns by channel name (empty arrays when none were recorded)."""
-        channels = self._channels(run_id)
-        chunks = list(self.iter_columns(run_id))
-        if not chunks:
-            return {name: np.empty(0) for name in channels}
-        return {name: np.concatenate([c[name] for c in chunks]) for name in channels}
-
-    def read_samples(self, run_id: str) -> Samples:
-        return samples_from_columns(self.read_columns(run_id))
+    def _batch_rows(self, run_id: str, from_index: int, limit: int) -> list[tuple[Any, ...]]:
+        return self._conn().execute(
+            "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id=? AND batch_index >= ? "
+            "ORDER BY batch_index LIMIT ?", (run_id, from_index, limit)).fetchall()
 
 
 def _record(row: Sequence[Any]) -> StoredRun:
