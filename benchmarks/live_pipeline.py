@@ -51,6 +51,7 @@ import numpy as np
 import tomli_w
 
 from benchmarks._runs import RUNS, spread
+from sim.instruments.child import start_simulators, stop_process
 
 REPO = Path(__file__).resolve().parents[1]
 N_CLIENTS = 10
@@ -227,37 +228,19 @@ def _one_rate(rate_hz: float, duration_s: float, workdir: Path, real_time: bool 
     return _measure_service(proc, hostport, duration_s)
 
 
-def _start_instrument_simulators() -> tuple[subprocess.Popen, dict[str, str]]:
-    """``tcms sim serve`` (ND 287, AED, CiA 402 over CANopen and Modbus) on free loopback ports."""
-    import json
-
-    sim = subprocess.Popen([sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", "bench-loopback.toml",
-                            "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
-    assert sim.stdout is not None
-    info = json.loads(sim.stdout.readline() or "{}")
-    if "urls" not in info:
-        sim.kill()
-        raise RuntimeError("tcms sim serve did not report its ports")
-    return sim, info["urls"]
-
-
 def _one_protocol_run(duration_s: float, workdir: Path) -> dict:
     """The threaded real-instrument path: ``tcms sim serve`` in one process, ``tcms serve`` over the protocols
     (ND 287 and AED polled over TCP, the drive over CANopen) in another; latency from the instrument reading's
     stamp (the service's ``time.monotonic``) to the client's receipt."""
-    sim, urls = _start_instrument_simulators()
+    sim, info = start_simulators("--config", "bench-loopback.toml", cwd=REPO)
+    urls = info["urls"]
     try:
         proc, hostport = _start_service("bench-loopback.toml", workdir / "data-protocols", overrides=(
             f"instruments.angle.url={urls['angle']}", f"instruments.torque.url={urls['torque']}",
             f"instruments.loader.url={urls['loader_canopen']}"))
         return _measure_service(proc, hostport, duration_s)
     finally:
-        sim.terminate()
-        try:
-            sim.wait(15)
-        except subprocess.TimeoutExpired:
-            sim.kill()
+        stop_process(sim)
 
 
 def _measure_service(proc: subprocess.Popen, hostport: str, duration_s: float) -> dict:
@@ -279,12 +262,7 @@ def _measure_service(proc: subprocess.Popen, hostport: str, duration_s: float) -
             result["service_cpu_cores"] = (cpu1 - cpu0) / (wall1 - wall0)
             return result
     finally:
-        proc.terminate()
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop_process(proc, timeout_s=20)
 
 
 # what each configuration reports, per run; the stalled-client phase is judged for the in-process ones

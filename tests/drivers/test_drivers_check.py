@@ -4,34 +4,18 @@ nothing moves; an instrument that is down is named and the exit code is 1."""
 from __future__ import annotations
 
 import json
-import select
 import subprocess
 import sys
 
 import pytest
 
+from sim.instruments.child import running_simulators
+
 
 @pytest.fixture(scope="module")
 def served():
-    cmd = [sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", "bench-loopback.toml",
-           "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0",
-           "--control-port", "0", "--speed", "1"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
-        if not ready:
-            raise RuntimeError("tcms sim serve did not report its ports within 30 s")
-        line = proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"tcms sim serve exited: {proc.stderr.read()}")
-        yield json.loads(line)
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+    with running_simulators("--config", "bench-loopback.toml", "--speed", "1") as info:
+        yield info
 
 
 def _check(config: str, urls: dict[str, str]) -> tuple[int, dict]:

@@ -5,10 +5,7 @@ Modbus TCP), with fault injection over the control channel."""
 from __future__ import annotations
 
 import json
-import select
 import socket
-import subprocess
-import sys
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -19,29 +16,13 @@ from drivers.cia402_canopen import CiA402Canopen
 from drivers.cia402_modbus import CiA402Modbus
 from drivers.nd287 import ND287
 from drivers.testing import wait_until
+from sim.instruments.child import running_simulators
 
 
 @pytest.fixture(scope="module")
 def served():
-    cmd = [sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--nd287-port", "0", "--aed-port", "0",
-           "--modbus-port", "0", "--socketcand-port", "0", "--control-port", "0", "--speed", "1"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
-        if not ready:
-            raise RuntimeError("tcms sim serve did not report its ports within 30 s")
-        line = proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"tcms sim serve exited: {proc.stderr.read()}")
-        info = json.loads(line)
+    with running_simulators("--speed", "1") as info:
         yield info
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
 
 
 def _control(info, **request):
