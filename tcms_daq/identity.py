@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import with_uncertainty
 
 
@@ -32,7 +33,6 @@ HEADLINES: tuple[Headline, ...] = (
     Headline("backlash_arcsec", "backlash", "arcsec", "BacklashArcsec"),
 )
 
-DECISIONS: tuple[str, ...] = ("pass", "fail", "undecided")
 
 
 def _number(value: Any) -> float | None:
@@ -74,15 +74,8 @@ def decision(results: Mapping[str, Any] | None) -> str | None:
     if not isinstance(results, Mapping):
         return None
     verdict = results.get("verdict")
-    if isinstance(verdict, Mapping):
-        stated = verdict.get("decision")
-        if isinstance(stated, str) and stated in DECISIONS:
-            return stated
-        if isinstance(verdict.get("passed"), bool):
-            return "pass" if verdict["passed"] else "fail"
-    if isinstance(results.get("passed"), bool):
-        return "pass" if results["passed"] else "fail"
-    return None
+    stated = decision_of(verdict) if isinstance(verdict, Mapping) else None
+    return stated if stated is not None else decision_of({"passed": results.get("passed")})
 
 
 def decision_rule(results: Mapping[str, Any] | None) -> str:

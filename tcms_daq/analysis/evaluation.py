@@ -16,6 +16,7 @@ Results are reported per loop, per direction and as mean ± std over the evaluat
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -93,12 +94,28 @@ class Limits:
                 "U": None if u_expanded is None else float(u_expanded),
                 "label": f"{what} {sign} {float(limit):.4g}{'' if unit == '″' else ' '}{unit}",
             }
-        decisions = {c["decision"] for c in checks.values()}
-        overall = "fail" if "fail" in decisions else "undecided" if "undecided" in decisions else "pass"
+        overall = overall_decision(c["decision"] for c in checks.values())
         return {"passed": overall == "pass", "decision": overall, "rule": rule, "checks": checks}
 
 
 DECISION_RULES = ("simple", "guarded")
+DECISIONS: tuple[str, ...] = ("pass", "fail", "undecided")
+
+
+def overall_decision(decisions: Iterable[str]) -> str:
+    """The decision of several checks: fail if any fails, else undecided if any is, else pass."""
+    found = set(decisions)
+    return "fail" if "fail" in found else "undecided" if "undecided" in found else "pass"
+
+
+def decision_of(entry: Mapping[str, Any]) -> str | None:
+    """The ISO 14253-1 decision a verdict or a check states; for results judged before decisions existed, pass
+    or fail from its ``passed``; None when it states neither."""
+    stated = entry.get("decision")
+    if isinstance(stated, str) and stated in DECISIONS:
+        return stated
+    passed = entry.get("passed")
+    return ("pass" if passed else "fail") if isinstance(passed, bool) else None
 
 
 def _decide(value: float, limit: float, comparison: str, guard: float) -> str:

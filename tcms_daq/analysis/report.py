@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tcms_daq.analysis.evaluation import Evaluation
+from tcms_daq.analysis.evaluation import Evaluation, decision_of, overall_decision
 from tcms_daq.analysis.rounding import with_uncertainty
 
 DECISION_WORDS = {"pass": "PASS", "fail": "FAIL", "undecided": "UNDECIDED"}
@@ -28,8 +28,7 @@ def format_evaluation(ev: Evaluation) -> str:
         if not found:
             return "", ""
         limit = " ".join(f"{c['comparison']} {c['limit']:g}" for c in found)
-        decisions = {c.get("decision", "pass" if c["passed"] else "fail") for c in found}
-        decision = "fail" if "fail" in decisions else "undecided" if "undecided" in decisions else "pass"
+        decision = overall_decision(decision_of(c) or "fail" for c in found)
         return limit, DECISION_WORDS[decision]
 
     lo, hi = ev.rigidity_interval
@@ -96,7 +95,7 @@ def format_evaluation(ev: Evaluation) -> str:
                 lines.append(f"  {name:<32}{with_uncertainty(entry.get('value'), entry):<36}dominant: "
                              f"{entry.get('dominant') or '—'}")
     if ev.verdict is not None:
-        decision = ev.verdict.get("decision", "pass" if ev.verdict["passed"] else "fail")
+        decision = decision_of(ev.verdict) or "fail"
         rule = ev.verdict.get("rule", "simple")
         how = "guard bands of U" if rule == "guarded" else "the value alone"
         lines += ["", f"verdict: {DECISION_WORDS[decision]} (ISO 14253-1 {rule} rule: {how})"]

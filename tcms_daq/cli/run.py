@@ -474,7 +474,9 @@ def format_plan(ev: dict[str, Any]) -> str:
         lines.append("U not stated")
     verdict = ev.get("verdict")
     if verdict:
-        decision = verdict.get("decision") or ("pass" if verdict.get("passed") else "fail")
+        from tcms_daq.analysis.evaluation import decision_of
+
+        decision = decision_of(verdict) or "fail"
         rule = f" (ISO 14253-1, {verdict['rule']} rule)" if verdict.get("rule") else ""
         lines.append(f"decision (worst over the stages): {decision.upper()}{rule}")
     return "\n".join(lines)

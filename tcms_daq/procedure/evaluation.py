@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tcms_daq.analysis import Evaluation, Limits, evaluate
-from tcms_daq.analysis.evaluation import EvaluationSettings
+from tcms_daq.analysis.evaluation import EvaluationSettings, decision_of, overall_decision
 from tcms_daq.config import ChainUncertainty, ReducerSpec
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.samples import Samples
@@ -148,8 +148,7 @@ def _combined_verdict(results: list[dict[str, Any]], worst: dict[str, int]) -> d
     out: dict[str, Any] = {**verdicts[0], "checks": checks,
                            "passed": all(c.get("passed", False) for c in checks.values())}
     if "decision" in verdicts[0]:
-        decisions = [c.get("decision", "pass" if c.get("passed") else "fail") for c in checks.values()]
-        out["decision"] = ("fail" if "fail" in decisions else "undecided" if "undecided" in decisions else "pass")
+        out["decision"] = overall_decision(decision_of(c) or "fail" for c in checks.values())
         out["passed"] = out["decision"] == "pass"
     return out
 

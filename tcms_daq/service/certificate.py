@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from tcms_daq import __version__
+from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import NOT_STATED
 from tcms_daq.errors import TcmsError
 from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision, decision_rule, format_result
@@ -64,9 +65,7 @@ def _checks(results: Mapping[str, Any]) -> list[dict[str, str]]:
     for name, check in (checks or {}).items():
         if not isinstance(check, Mapping):
             continue
-        stated = check.get("decision")
-        outcome = stated if stated in ("pass", "fail", "undecided") else (
-            "pass" if check.get("passed") is True else "fail" if check.get("passed") is False else "—")
+        outcome = decision_of(check) or "—"
         band = check.get("guard_band")
         rows.append({"label": _text(check.get("label") or name), "value": _text(check.get("value")),
                      "guard_band": _text(band, "none"), "decision": outcome})

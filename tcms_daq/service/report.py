@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import NOT_STATED, with_uncertainty
 from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
@@ -158,15 +159,11 @@ HEADLINE: tuple[tuple[str, str], ...] = (
 )
 
 
-DECISION_CLASS = {"pass": "pass", "fail": "fail", "undecided": "undecided"}
 
 
 def _decision(entry: Mapping[str, Any]) -> str:
-    """A verdict's or check's ISO 14253-1 decision (older runs have only ``passed``)."""
-    decision = entry.get("decision")
-    if decision in DECISION_CLASS:
-        return str(decision)
-    return "pass" if entry.get("passed") else "fail"
+    """A verdict's or check's ISO 14253-1 decision (older runs have only ``passed``; neither: fail)."""
+    return decision_of(entry) or "fail"
 
 
 STAGE_COLUMNS = (("rigidity_nm_per_arcmin", "rigidity / N·m/arcmin"), ("lost_motion_arcsec", "lost motion / ″"),
@@ -238,13 +235,13 @@ def _results_html(results: Mapping[str, Any]) -> str:
             guard = check.get("guard_band")
             guard_text = f" (guard band {_fmt(float(guard))})" if isinstance(guard, int | float) and guard else ""
             rows.append(
-                f"<tr class='{DECISION_CLASS[decision]}'><th>{html.escape(str(check.get('label') or check))}</th>"
+                f"<tr class='{decision}'><th>{html.escape(str(check.get('label') or check))}</th>"
                 f"<td>{_fmt(check.get('value'))}{guard_text}</td><td>{decision}</td></tr>"
             )
         decision = _decision(verdict)
         rule = verdict.get("rule")
         rule_text = f"ISO 14253-1, {rule} rule" if rule else ""
-        rows.append(f"<tr class='{DECISION_CLASS[decision]}'><th>decision</th><td>{html.escape(rule_text)}</td>"
+        rows.append(f"<tr class='{decision}'><th>decision</th><td>{html.escape(rule_text)}</td>"
                     f"<td>{decision.upper()}</td></tr>")
         parts.append("<h3>Acceptance</h3><table class='verdict'>" + "".join(rows) + "</table>")
     parts.append(_stages_html(results))

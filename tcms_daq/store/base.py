@@ -26,8 +26,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tcms_daq.analysis.evaluation import DECISIONS
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import DECISIONS, decision, headline_results, run_identity
+from tcms_daq.identity import decision, headline_results, run_identity
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples, samples_from_columns
 
