@@ -159,8 +159,6 @@ HEADLINE: tuple[tuple[str, str], ...] = (
 )
 
 
-
-
 def _decision(entry: Mapping[str, Any]) -> str:
     """A verdict's or check's ISO 14253-1 decision (older runs have only ``passed``; neither: fail)."""
     return decision_of(entry) or "fail"
