@@ -167,16 +167,21 @@ def _sensitivities(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.n
                    inputs: list[Input], names: list[str]) -> dict[str, list[Contribution]]:
     """c_i per result by central differences through the evaluation."""
     out: dict[str, list[Contribution]] = {name: [] for name in names}
+    # inputs that perturb the record the same way (the angle scale and the compensation's scale residual, at the
+    # same step) share their evaluations
+    evaluated: dict[tuple[Any, float], dict[str, float]] = {}
     for inp in inputs:
         results = []
         for x in (inp.step, -inp.step):
-            torque, angle = inp.apply(torque_nm, angle_arcsec, x)
-            try:
-                results.append(result_values(_evaluate(time_s, torque, angle, settings)))
-            except EvaluationError as exc:
-                raise EvaluationError(
-                    f"uncertainty budget: the evaluation fails with {inp.name} moved by {x:+.3g} {inp.unit}: {exc}"
-                ) from None
+            if (inp.apply, x) not in evaluated:
+                torque, angle = inp.apply(torque_nm, angle_arcsec, x)
+                try:
+                    evaluated[(inp.apply, x)] = result_values(_evaluate(time_s, torque, angle, settings))
+                except EvaluationError as exc:
+                    raise EvaluationError(
+                        f"uncertainty budget: the evaluation fails with {inp.name} moved by {x:+.3g} {inp.unit}: {exc}"
+                    ) from None
+            results.append(evaluated[(inp.apply, x)])
         plus, minus = results
         for name in names:
             if name not in plus or name not in minus:
