@@ -330,10 +330,9 @@ def _smooth(x: np.ndarray, window: int) -> np.ndarray:
 
 def _branch_rate(time_s: np.ndarray, torque_smooth_nm: np.ndarray, branch: Branch, test_torque_nm: float) -> float:
     """Mean |dT/dt| (N·m/s) between ∓RATE_LEVELS·T_test on one branch (includes any dwell in between)."""
-    sl = branch.slice
-    progress = np.maximum.accumulate(branch.direction * torque_smooth_nm[sl])
+    progress = branch.progress_nm(torque_smooth_nm)
     a, b = np.searchsorted(progress, [-RATE_LEVELS * test_torque_nm, RATE_LEVELS * test_torque_nm])
-    t = time_s[sl]
+    t = time_s[branch.slice]
     if b >= t.size or b <= a:
         return float("nan")
     return float(2.0 * RATE_LEVELS * test_torque_nm / (t[b] - t[a]))

@@ -92,9 +92,7 @@ def drift_from_turning_points(time_s: np.ndarray, torque_nm: np.ndarray, angle_a
 
 def zero_crossing_time_s(time_s: np.ndarray, torque_smooth_nm: np.ndarray, branch: Branch) -> float:
     """The time (s) a branch's smoothed torque passes 0 N·m."""
-    sl = branch.slice
-    progress = np.maximum.accumulate(branch.direction * torque_smooth_nm[sl])
-    return float(np.interp(0.0, progress, time_s[sl]))
+    return float(np.interp(0.0, branch.progress_nm(torque_smooth_nm), time_s[branch.slice]))
 
 
 def backlash_drift_bias_arcsec(time_s: np.ndarray, torque_smooth_nm: np.ndarray, loop: Loop,
@@ -110,7 +108,7 @@ def coarsest_sampling_nm(torque_smooth_nm: np.ndarray, branches: list[Branch], l
     """The largest torque step (N·m) between the two samples that bracket an evaluation level on any branch."""
     worst = 0.0
     for branch in branches:
-        progress = np.maximum.accumulate(branch.direction * torque_smooth_nm[branch.slice])
+        progress = branch.progress_nm(torque_smooth_nm)
         target = branch.direction * levels_nm
         inside = (target > progress[0]) & (target <= progress[-1])
         if not inside.any():

@@ -41,6 +41,11 @@ class Branch:
     def slice(self) -> slice:
         return slice(self.start, self.stop + 1)
 
+    def progress_nm(self, torque_smooth_nm: np.ndarray) -> np.ndarray:
+        """How far the branch has come (N·m, in its own direction): the running maximum of direction × the
+        smoothed torque over its samples — non-decreasing, so levels are found by ``searchsorted``."""
+        return np.maximum.accumulate(self.direction * torque_smooth_nm[self.slice])
+
 
 @dataclass(frozen=True)
 class Loop:
