@@ -361,13 +361,19 @@ class AcquisitionLoop:
         return self._channels["torque"].last_value
 
     def instrument_command(self, kind: str, fn: Callable[..., Any], *args: Any) -> Any:
-        """Call a method of the angle/torque source between two reads (e.g. ``tare``)."""
-        with self._io_locks[kind]:
-            return fn(*args)
+        """Call a method of the angle/torque source between two reads (e.g. ``tare``); a failure trips as
+        :meth:`loader_command`'s do, naming the instrument, and is re-raised."""
+        try:
+            with self._io_locks[kind]:
+                return fn(*args)
+        except InstrumentError as exc:
+            self.raise_trip(self._command_trip(kind, exc))
+            raise
 
     def loader_command(self, fn: Callable[..., Any], *args: Any) -> Any:
         """Call a loader method under the loader lock (the status poller uses the same driver); its failures
-        count for the lost-instrument interlock like failed status polls, and are re-raised."""
+        count for the lost-instrument interlock like failed status polls, trip naming the loader (a command
+        that did not go through leaves the run without its setpoint), and are re-raised."""
         ch = self._channels["loader"]
         with self.loader_lock:
             ch.busy_since = self.clock.now()
@@ -375,6 +381,17 @@ class AcquisitionLoop:
                 return fn(*args)
             except InstrumentError as exc:
                 self._on_error(ch, exc)
+                self.raise_trip(self._command_trip("loader", exc))
                 raise
             finally:
                 ch.busy_since = None
+
+    def _command_trip(self, kind: str, exc: InstrumentError) -> Trip:
+        """The trip of a failed command to the ``kind`` instrument (a no-op in :meth:`raise_trip` when
+        :meth:`_on_error` already tripped for it)."""
+        now = self.clock.now()
+        if isinstance(exc, DeviceFault):
+            return Trip("drive_fault" if kind == "loader" else "device_fault", f"{kind} instrument fault: {exc}", now)
+        if isinstance(exc, (InstrumentTimeout, Disconnected)):
+            return Trip("lost_instrument", f"lost {kind} instrument: {exc}", now)
+        return Trip("command_failed", f"{kind} command failed: {exc}", now)

@@ -309,7 +309,7 @@ class TestRun:
             if acq is None:  # could not even connect
                 self._finish_early(acq, buffer, FAILED, exc)
                 return self.record
-            # loader commands already tripped the matching interlock (loader_command); others name theirs here
+            # commands through the loop tripped already, naming their instrument; this names any other call
             kind = "device_fault" if isinstance(exc, DeviceFault) else "lost_instrument"
             trip = Trip(kind, f"instrument error: {exc}", acq.clock.now())
             acq.raise_trip(trip)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from drivers.base import InstrumentTimeout
 from tcms_daq.acquisition import InterlockLimits, TestRun
 from tcms_daq.acquisition.interlocks import (
     TorqueRateMonitor,
@@ -99,6 +100,29 @@ def test_heartbeat_loss_is_a_lost_instrument(make_bench, profile):
     record = run_with_fault(bench, profile, vb.lose_loader_link)
     assert_safe_abort(record, "lost loader instrument", "lost_instrument")
     assert any("failed" in note for note in record.notes)  # the ramp-down commands could not be sent
+    assert_loader_safe(bench)
+
+
+def test_a_loader_command_without_answer_aborts_naming_the_loader(make_bench, profile):
+    """One set-point command that times out (the link otherwise fine): the run cannot go on without its
+    setpoint; it ends aborted as a lost loader, not as an anonymous 'instrument error'."""
+    bench = make_bench()
+    loader, calls = bench.loader, []
+    send = loader.set_torque
+
+    def set_torque_once_silent(target_nm, slope_nm_per_s):
+        calls.append(target_nm)
+        if len(calls) == 2:  # the second segment's setpoint
+            raise InstrumentTimeout(loader.name, "write target_torque: no response within 0.5 s")
+        return send(target_nm, slope_nm_per_s)
+
+    loader.set_torque = set_torque_once_silent
+    record = TestRun(bench, profile).run()
+    assert record.state == "aborted", (record.state, record.reason)
+    assert record.trip["interlock"] == "lost_instrument"
+    assert record.reason.startswith("lost loader instrument: ") and "no response" in record.reason
+    # a loader that did not answer is sent no ramp (it may not be there to follow it): it is disabled at once
+    assert calls[2:] == [] and any("no ramp to zero commanded" in note for note in record.notes)
     assert_loader_safe(bench)
 
 
