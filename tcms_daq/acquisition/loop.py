@@ -386,6 +386,34 @@ class AcquisitionLoop:
             finally:
                 ch.busy_since = None
 
+    def trip_not_followed(self, what: str) -> InterlockTripped:
+        """Trip the run because the loader did not do what it was told (``what``: setpoint and measurement) and
+        return the exception to raise. A channel that shows why is named as the cause, the torque measurement
+        first (a stale reading is not the drive's fault), then the loader's link (a mute drive takes setpoints
+        it does not follow): either would otherwise end the run before the watchdog calls it lost."""
+        now = self.clock.now()
+        for kind in ("torque", "loader"):
+            problem = self._link_problem(self._channels[kind], now)
+            if problem is not None:
+                trip = Trip("lost_instrument", f"lost {kind} instrument: {what}; {problem}", now)
+                break
+        else:
+            trip = Trip("setpoint_not_followed", f"loader did not follow its setpoint: {what}", now)
+        self.raise_trip(trip)
+        return InterlockTripped(self.trip or trip)
+
+    def _link_problem(self, ch: _Channel, now_s: float) -> str | None:
+        """What is wrong with a channel's link short of the watchdog: a request pending, failed requests, or no
+        reading for half the watchdog time; None when it looks healthy."""
+        if ch.busy_since is not None and now_s - ch.busy_since > 0.1 * (self.monitor.stale_timeout_s() or 1.0):
+            return f"request to {ch.name} pending for {now_s - ch.busy_since:.2f} s"
+        if ch.errors_in_row and ch.last_error:
+            return f"{ch.errors_in_row} failed request(s) to {ch.name}: {ch.last_error}"
+        timeout_s, age_s = self.monitor.stale_timeout_s(), now_s - ch.last_arrival_s
+        if timeout_s is not None and age_s > 0.5 * timeout_s:
+            return f"no reading from {ch.name} for {age_s:.2f} s"
+        return None
+
     def _command_trip(self, kind: str, exc: InstrumentError) -> Trip:
         """The trip of a failed command to the ``kind`` instrument (a no-op in :meth:`raise_trip` when
         :meth:`_on_error` already tripped for it)."""

@@ -411,7 +411,7 @@ class TestRun:
         acq.wait(travel_s, abort_event=self.abort_event)
         if not acq.wait(self.options.settle_timeout_s + 0.1 * travel_s, abort_event=self.abort_event, until=arrived):
             st = acq.loader_command(loader.status)
-            raise ProcedureError(f"the output did not reach {move.position_deg:g}° (at {st.position_deg}°)")
+            raise acq.trip_not_followed(f"the output did not reach {move.position_deg:g}° (at {st.position_deg}°)")
         acq.loader_command(loader.enable)  # profile torque again, target zero
         acq.wait(self.options.settle_s, abort_event=self.abort_event)
 
@@ -428,8 +428,8 @@ class TestRun:
             return tq is not None and abs(tq - seg.target_nm) <= self.tolerance_nm
 
         if not acq.wait(self.options.settle_timeout_s + 0.1 * ramp_s, abort_event=self.abort_event, until=near):
-            raise ProcedureError(f"loader did not reach {seg.target_nm:g} N·m within ±{self.tolerance_nm:g} N·m "
-                                 f"(measured {acq.latest_torque_nm()} N·m)")
+            raise acq.trip_not_followed(f"did not reach {seg.target_nm:g} N·m within ±{self.tolerance_nm:g} N·m "
+                                        f"(measured {acq.latest_torque_nm()} N·m)")
         if seg.dwell_s > 0:
             acq.wait(seg.dwell_s, abort_event=self.abort_event)
 

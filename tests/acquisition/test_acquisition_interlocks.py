@@ -126,6 +126,27 @@ def test_a_loader_command_without_answer_aborts_naming_the_loader(make_bench, pr
     assert_loader_safe(bench)
 
 
+def test_a_setpoint_the_drive_takes_but_does_not_follow_aborts(make_bench, profile):
+    """The drive accepts a setpoint and keeps its torque (its link healthy, its status fresh): a safety event,
+    so the run aborts through the safe stop naming the setpoint, not a procedure failure."""
+    bench = make_bench()
+    loader, calls = bench.loader, []
+    send = loader.set_torque
+
+    def set_torque_second_ignored(target_nm, slope_nm_per_s):
+        calls.append(target_nm)
+        if len(calls) != 2:
+            send(target_nm, slope_nm_per_s)
+
+    loader.set_torque = set_torque_second_ignored
+    record = TestRun(bench, profile).run()
+    assert record.state == "aborted", (record.state, record.reason)
+    assert record.trip["interlock"] == "setpoint_not_followed"
+    assert record.reason.startswith(f"loader did not follow its setpoint: did not reach {calls[1]:g} N·m")
+    assert calls[2:] == [0.0]  # the link is fine: the safe stop ramps to zero
+    assert_loader_safe(bench)
+
+
 def test_stale_angle_data(make_bench, profile):
     bench = make_bench()
     vb = bench.loader.bench
