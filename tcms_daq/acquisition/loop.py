@@ -403,12 +403,12 @@ class AcquisitionLoop:
         return InterlockTripped(self.trip or trip)
 
     def _link_problem(self, ch: _Channel, now_s: float) -> str | None:
-        """What is wrong with a channel's link short of the watchdog: a request pending, failed requests, or no
+        """What is wrong with a channel's link short of the watchdog: failed requests, a request pending, or no
         reading for half the watchdog time; None when it looks healthy."""
+        if ch.errors_in_row and ch.last_error:
+            return f"{ch.errors_in_row} failed request(s): {ch.last_error}"
         if ch.busy_since is not None and now_s - ch.busy_since > 0.1 * (self.monitor.stale_timeout_s() or 1.0):
             return f"request to {ch.name} pending for {now_s - ch.busy_since:.2f} s"
-        if ch.errors_in_row and ch.last_error:
-            return f"{ch.errors_in_row} failed request(s) to {ch.name}: {ch.last_error}"
         timeout_s, age_s = self.monitor.stale_timeout_s(), now_s - ch.last_arrival_s
         if timeout_s is not None and age_s > 0.5 * timeout_s:
             return f"no reading from {ch.name} for {age_s:.2f} s"

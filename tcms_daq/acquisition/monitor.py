@@ -77,8 +77,8 @@ class InterlockMonitor:
         return max(timeout, MIN_STALE_TIMEOUT_REAL_S * self.real_time_speed)
 
     def judge_freshness(self, channels: Iterable[ChannelState], now_s: float) -> Trip | None:
-        """Watchdog: the first channel without a new reading for the stale timeout. A channel whose request is
-        pending, or whose recent reads failed, is reported as lost (with the pending time or its last error)."""
+        """Watchdog: the first channel without a new reading for the stale timeout. A channel whose recent reads
+        failed, or whose request is pending, is reported as lost (with its last error, else the pending time)."""
         timeout = self.stale_timeout_s()
         if timeout is None:
             return None
@@ -86,13 +86,13 @@ class InterlockMonitor:
             age = now_s - ch.last_arrival_s
             if age <= timeout:
                 continue
+            if ch.errors_in_row and ch.last_error:  # says more than the retry that is pending now
+                return Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s "
+                                               f"({ch.last_error})", now_s)
             if ch.busy_since is not None:
                 return Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s, request to "
                                                f"{ch.name} pending for {now_s - ch.busy_since:.2f} s (watchdog "
                                                f"timeout {timeout:g} s)", now_s)
-            if ch.errors_in_row and ch.last_error:
-                return Trip("lost_instrument", f"lost {ch.kind} instrument: no reading for {age:.2f} s "
-                                               f"({ch.last_error})", now_s)
             return Trip("stale_data", f"stale data: no {ch.kind} reading from {ch.name} for {age:.2f} s "
                                       f"(limit {timeout:g} s)", now_s)
         return None
