@@ -24,7 +24,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -229,6 +229,7 @@ class TestRun:
         self._thread: threading.Thread | None = None
         self._done = threading.Event()
         self._setpoint_nm = 0.0
+        self._start_position_deg: float | None = None  # the output's position at the start (deg), if reported
         self._lock = threading.Lock()
 
     # -- public API -----------------------------------------------------------------------------------
@@ -286,7 +287,7 @@ class TestRun:
             t_start = self._t_start = acq.clock.now()
             steps: list[tuple[int, Move | Segment]] = (self.plan.steps() if self.plan is not None
                                                        else [(0, seg) for seg in self.segments])
-            self._step_durations_s = (self.plan.step_durations_s() if self.plan is not None else
+            self._step_durations_s = (self._plan_from_here().step_durations_s() if self.plan is not None else
                                       [seg.duration_s(prev.target_nm if prev is not None else 0.0)
                                        for prev, seg in zip([None, *self.segments[:-1]], self.segments, strict=True)])
             for number, (stage, step) in enumerate(steps):
@@ -348,6 +349,7 @@ class TestRun:
         acq.disable_pending = False  # this run takes the loader over
         acq.wait(opts.settle_s, abort_event=self.abort_event)
         status = acq.loader_command(self.bench.loader.status)
+        self._start_position_deg = status.position_deg
         if status.fault:
             self.record.notes.append(f"loader was in FAULT (0x{status.error_code:04X}) before the test: reset")
             acq.loader_command(self.bench.loader.fault_reset)
@@ -356,6 +358,13 @@ class TestRun:
         acq.drive_fault_armed = True
         self._setpoint_nm = 0.0
         acq.wait(opts.settle_s, abort_event=self.abort_event)
+
+    def _plan_from_here(self) -> Plan:
+        """The plan, its time estimate starting where the output is (a drive that reports no position: 0°)."""
+        assert self.plan is not None
+        if self._start_position_deg is None:
+            return self.plan
+        return replace(self.plan, start_position_deg=self._start_position_deg)
 
     def _publish_progress(self, acq: AcquisitionLoop, number: int, stage: int, step: Move | Segment | None) -> None:
         """A ``progress`` event before step ``number`` (and one after the last, ``step`` None): the loop (0 the

@@ -3,12 +3,14 @@ disables; the next test after it runs normally. In-process simulated bench (simu
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from drivers.base import CommandRejected
 from tcms_daq.acquisition import TestRun, compose_bench
+from tcms_daq.acquisition.fanout import EventMessage
 from tcms_daq.config import load_bench_config
 from tcms_daq.procedure import continuous_profile
 from tcms_daq.procedure.plan import Plan, Stage
@@ -70,3 +72,33 @@ def test_abort_during_a_move_then_the_next_test():
     # the next test on the same bench: at the position where the move stopped, runs and completes
     nxt = TestRun(bench, continuous_profile(300.0, 300.0, cycles=1), reducer_torque_limit_nm=1200.0).run()
     assert nxt.state == "completed", nxt.reason
+
+
+def test_the_eta_starts_from_where_the_output_is():
+    """The output left at 90° by an earlier test: the first ETA includes the 90° move back to the first position
+    (45 s at 2 °/s), not the plan's assumed start at 0°."""
+    bench = _bench()
+    bench.connect()
+    try:
+        loader, vbench = bench.loader, bench.loader.bench
+        loader.enable()
+        loader.move_to(90.0, 30.0)
+        vbench.advance(4.0)
+        assert loader.status().position_deg == pytest.approx(90.0)
+        loader.disable()
+    finally:
+        bench.close()
+    profile = continuous_profile(300.0, 300.0, cycles=1)
+    plan = Plan("positions", (Stage(0, profile, 0.0), Stage(1, profile, 30.0)), move_velocity_deg_per_s=2.0)
+    progress: list[dict] = []
+
+    def keep(msg) -> None:
+        if isinstance(msg, EventMessage) and msg.event == "progress":
+            progress.append(msg.details)
+
+    record = TestRun(bench, plan, reducer_torque_limit_nm=1200.0, subscribers=[keep]).run()
+    assert record.state == "completed", record.reason
+    from_90 = replace(plan, start_position_deg=90.0).duration_s()
+    assert from_90 - plan.duration_s() == pytest.approx(45.0)
+    assert progress[0]["eta_s"] == pytest.approx(from_90)
+    assert progress[0]["eta_s"] + progress[0]["elapsed_s"] == pytest.approx(progress[-1]["elapsed_s"], rel=0.1)
