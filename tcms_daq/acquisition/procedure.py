@@ -54,6 +54,11 @@ from tcms_daq.runstate import RunState
 from tcms_daq.samples import Samples
 
 
+def _nm(torque_nm: float | None) -> str:
+    """A torque reading for a message: '399.9 N·m', or 'no reading'."""
+    return "no reading" if torque_nm is None else f"{torque_nm:.1f} N·m"
+
+
 class ProcedureError(TcmsError):
     """The procedure cannot go on (not an interlock): the run ends ``failed``."""
 
@@ -403,7 +408,7 @@ class TestRun:
                                  "several positions needs a loader with move_to")
         measured = acq.latest_torque_nm()
         if measured is None or abs(measured) > self.tolerance_nm:
-            raise ProcedureError(f"torque {measured} N·m before the move to {move.position_deg:g}°: no move under "
+            raise ProcedureError(f"torque {_nm(measured)} before the move to {move.position_deg:g}°: no move under "
                                  f"torque (window ±{self.tolerance_nm:g} N·m)")
         self._marks.append((acq.clock.now(), OUTSIDE_LOOPS, stage))
         before: LoaderStatus = acq.loader_command(loader.status)
@@ -420,7 +425,8 @@ class TestRun:
         acq.wait(travel_s, abort_event=self.abort_event)
         if not acq.wait(self.options.settle_timeout_s + 0.1 * travel_s, abort_event=self.abort_event, until=arrived):
             st = acq.loader_command(loader.status)
-            raise acq.trip_not_followed(f"the output did not reach {move.position_deg:g}° (at {st.position_deg}°)")
+            at = "an unreported position" if st.position_deg is None else f"{st.position_deg:.3f}°"
+            raise acq.trip_not_followed(f"the output did not reach {move.position_deg:g}° (at {at})")
         acq.loader_command(loader.enable)  # profile torque again, target zero
         acq.wait(self.options.settle_s, abort_event=self.abort_event)
 
@@ -438,7 +444,7 @@ class TestRun:
 
         if not acq.wait(self.options.settle_timeout_s + 0.1 * ramp_s, abort_event=self.abort_event, until=near):
             raise acq.trip_not_followed(f"did not reach {seg.target_nm:g} N·m within ±{self.tolerance_nm:g} N·m "
-                                        f"(measured {acq.latest_torque_nm()} N·m)")
+                                        f"(measured {_nm(acq.latest_torque_nm())})")
         if seg.dwell_s > 0:
             acq.wait(seg.dwell_s, abort_event=self.abort_event)
 

@@ -3,6 +3,8 @@ torque and disabled, data kept. Faults are injected at a fixed simulated time (d
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -143,6 +145,7 @@ def test_a_setpoint_the_drive_takes_but_does_not_follow_aborts(make_bench, profi
     assert record.state == "aborted", (record.state, record.reason)
     assert record.trip["interlock"] == "setpoint_not_followed"
     assert record.reason.startswith(f"loader did not follow its setpoint: did not reach {calls[1]:g} N·m")
+    assert re.search(r"\(measured -?\d+\.\d N·m\)$", record.reason), record.reason  # a number, not a float's repr
     assert calls[2:] == [0.0]  # the link is fine: the safe stop ramps to zero
     assert_loader_safe(bench)
 
