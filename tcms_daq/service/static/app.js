@@ -17,35 +17,16 @@
     activeId: null, testState: "idle", eventSeq: 0, dirty: false, schema: null, resultId: null,
   };
 
-  // ---- token: ?token=... (printed by `tcms serve`) is kept for this tab and removed from the address bar ----
-  const params = new URLSearchParams(location.search);
-  if (params.get("token")) {
-    sessionStorage.setItem("tcmsToken", params.get("token"));
-    params.delete("token");
-    history.replaceState(null, "", location.pathname + (params.toString() ? "?" + params : ""));
-  }
-  $("f-token").value = sessionStorage.getItem("tcmsToken") || "";
-  $("f-token").addEventListener("change", () => sessionStorage.setItem("tcmsToken", $("f-token").value.trim()));
+  // ---- the API token and requests (session.js) ----
+  const { withToken, escapeHtml } = TcmsSession;
+  TcmsSession.bindTokenField($("f-token"));
 
   function message(text, isError) {
     $("message").textContent = text || "";
     $("message").className = isError ? "error" : "";
   }
 
-  async function api(method, path, body) {
-    const headers = {};
-    const token = $("f-token").value.trim();
-    if (token) headers["Authorization"] = "Bearer " + token;
-    if (body !== undefined) headers["Content-Type"] = "application/json";
-    const res = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
-    let data = null;
-    try { data = await res.json(); } catch (e) { data = null; }
-    if (!res.ok) {
-      const detail = data && data.detail ? (typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail)) : res.statusText;
-      throw new Error(`${res.status}: ${detail}`);
-    }
-    return data;
-  }
+  async function api(method, path, body) { return (await TcmsSession.request(method, path, body)).data; }
 
   // ---- plots ----
   function width(el) { return Math.max(300, el.clientWidth - 4); }
@@ -164,12 +145,6 @@
 
   function wsUrl(path) {
     return (location.protocol === "https:" ? "wss://" : "ws://") + location.host + withToken(path);
-  }
-  // a browser cannot set headers on a WebSocket or a link: the token rides along as ?token= (a service bound
-  // beyond loopback wants it for reads too; the service masks it in its access log)
-  function withToken(path) {
-    const token = $("f-token").value.trim();
-    return token ? path + (path.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(token) : path;
   }
 
   function connectLive() {
@@ -449,8 +424,6 @@
       $("discrepancy").disabled = state.resultId !== id;
     }
   });
-
-  function escapeHtml(s) { return s.replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
 
   async function loadHistory() {
     let runs = [];

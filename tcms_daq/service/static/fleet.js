@@ -6,31 +6,15 @@
   const $ = (id) => document.getElementById(id);
   const state = { offset: 0, total: 0, selected: [], runs: new Map() };
 
-  const params = new URLSearchParams(location.search);
-  if (params.get("token")) {
-    sessionStorage.setItem("tcmsToken", params.get("token"));
-    params.delete("token");
-    history.replaceState(null, "", location.pathname + (params.toString() ? "?" + params : ""));
-  }
-  $("f-token").value = sessionStorage.getItem("tcmsToken") || "";
-  $("f-token").addEventListener("change", () => { sessionStorage.setItem("tcmsToken", $("f-token").value.trim()); search(); });
+  const { withToken } = TcmsSession;
+  const esc = TcmsSession.escapeHtml;
+  TcmsSession.bindTokenField($("f-token"), () => search());
 
   function message(text, isError) { $("message").textContent = text || ""; $("message").className = isError ? "error" : ""; }
-  function withToken(path) {
-    const token = $("f-token").value.trim();
-    return token ? path + (path.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(token) : path;
-  }
   async function api(path) {
-    const headers = {};
-    const token = $("f-token").value.trim();
-    if (token) headers["Authorization"] = "Bearer " + token;
-    const res = await fetch(path, { headers });
-    let data = null;
-    try { data = await res.json(); } catch (e) { data = null; }
-    if (!res.ok) throw new Error(`${res.status}: ${data && data.detail ? data.detail : res.statusText}`);
-    return { data, total: res.headers.get("X-Total-Count") };
+    const { data, response } = await TcmsSession.request("GET", path);
+    return { data, total: response.headers.get("X-Total-Count") };
   }
-  function esc(s) { return String(s ?? "").replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]); }
   function utc(local) { return local ? local + (local.length === 16 ? ":00" : "") + "Z" : ""; }  // datetime-local as UTC
   function width(el) { return Math.max(300, el.clientWidth - 4); }
 
