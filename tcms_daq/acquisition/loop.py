@@ -45,6 +45,16 @@ REAL_STEP_S = 0.02  # a paced simulated clock steps about 50 times per real seco
 POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
 
 
+def _error_trip(kind: str, exc: Exception, time_s: float) -> Trip | None:
+    """The trip an instrument error means at once, whatever came before: the device reports its own fault,
+    or its link is closed. None for errors that count (timeouts, garbled replies)."""
+    if isinstance(exc, DeviceFault):
+        return Trip("drive_fault" if kind == "loader" else "device_fault", f"{kind} instrument fault: {exc}", time_s)
+    if isinstance(exc, Disconnected):
+        return Trip("lost_instrument", f"lost {kind} instrument: {exc}", time_s)
+    return None
+
+
 class InterlockTripped(TcmsError):
     def __init__(self, trip: Trip):
         super().__init__(trip.reason)
@@ -215,11 +225,9 @@ class AcquisitionLoop:
         ch.errors_total += 1
         ch.last_error = str(exc)
         now = self.clock.now()
-        if isinstance(exc, DeviceFault):
-            interlock = "drive_fault" if ch.kind == "loader" else "device_fault"
-            self.raise_trip(Trip(interlock, f"{ch.kind} instrument fault: {exc}", now))
-        elif isinstance(exc, Disconnected):
-            self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument: {exc}", now))
+        at_once = _error_trip(ch.kind, exc, now)
+        if at_once is not None:
+            self.raise_trip(at_once)
         elif ch.errors_in_row >= self.monitor.limits.max_consecutive_errors:
             what = "timeouts" if isinstance(exc, InstrumentTimeout) else "errors"
             self.raise_trip(Trip("lost_instrument", f"lost {ch.kind} instrument after {ch.errors_in_row} "
@@ -393,7 +401,7 @@ class AcquisitionLoop:
         it does not follow): either would otherwise end the run before the watchdog calls it lost."""
         now = self.clock.now()
         for kind in ("torque", "loader"):
-            problem = self._link_problem(self._channels[kind], now)
+            problem = self.monitor.link_problem(self._channels[kind], now)
             if problem is not None:
                 trip = Trip("lost_instrument", f"lost {kind} instrument: {what}; {problem}", now)
                 break
@@ -402,24 +410,13 @@ class AcquisitionLoop:
         self.raise_trip(trip)
         return InterlockTripped(self.trip or trip)
 
-    def _link_problem(self, ch: _Channel, now_s: float) -> str | None:
-        """What is wrong with a channel's link short of the watchdog: failed requests, a request pending, or no
-        reading for half the watchdog time; None when it looks healthy."""
-        if ch.errors_in_row and ch.last_error:
-            return f"{ch.errors_in_row} failed request(s): {ch.last_error}"
-        if ch.busy_since is not None and now_s - ch.busy_since > 0.1 * (self.monitor.stale_timeout_s() or 1.0):
-            return f"request to {ch.name} pending for {now_s - ch.busy_since:.2f} s"
-        timeout_s, age_s = self.monitor.stale_timeout_s(), now_s - ch.last_arrival_s
-        if timeout_s is not None and age_s > 0.5 * timeout_s:
-            return f"no reading from {ch.name} for {age_s:.2f} s"
-        return None
-
     def _command_trip(self, kind: str, exc: InstrumentError) -> Trip:
         """The trip of a failed command to the ``kind`` instrument (a no-op in :meth:`raise_trip` when
-        :meth:`_on_error` already tripped for it)."""
+        :meth:`_on_error` already tripped for it): a command without an answer is a lost instrument."""
         now = self.clock.now()
-        if isinstance(exc, DeviceFault):
-            return Trip("drive_fault" if kind == "loader" else "device_fault", f"{kind} instrument fault: {exc}", now)
-        if isinstance(exc, (InstrumentTimeout, Disconnected)):
+        trip = _error_trip(kind, exc, now)
+        if trip is not None:
+            return trip
+        if isinstance(exc, InstrumentTimeout):
             return Trip("lost_instrument", f"lost {kind} instrument: {exc}", now)
         return Trip("command_failed", f"{kind} command failed: {exc}", now)

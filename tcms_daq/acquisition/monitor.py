@@ -76,6 +76,19 @@ class InterlockMonitor:
             return timeout
         return max(timeout, MIN_STALE_TIMEOUT_REAL_S * self.real_time_speed)
 
+    def link_problem(self, ch: ChannelState, now_s: float) -> str | None:
+        """What is wrong with a channel's link short of the watchdog: failed requests, a request pending for a
+        tenth of the watchdog time, or no reading for half of it; None when it looks healthy."""
+        timeout_s = self.stale_timeout_s()
+        if ch.errors_in_row and ch.last_error:
+            return f"{ch.errors_in_row} failed request(s): {ch.last_error}"
+        if ch.busy_since is not None and now_s - ch.busy_since > 0.1 * (timeout_s or 1.0):
+            return f"request to {ch.name} pending for {now_s - ch.busy_since:.2f} s"
+        age_s = now_s - ch.last_arrival_s
+        if timeout_s is not None and age_s > 0.5 * timeout_s:
+            return f"no reading from {ch.name} for {age_s:.2f} s"
+        return None
+
     def judge_freshness(self, channels: Iterable[ChannelState], now_s: float) -> Trip | None:
         """Watchdog: the first channel without a new reading for the stale timeout. A channel whose recent reads
         failed, or whose request is pending, is reported as lost (with its last error, else the pending time)."""
