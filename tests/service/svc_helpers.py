@@ -211,6 +211,24 @@ def stop_process(proc: subprocess.Popen) -> None:
             proc.wait(10)
 
 
+def kill_during_a_run(proc: subprocess.Popen, base: str, request: dict, *, timeout_s: float = 60.0) -> str:
+    """Start a test on the service at ``base``, SIGKILL the service (no shutdown hook runs) once the test is
+    running with more than 500 samples stored; the test's id."""
+    try:
+        c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
+        wait_for(lambda: c.get("/api/health").status_code == 200)
+        run_id = c.post("/api/tests", json=request).json()["id"]
+        wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"] == "running"
+                 and t["sample_count"] > 500, timeout_s=timeout_s)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    return run_id
+
+
 def _u_entry(value: float, u: float, k: float, unit: str, dominant: str) -> dict:
     """One entry of the shared result contract's ``uncertainty`` table (issue 11's shape)."""
     return {"value": value, "u": u, "U": k * u, "k": k, "dof": 41.0, "unit": unit, "dominant": dominant,

@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import signal
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import websocket
-from svc_helpers import TOKEN, serve, start_serve_process, stop_process, wait_for
+from svc_helpers import TOKEN, kill_during_a_run, serve, start_serve_process, stop_process, wait_for
 from test_service_api import LiveReader
 
 from tcms_daq.samples import parse_csv_text
@@ -128,18 +126,7 @@ def test_killed_service_marks_run_interrupted_and_keeps_samples(sim_config, tmp_
 
     data_dir = tmp_path / "data"
     proc, base = _start_service(data_dir, sim_config)
-    try:
-        c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
-        wait_for(lambda: c.get("/api/health").status_code == 200)
-        run_id = c.post("/api/tests", json={**REQUEST, "rate_nm_per_s": 50, "cycles": 3}).json()["id"]
-        wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"] == "running"
-                 and t["sample_count"] > 500, timeout_s=60)
-        os.kill(proc.pid, signal.SIGKILL)  # no shutdown hook runs
-        proc.wait(10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
+    run_id = kill_during_a_run(proc, base, {**REQUEST, "rate_nm_per_s": 50, "cycles": 3})
 
     proc2, base2 = _start_service(data_dir, sim_config)
     try:

@@ -7,12 +7,17 @@ from __future__ import annotations
 
 import contextlib
 import io
-import os
-import signal
 
 import numpy as np
 import pytest
-from svc_helpers import TOKEN, ScriptedRunner, serve, start_serve_process, stop_process, wait_for
+from svc_helpers import (
+    ScriptedRunner,
+    kill_during_a_run,
+    serve,
+    start_serve_process,
+    stop_process,
+    wait_for,
+)
 
 from tcms_daq.samples import parse_csv_text
 
@@ -82,18 +87,8 @@ def test_killed_service_on_postgres_interrupts_its_run_and_keeps_its_committed_s
     args = ["--port", "0", "--data-dir", str(tmp_path / "data"), "--config", str(sim_config), "--sim-speed", "5",
             "--store", postgres_url]
     proc, base = start_serve_process(args)
-    try:
-        c = httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=20)
-        run_id = c.post("/api/tests", json={"reducer": "RV-110E", "max_torque_nm": 500, "cycles": 3,
-                                            "rate_nm_per_s": 50, "serial_number": "SN-KILL"}).json()["id"]
-        wait_for(lambda: (t := c.get(f"/api/tests/{run_id}").json())["status"] == "running"
-                 and t["sample_count"] > 500, timeout_s=90)
-        os.kill(proc.pid, signal.SIGKILL)  # no shutdown hook runs
-        proc.wait(10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
+    run_id = kill_during_a_run(proc, base, {"reducer": "RV-110E", "max_torque_nm": 500, "cycles": 3,
+                                            "rate_nm_per_s": 50, "serial_number": "SN-KILL"}, timeout_s=90)
 
     # meanwhile another bench runs a test in the same database: the restart must leave it running
     other = PostgresRunStore(postgres_url, bench_id="line-9", bench_name="another bench")
