@@ -262,7 +262,7 @@ def _measure_service(proc: subprocess.Popen, hostport: str, duration_s: float) -
             result["service_cpu_cores"] = (cpu1 - cpu0) / (wall1 - wall0)
             return result
     finally:
-        stop_process(proc, timeout_s=20)
+        stop_process(proc)
 
 
 # what each configuration reports, per run; the stalled-client phase is judged for the in-process ones

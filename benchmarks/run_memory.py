@@ -26,6 +26,7 @@ import httpx
 
 from benchmarks._runs import RUNS, spread
 from benchmarks.live_pipeline import TOKEN, _bench_config, _start_service
+from sim.instruments.child import stop_process
 
 SAMPLE_RATE_HZ = 5_000.0
 TARGET_SAMPLES = 500_000
@@ -111,11 +112,7 @@ def _one_run(quick: bool) -> dict:
                             size += len(block)
                     export_peak_kb[fmt] = (_status_kb(proc.pid)["VmHWM"] - before_kb, size)
         finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=20)
-            except Exception:
-                proc.kill()
+            stop_process(proc)
     return {
         "samples": samples,
         "baseline_rss_mb": baseline_kb / 1024.0,

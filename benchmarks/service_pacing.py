@@ -19,6 +19,7 @@ import httpx
 
 from benchmarks._runs import RUNS, spread
 from benchmarks.live_pipeline import TOKEN, _cpu_seconds, _start_service
+from sim.instruments.child import stop_process
 
 REPO = Path(__file__).resolve().parents[1]
 SPEEDS = (1.0, 25.0, 100.0)
@@ -59,11 +60,7 @@ def _one(speed: float, tmp: Path, idle_s: float, run_test: bool) -> dict[str, fl
         client.close()
         return out
     finally:
-        proc.terminate()
-        try:
-            proc.wait(20)
-        except Exception:
-            proc.kill()
+        stop_process(proc)
 
 
 def run(quick: bool = False) -> dict:

@@ -21,6 +21,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+from sim.instruments.child import start_simulators, stop_process
+
 REPO = Path(__file__).resolve().parents[1]
 TOKEN = "wheel-smoke-token"
 
@@ -96,14 +98,11 @@ def serve_one_test(tcms: Path, cwd: Path, env: dict) -> None:
 
 def loopback_run(tcms: Path, cwd: Path, env: dict) -> None:
     """`tcms sim serve` on free ports and `tcms run` against it with port overrides, no edited TOML copy."""
-    sim = subprocess.Popen([str(tcms), "sim", "serve", "--nd287-port", "0", "--aed-port", "0", "--modbus-port",
-                            "0", "--socketcand-port", "0", "--control-port", "0"], cwd=cwd, env=env,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        assert sim.stdout is not None
-        info = json.loads(sim.stdout.readline() or "{}")
-        if "urls" not in info:
-            sys.exit(f"wheel-smoke: FAILED: tcms sim serve did not report its ports: {sim.stderr.read()[-2000:]}")
+        sim, info = start_simulators(command=[str(tcms)], cwd=cwd, env=env)
+    except RuntimeError as exc:
+        sys.exit(f"wheel-smoke: FAILED: {exc}")
+    try:
         urls = info["urls"]
         out = step("tcms run --config bench-loopback.toml --set … (real protocols)", [
             str(tcms), "run", "--config", "bench-loopback.toml", "--max-torque", "200", "--cycles", "1",
@@ -113,11 +112,7 @@ def loopback_run(tcms: Path, cwd: Path, env: dict) -> None:
         result = json.loads(out)
         print(f"wheel-smoke: loopback run rigidity {result['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
     finally:
-        sim.terminate()
-        try:
-            sim.wait(15)
-        except subprocess.TimeoutExpired:
-            sim.kill()
+        stop_process(sim)
 
 
 def main() -> int:

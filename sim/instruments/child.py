@@ -12,21 +12,24 @@ import json
 import select
 import subprocess
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-EPHEMERAL_PORTS = ("--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0",
-                   "--control-port", "0")
+SERVERS = ("nd287", "aed", "modbus", "socketcand", "control")  # each has a --<name>-port option
 
 
-def start_simulators(*args: str, command: Sequence[str] = (sys.executable, "-m", "tcms_daq.cli"),
-                     cwd: Any = None, env: dict[str, str] | None = None,
+def start_simulators(*args: str, ports: Mapping[str, int] | None = None,
+                     command: Sequence[str] = (sys.executable, "-m", "tcms_daq.cli"), cwd: Any = None,
+                     env: dict[str, str] | None = None,
                      timeout_s: float = 30.0) -> tuple[subprocess.Popen[str], dict[str, Any]]:
-    """Start ``<command> sim serve <args>`` on ephemeral ports and return the process and its JSON line (ports
-    and urls). RuntimeError with the simulator's error output when it does not report its ports in
-    ``timeout_s``."""
-    proc = subprocess.Popen([*command, "sim", "serve", *EPHEMERAL_PORTS, *args], cwd=cwd, env=env,
+    """Start ``<command> sim serve <args>`` and return the process and its JSON line (ports and urls). Every
+    server listens on an ephemeral port unless ``ports`` names one (e.g. to start the simulators again where
+    a service expects them). RuntimeError with the simulator's error output when it does not report its ports
+    in ``timeout_s``."""
+    chosen = {name: 0 for name in SERVERS} | dict(ports or {})
+    port_args = [arg for name, port in chosen.items() for arg in (f"--{name}-port", str(port))]
+    proc = subprocess.Popen([*command, "sim", "serve", *port_args, *args], cwd=cwd, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stderr is not None
     ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
@@ -38,8 +41,9 @@ def start_simulators(*args: str, command: Sequence[str] = (sys.executable, "-m",
     return proc, json.loads(line)
 
 
-def stop_process(proc: subprocess.Popen[str], timeout_s: float = 15.0) -> None:
-    """SIGTERM, then SIGKILL when it has not ended within ``timeout_s``."""
+def stop_process(proc: subprocess.Popen[str], timeout_s: float = 20.0) -> None:
+    """SIGTERM (``tcms serve`` aborts a running test and ramps the bench down first), then SIGKILL when it has not
+    ended within ``timeout_s``."""
     if proc.poll() is None:
         proc.terminate()
         try:

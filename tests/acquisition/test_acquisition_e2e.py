@@ -8,8 +8,6 @@ from __future__ import annotations
 import json
 import logging
 import socket
-import subprocess
-import sys
 import threading
 import tomllib
 from pathlib import Path
@@ -17,6 +15,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
+from sim.instruments.child import start_simulators, stop_process
 from tcms_daq.acquisition import TestRun, compose_bench
 from tcms_daq.cli import main
 from tcms_daq.procedure.profiles import continuous_profile
@@ -31,25 +30,10 @@ class SimServe:
     """`tcms sim serve` in a child process on ephemeral ports, with its control channel."""
 
     def __init__(self, config: Path = LOOPBACK, speed: float = SPEED):
-        cmd = [sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", str(config), "--speed", str(speed),
-               "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0",
-               "--control-port", "0", "--duration", "120"]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        line = self._first_line(timeout_s=30.0)
-        self.info = json.loads(line)
+        self.proc, self.info = start_simulators("--config", str(config), "--speed", str(speed), "--duration", "120")
         self.urls = self.info["urls"]
         self._control = socket.create_connection(("127.0.0.1", self.info["ports"]["control"]), timeout=5.0)
         self._control_file = self._control.makefile("rw")
-
-    def _first_line(self, timeout_s: float) -> str:
-        out: list[str] = []
-        reader = threading.Thread(target=lambda: out.append(self.proc.stdout.readline()), daemon=True)
-        reader.start()
-        reader.join(timeout_s)
-        if not out or not out[0].strip():
-            self.stop()
-            raise RuntimeError(f"tcms sim serve did not start: {self.proc.stderr.read()[-2000:]}")
-        return out[0]
 
     def control(self, **request) -> dict:
         self._control_file.write(json.dumps(request) + "\n")
@@ -78,16 +62,9 @@ class SimServe:
 
     def stop(self) -> None:
         try:
-            if getattr(self, "_control", None) is not None:
-                self._control.close()
+            self._control.close()
         finally:
-            if self.proc.poll() is None:
-                self.proc.terminate()
-                try:
-                    self.proc.wait(10)
-                except subprocess.TimeoutExpired:
-                    self.proc.kill()
-                    self.proc.wait(5)
+            stop_process(self.proc)
 
 
 def virtual_config_file(tmp_path: Path) -> Path:

@@ -22,6 +22,7 @@ import httpx
 import numpy as np
 import uvicorn
 
+from sim.instruments.child import stop_process
 from tcms_daq.service.app import ServiceSettings, create_app
 from tcms_daq.service.runner import RUN_CHANNELS, RequestRejected, RunOutcome, TestPlan
 
@@ -198,17 +199,6 @@ def start_serve_process(args: list[str], *, cwd=None, timeout_s: float = 30.0) -
             break
     stop_process(proc)
     raise AssertionError(f"tcms serve did not start: {''.join(seen)!r}")
-
-
-def stop_process(proc: subprocess.Popen) -> None:
-    """SIGTERM (the service aborts a test and ramps the bench down), then SIGKILL after 20 s."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
 
 
 def kill_during_a_run(proc: subprocess.Popen, base: str, request: dict, *, timeout_s: float = 60.0) -> str:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import socket
 import subprocess
-import sys
 import time
 import tomllib
 from pathlib import Path
@@ -19,6 +18,7 @@ import pytest
 import tomli_w
 from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
 
+from sim.instruments.child import start_simulators
 from tcms_daq.config.loader import resolve_config_path
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 400, "cycles": 1, "rate_nm_per_s": 400}
@@ -55,13 +55,7 @@ def _free_port() -> int:
 
 
 def _start_sim(ports: dict[str, int]) -> tuple[subprocess.Popen, dict]:
-    sim = subprocess.Popen([sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", "bench-loopback.toml",
-                            *(a for name, port in ports.items() for a in (f"--{name}-port", str(port))),
-                            "--speed", "4"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    info = json.loads(sim.stdout.readline() or "{}")
-    assert "urls" in info, sim.stderr.read()
-    return sim, info
+    return start_simulators("--config", "bench-loopback.toml", "--speed", "4", ports=ports)
 
 
 def _config_with_loader(directory: Path, loader: str, urls: dict[str, str]) -> Path:
@@ -108,9 +102,7 @@ class Bench:
     def close(self) -> None:
         self.client.close()
         stop_process(self.service)
-        if self.sim.poll() is None:
-            self.sim.terminate()
-            self.sim.wait(15)
+        stop_process(self.sim)
 
 
 @pytest.fixture(scope="module")

@@ -4,9 +4,6 @@ instruments pointed at the simulator process instead of the host ``sim``."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
@@ -15,22 +12,18 @@ import pytest
 import tomli_w
 from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
 
+from sim.instruments.child import start_simulators
+
 REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.timeout(180)
 def test_service_and_simulators_as_two_processes(tmp_path):
     compose_cfg = REPO / "config" / "bench-compose.toml"
-    sim = subprocess.Popen(
-        [sys.executable, "-m", "tcms_daq.cli", "sim", "serve", "--config", str(compose_cfg),
-         "--nd287-port", "0", "--aed-port", "0", "--modbus-port", "0", "--socketcand-port", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
-    )
+    sim, info = start_simulators("--config", str(compose_cfg), cwd=REPO)
     service = None
     try:
-        line = sim.stdout.readline()
-        assert line, f"tcms sim serve did not start: {sim.stderr.read()}"
-        urls = json.loads(line)["urls"]
+        urls = info["urls"]
         data = tomllib.loads(compose_cfg.read_text(encoding="utf-8"))
         data["instruments"]["angle"]["url"] = urls["angle"]
         data["instruments"]["torque"]["url"] = urls["torque"]
