@@ -278,7 +278,6 @@ def check_new_run(run_id: str, channels: Sequence[str], status: str) -> None:
         raise StoreError(f"run {run_id}: channel names must be unique and non-empty, got {list(channels)}")
 
 
-
 def status_update(status: str, *, error: str | None, results: Mapping[str, Any] | None,
                   encode_results: Callable[[Mapping[str, Any]], Any], placeholder: str) -> tuple[str, list[Any]]:
     """The ``SET`` clause and its parameters that move a run to ``status`` (both backends; ``placeholder`` is the

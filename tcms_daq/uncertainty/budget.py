@@ -170,19 +170,21 @@ def _sensitivities(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.n
     # inputs that perturb the record the same way (the angle scale and the compensation's scale residual, at the
     # same step) share their evaluations
     evaluated: dict[tuple[Any, float], dict[str, float]] = {}
+
+    def moved(inp: Input, x: float) -> dict[str, float]:
+        key = (inp.apply, x)
+        if key not in evaluated:
+            torque, angle = inp.apply(torque_nm, angle_arcsec, x)
+            try:
+                evaluated[key] = result_values(_evaluate(time_s, torque, angle, settings))
+            except EvaluationError as exc:
+                raise EvaluationError(
+                    f"uncertainty budget: the evaluation fails with {inp.name} moved by {x:+.3g} {inp.unit}: {exc}"
+                ) from None
+        return evaluated[key]
+
     for inp in inputs:
-        results = []
-        for x in (inp.step, -inp.step):
-            if (inp.apply, x) not in evaluated:
-                torque, angle = inp.apply(torque_nm, angle_arcsec, x)
-                try:
-                    evaluated[(inp.apply, x)] = result_values(_evaluate(time_s, torque, angle, settings))
-                except EvaluationError as exc:
-                    raise EvaluationError(
-                        f"uncertainty budget: the evaluation fails with {inp.name} moved by {x:+.3g} {inp.unit}: {exc}"
-                    ) from None
-            results.append(evaluated[(inp.apply, x)])
-        plus, minus = results
+        plus, minus = moved(inp, inp.step), moved(inp, -inp.step)
         for name in names:
             if name not in plus or name not in minus:
                 raise EvaluationError(f"uncertainty budget: {name} is not evaluated with {inp.name} moved by "

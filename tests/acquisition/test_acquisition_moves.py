@@ -3,6 +3,7 @@ disables; the next test after it runs normally. In-process simulated bench (simu
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,12 +22,19 @@ def _bench():
     return compose_bench(cfg, config_dir=Path(cfg.source_path).parent)
 
 
-def test_no_move_under_torque():
-    bench = _bench()
+@contextmanager
+def _enabled_loader(bench):
+    """The bench connected and its loader enabled, for commands by hand; yields (loader, virtual bench)."""
     bench.connect()
     try:
-        loader, vbench = bench.loader, bench.loader.bench
-        loader.enable()
+        bench.loader.enable()
+        yield bench.loader, bench.loader.bench
+    finally:
+        bench.close()
+
+
+def test_no_move_under_torque():
+    with _enabled_loader(_bench()) as (loader, vbench):
         loader.set_torque(200.0, 2000.0)
         vbench.advance(0.5)
         with pytest.raises(CommandRejected, match="no move under torque"):
@@ -42,8 +50,6 @@ def test_no_move_under_torque():
         vbench.advance(3.0)
         st = loader.status()
         assert not st.moving and st.position_deg == pytest.approx(90.0)
-    finally:
-        bench.close()
 
 
 def test_abort_during_a_move_then_the_next_test():
@@ -78,16 +84,11 @@ def test_the_eta_starts_from_where_the_output_is():
     """The output left at 90° by an earlier test: the first ETA includes the 90° move back to the first position
     (45 s at 2 °/s), not the plan's assumed start at 0°."""
     bench = _bench()
-    bench.connect()
-    try:
-        loader, vbench = bench.loader, bench.loader.bench
-        loader.enable()
+    with _enabled_loader(bench) as (loader, vbench):
         loader.move_to(90.0, 30.0)
         vbench.advance(4.0)
         assert loader.status().position_deg == pytest.approx(90.0)
         loader.disable()
-    finally:
-        bench.close()
     profile = continuous_profile(300.0, 300.0, cycles=1)
     plan = Plan("positions", (Stage(0, profile, 0.0), Stage(1, profile, 30.0)), move_velocity_deg_per_s=2.0)
     progress: list[dict] = []
