@@ -13,7 +13,7 @@ COPY tcms_daq ./tcms_daq
 COPY drivers ./drivers
 COPY sim ./sim
 COPY benchmarks ./benchmarks
-# the default configs are package data (tcms_daq/defaults): `--config bench-compose.toml` finds them by name
+# the default configs are package data (config/, installed as tcms_daq.defaults): `--config bench-compose.toml` finds them by name
 RUN pip install --no-compile . \
     && useradd --create-home --uid 1000 tcms \
     && mkdir -p /data \

@@ -22,7 +22,7 @@ MAX_SECONDS_1M = 20.0
 
 
 def _pair(target_samples: int):
-    from sim.trials import CASES, TrialDesign, make_pair
+    from tcms_daq.sim.trials import CASES, TrialDesign, make_pair
 
     base = TrialDesign()
     probe = make_pair(CASES[CASE], 1, base)[0]
@@ -48,7 +48,8 @@ def _baseline_s(measured, simulated) -> float:
 
 
 def run(quick: bool = False) -> dict:
-    from sim.trials import CASES
+    from tcms_daq.sim.trials import CASES
+
     from tcms_daq.discrepancy import catalogue as cat
     from tcms_daq.discrepancy.workflow import run_discrepancy
 

@@ -49,9 +49,9 @@ from pathlib import Path
 import httpx
 import numpy as np
 import tomli_w
+from tcms_daq.sim.instruments.child import start_simulators, stop_process
 
 from benchmarks._runs import RUNS, spread
-from sim.instruments.child import start_simulators, stop_process
 
 REPO = Path(__file__).resolve().parents[1]
 N_CLIENTS = 10

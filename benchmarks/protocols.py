@@ -131,12 +131,12 @@ def run(quick: bool = False) -> dict:
 
 
 def _measure(quick: bool) -> dict[str, float]:
-    from drivers.cia402_modbus import CiA402Modbus
-    from drivers.nd287 import ND287
-    from sim.bench import SimulatedBench
-    from sim.instruments.drive_canopen import DriveCanopenNode
-    from sim.instruments.physics import SharedPhysics
-    from sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+    from tcms_daq.drivers.cia402_modbus import CiA402Modbus
+    from tcms_daq.drivers.nd287 import ND287
+    from tcms_daq.sim.bench import SimulatedBench
+    from tcms_daq.sim.instruments.drive_canopen import DriveCanopenNode
+    from tcms_daq.sim.instruments.physics import SharedPhysics
+    from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
 
     duration_s = 0.3 if quick else 1.5
     physics = SharedPhysics(SimulatedBench())

@@ -23,10 +23,10 @@ import time
 from pathlib import Path
 
 import httpx
+from tcms_daq.sim.instruments.child import stop_process
 
 from benchmarks._runs import RUNS, spread
 from benchmarks.live_pipeline import TOKEN, _bench_config, _start_service
-from sim.instruments.child import stop_process
 
 SAMPLE_RATE_HZ = 5_000.0
 TARGET_SAMPLES = 500_000

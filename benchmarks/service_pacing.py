@@ -16,10 +16,10 @@ import tomllib
 from pathlib import Path
 
 import httpx
+from tcms_daq.sim.instruments.child import stop_process
 
 from benchmarks._runs import RUNS, spread
 from benchmarks.live_pipeline import TOKEN, _cpu_seconds, _start_service
-from sim.instruments.child import stop_process
 
 REPO = Path(__file__).resolve().parents[1]
 SPEEDS = (1.0, 25.0, 100.0)

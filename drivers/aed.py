@@ -18,10 +18,10 @@ from __future__ import annotations
 import time
 
 import serial
+from tcms_daq.drivers.base import Clock, CommandRejected, DeviceFault, MalformedReply
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
+from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
-from drivers.base import Clock, CommandRejected, DeviceFault, MalformedReply
-from drivers.timebase import REAL_TIME, Timebase
-from drivers.transport import SerialInstrument, open_serial_url, require_terminated
 from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, MAX_NOV, MSV_RE, OVERFLOW_VALUE
 
 

@@ -11,8 +11,16 @@ import math
 from collections.abc import Callable
 from typing import Any, Self
 
-from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, LoaderStatus
-from drivers.timebase import REAL_TIME, Timebase
+from tcms_daq.drivers.base import (
+    Clock,
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    InstrumentTimeout,
+    LoaderStatus,
+)
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
+
 from tcms_daq.protocols.cia402 import (
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,

@@ -41,10 +41,10 @@ import can
 import canopen
 from can.broadcastmanager import ThreadBasedCyclicSendTask
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+from tcms_daq.drivers.base import Clock, CommandRejected, Disconnected, InstrumentTimeout, MalformedReply
+from tcms_daq.drivers.cia402 import CiA402Loader
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
-from drivers.base import Clock, CommandRejected, Disconnected, InstrumentTimeout, MalformedReply
-from drivers.cia402 import CiA402Loader
-from drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.cia402 import CW_DISABLE_VOLTAGE, drive_eds_path, to_int16
 

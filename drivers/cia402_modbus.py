@@ -24,11 +24,18 @@ from urllib.parse import urlparse
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from tcms_daq.drivers.base import (
+    Clock,
+    CommandRejected,
+    DeviceFault,
+    Disconnected,
+    InstrumentTimeout,
+    MalformedReply,
+)
+from tcms_daq.drivers.cia402 import CiA402Loader
+from tcms_daq.drivers.modbus_rtu import RtuSerialClient
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
-from drivers.base import Clock, CommandRejected, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
-from drivers.cia402 import CiA402Loader
-from drivers.modbus_rtu import RtuSerialClient
-from drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.modbus_map import RegisterMap, load_register_map
 

@@ -23,8 +23,7 @@ import math
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ConnectionException
-
-from drivers.timebase import REAL_TIME, Timebase
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 RTU_HEAD_BYTES = 3
 FIXED_REPLY_BYTES = {5: 8, 6: 8, 15: 8, 16: 8}

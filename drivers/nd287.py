@@ -20,10 +20,10 @@ from __future__ import annotations
 import time
 
 import serial
+from tcms_daq.drivers.base import Clock, DeviceFault, MalformedReply
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
+from tcms_daq.drivers.transport import SerialInstrument, open_serial_url
 
-from drivers.base import Clock, DeviceFault, MalformedReply
-from drivers.timebase import REAL_TIME, Timebase
-from drivers.transport import SerialInstrument, open_serial_url
 from tcms_daq.protocols.nd287 import FRAME_LENGTH, FRAME_RE, STX, value_to_arcsec
 
 

@@ -20,9 +20,8 @@ from typing import Any, Self, TypeVar
 
 import numpy as np
 import serial
-
-from drivers.base import Batch, Clock, Disconnected, InstrumentTimeout, MalformedReply
-from drivers.timebase import REAL_TIME, Timebase
+from tcms_daq.drivers.base import Batch, Clock, Disconnected, InstrumentTimeout, MalformedReply
+from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 # A function that reads one reply from an open port (e.g. ``lambda port: port.read_until(b"\r\n", 64)``).
 ReplyReader = Callable[[serial.SerialBase], bytes]

@@ -18,7 +18,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from sim.trials import bench_run
+from tcms_daq.sim.trials import bench_run
+
 from tcms_daq.cli import main
 from tcms_daq.store import STORE_FILENAME, RunStore
 

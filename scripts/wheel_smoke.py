@@ -1,4 +1,4 @@
-"""Build a wheel, install it into a fresh virtual environment outside the source tree, and run the product from
+"""Build a wheel, check that it installs one top-level package (``tcms_daq``), install it into a fresh virtual environment outside the source tree, and run the product from
 another directory: ``tcms run`` (the in-process simulated bench), ``tcms serve`` with one test through the REST
 API, and ``tcms sim serve`` + ``tcms run --config bench-loopback.toml --set …`` over the real protocols.
 
@@ -19,9 +19,10 @@ import sys
 import tempfile
 import time
 import urllib.request
+import zipfile
 from pathlib import Path
 
-from sim.instruments.child import start_simulators, stop_process
+from tcms_daq.sim.instruments.child import start_simulators, stop_process
 
 REPO = Path(__file__).resolve().parents[1]
 TOKEN = "wheel-smoke-token"
@@ -125,6 +126,11 @@ def main() -> int:
         step("build the wheel", [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(work / "dist"),
                                  str(REPO)], work)
         wheel = next((work / "dist").glob("tcms_daq-*.whl"))
+        with zipfile.ZipFile(wheel) as archive:
+            top_level = {name.split("/")[0] for name in archive.namelist() if ".dist-info/" not in name}
+        if top_level != {"tcms_daq"}:
+            sys.exit(f"wheel-smoke: FAILED: the wheel installs {sorted(top_level)}, not one package tcms_daq")
+        print("wheel-smoke: the wheel installs one top-level package, tcms_daq", flush=True)
         step("create a fresh venv", [sys.executable, "-m", "venv", str(work / "venv")], work)
         vpy = work / "venv" / "bin" / "python"
         step("install the wheel (with its dependencies)", [str(vpy), "-m", "pip", "install", "-q", str(wheel)], work)

@@ -25,12 +25,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tcms_daq.sim.drive import TorqueDrive
+from tcms_daq.sim.effects import from_config as effects_from_config
+from tcms_daq.sim.physics import (
+    LoopTruth,
+    ReducerPhysics,
+    TwistState,
+    loop_truth,
+    physics_from_spec,
+    twist_arcsec,
+)
+from tcms_daq.sim.reducer_model import RichReducerModel, RichState
+from tcms_daq.sim.sensors import EncoderModel, TorqueSensorModel
 
-from sim.drive import TorqueDrive
-from sim.effects import from_config as effects_from_config
-from sim.physics import LoopTruth, ReducerPhysics, TwistState, loop_truth, physics_from_spec, twist_arcsec
-from sim.reducer_model import RichReducerModel, RichState
-from sim.sensors import EncoderModel, TorqueSensorModel
 from tcms_daq.config.loader import get_reducer, load_reducers_for, validate
 from tcms_daq.config.models import BenchConfig, ReducerSpec, SimConfig
 from tcms_daq.errors import ConfigError
@@ -332,7 +339,7 @@ class SimulatedBench:
         (``sim.truth``: they depend on the rate, the dwells and the position)."""
         if self.rich_model is None:
             return self.truth(test_torque_nm, lost_motion_pct, rigidity_interval).to_dict()
-        from sim.truth import profile_truth
+        from tcms_daq.sim.truth import profile_truth
 
         rated = self.reducer.rated_torque_nm if self.reducer is not None else test_torque_nm
         pct = lost_motion_pct if lost_motion_pct is not None else (

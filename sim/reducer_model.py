@@ -24,15 +24,15 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-
-from sim.drive import first_order_response
-from sim.physics import (
+from tcms_daq.sim.drive import first_order_response
+from tcms_daq.sim.physics import (
     ReducerPhysics,
     TwistState,
     elastic_twist_arcsec,
     hysteresis_arcsec,
     lost_motion_zone_arcsec,
 )
+
 from tcms_daq.config.models import RichReducerConfig
 
 

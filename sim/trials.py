@@ -12,7 +12,7 @@ Out-of-catalogue cases (``sim.unmodelled``: a slip, creep, a wider friction loop
 wander, a housing that bulges in proportion to |T|) hide an effect the catalogue has no term for. Whatever they name, they pass only when the verdict is
 not ``explained``: the honesty rate is the share of them that pass.
 
-    python -m tcms_daq.discrepancy.trials [--seeds 5] [--json]      (or python -m sim.trials)
+    python -m tcms_daq.discrepancy.trials [--seeds 5] [--json]      (or python -m tcms_daq.sim.trials)
 
 prints the naming accuracy (cases named exactly right), the false-naming rate (null runs that name
 anything), the parameter errors and the out-of-catalogue honesty rate.
@@ -27,9 +27,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from tcms_daq.sim.physics import ReducerPhysics
+from tcms_daq.sim.unmodelled import UNMODELLED, Unmodelled
 
-from sim.physics import ReducerPhysics
-from sim.unmodelled import UNMODELLED, Unmodelled
 from tcms_daq.samples import Samples
 
 # Hidden effects at the tested amplitudes (contract names and parameters, as in a [sim.effects] table).
@@ -79,9 +79,10 @@ def bench_run(effects_table: dict, seed: int, design: TrialDesign = TrialDesign(
     (the catalogue reducer's; the bench's own has ``physics_scale`` applied: field → factor)."""
     from dataclasses import replace
 
-    from sim.bench import SimulatedBench
-    from sim.effects import from_config
-    from sim.physics import physics_from_spec
+    from tcms_daq.sim.bench import SimulatedBench
+    from tcms_daq.sim.effects import from_config
+    from tcms_daq.sim.physics import physics_from_spec
+
     from tcms_daq.config import load_reducer_catalogue
 
     reducer = load_reducer_catalogue()[design.reducer]
@@ -118,7 +119,8 @@ def make_pair(effects_table: dict, seed: int, design: TrialDesign = TrialDesign(
     """(measured, simulated, noise floor RMS ″) for a case: simulated = the bench model on the measured torque
     (its applied-torque estimate, as for a stored run);
     ``unmodelled`` changes the measured run by an effect outside the catalogue."""
-    from sim.physics import twist_arcsec
+    from tcms_daq.sim.physics import twist_arcsec
+
     from tcms_daq.discrepancy.stored import applied_torque_estimate
 
     measured, physics = bench_run(effects_table, seed, design,
@@ -255,7 +257,7 @@ def summarise(outcomes: list[TrialOutcome]) -> dict:
     }
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m sim.trials") -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m tcms_daq.sim.trials") -> int:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument("--first-seed", type=int, default=100)

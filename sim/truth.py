@@ -14,9 +14,9 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from tcms_daq.sim.drive import TorqueDrive
+from tcms_daq.sim.reducer_model import RichReducerModel
 
-from sim.drive import TorqueDrive
-from sim.reducer_model import RichReducerModel
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
 

@@ -31,8 +31,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlparse
 
 import numpy as np
-
-from drivers.base import (
+from tcms_daq.drivers.base import (
     Batch,
     CommandRejected,
     DeviceFault,
@@ -40,7 +39,8 @@ from drivers.base import (
     LoaderStatus,
     concat_common_columns,
 )
-from sim.bench import SimulatedBench
+from tcms_daq.sim.bench import SimulatedBench
+
 from tcms_daq.errors import ConfigError
 
 # Bound on buffered samples per channel when nobody reads (oldest dropped): 10 min at 1 kHz.

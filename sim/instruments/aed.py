@@ -12,7 +12,8 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from sim.instruments.tcp import TcpInstrumentServer
+from tcms_daq.sim.instruments.tcp import TcpInstrumentServer
+
 from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, OVERFLOW_VALUE, format_msv
 
 GARBAGE_REPLY = b"+00x1?3#\r\n"  # 10 bytes, CR LF-terminated, not a measured value

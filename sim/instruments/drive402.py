@@ -27,7 +27,8 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable
 
-from sim.instruments.physics import PhysicsReading, SharedPhysics
+from tcms_daq.sim.instruments.physics import PhysicsReading, SharedPhysics
+
 from tcms_daq.protocols.cia402 import (
     CW_NEW_SET_POINT,
     EMCY_COMMUNICATION,

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError
+from tcms_daq.sim.instruments.drive402 import Drive402Model, DriveCommandError
+from tcms_daq.sim.instruments.loop import PeriodicThread
 
-from sim.instruments.drive402 import Drive402Model, DriveCommandError
-from sim.instruments.loop import PeriodicThread
 from tcms_daq.protocols.cia402 import drive_eds_path
 
 log = logging.getLogger(__name__)

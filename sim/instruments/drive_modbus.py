@@ -20,8 +20,8 @@ from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
+from tcms_daq.sim.instruments.drive402 import Drive402Model, DriveCommandError
 
-from sim.instruments.drive402 import Drive402Model, DriveCommandError
 from tcms_daq.protocols.modbus_map import RegisterMap
 
 FAULTS = ("mute",)

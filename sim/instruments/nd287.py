@@ -12,7 +12,8 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from sim.instruments.tcp import TcpInstrumentServer
+from tcms_daq.sim.instruments.tcp import TcpInstrumentServer
+
 from tcms_daq.protocols.nd287 import format_frame
 
 STX, DC1, DC3, ENQ = 0x02, 0x11, 0x13, 0x05

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from sim.instruments.loop import PeriodicThread
+from tcms_daq.sim.instruments.loop import PeriodicThread
 
 
 class BenchLike(Protocol):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 
-from sim.instruments.tcp import COMMON_FAULTS, TcpServer
+from tcms_daq.sim.instruments.tcp import COMMON_FAULTS, TcpServer
 
 
 class FaultProxy(TcpServer):

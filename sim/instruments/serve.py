@@ -15,16 +15,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sim.instruments.aed import AEDServer
-from sim.instruments.loop import LoopThread
-from sim.instruments.nd287 import ND287Server
-from sim.instruments.physics import SharedPhysics
+from tcms_daq.sim.instruments.aed import AEDServer
+from tcms_daq.sim.instruments.loop import LoopThread
+from tcms_daq.sim.instruments.nd287 import ND287Server
+from tcms_daq.sim.instruments.physics import SharedPhysics
 
 if TYPE_CHECKING:
-    from sim.instruments.drive402 import Drive402Model
-    from sim.instruments.drive_canopen import DriveCanopenNode
-    from sim.instruments.drive_modbus import DriveModbusServer
-    from sim.instruments.socketcand_hub import SocketcandHub
+    from tcms_daq.sim.instruments.drive402 import Drive402Model
+    from tcms_daq.sim.instruments.drive_canopen import DriveCanopenNode
+    from tcms_daq.sim.instruments.drive_modbus import DriveModbusServer
+    from tcms_daq.sim.instruments.socketcand_hub import SocketcandHub
 
 log = logging.getLogger(__name__)
 
@@ -141,7 +141,7 @@ class InstrumentSimulators:
         return dict(self.ports)
 
     def _start_drive(self, want: set[str]) -> None:
-        from sim.instruments.drive402 import Drive402Model
+        from tcms_daq.sim.instruments.drive402 import Drive402Model
 
         opts = self.options
         loop = self.running_loop
@@ -152,7 +152,8 @@ class InstrumentSimulators:
             counts_per_rev=opts.counts_per_rev,
         )
         if "modbus" in want or "modbus_rtu" in want:
-            from sim.instruments.drive_modbus import DriveModbusServer
+            from tcms_daq.sim.instruments.drive_modbus import DriveModbusServer
+
             from tcms_daq.protocols.modbus_map import load_register_map
 
             regmap = load_register_map(Path(opts.modbus_map) if opts.modbus_map else None)
@@ -169,10 +170,10 @@ class InstrumentSimulators:
                 )
                 self.ports["modbus_rtu"] = loop.run(modbus_rtu.start())
         if "canopen" in want:
-            from sim.instruments.drive_canopen import DriveCanopenNode
+            from tcms_daq.sim.instruments.drive_canopen import DriveCanopenNode
 
             if opts.can_interface == "socketcand":
-                from sim.instruments.socketcand_hub import SocketcandHub
+                from tcms_daq.sim.instruments.socketcand_hub import SocketcandHub
 
                 self.hub = hub = SocketcandHub(host=opts.host, port=opts.ports.get("socketcand", 0))
                 self.ports["socketcand"] = loop.run(hub.start())

@@ -22,7 +22,7 @@ import re
 import socket
 import time
 
-from sim.instruments.tcp import TcpServer
+from tcms_daq.sim.instruments.tcp import TcpServer
 
 SEND_RE = re.compile(r"^< send ([0-9A-Fa-f]{1,8}) ([0-9A-Fa-f])((?: [0-9A-Fa-f]{1,2})*) *>$")
 FAULTS = ("mute",)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.base import concat_common_columns
+from tcms_daq.drivers.base import concat_common_columns
 
 # torque history kept for interpolation (s); older readings are never needed once angles pass them
 _KEEP_S = 1.0

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from drivers import registry
 from tcms_daq.acquisition.clock import Clock, MonotonicClock, SimulatedClock
 from tcms_daq.acquisition.interlocks import InterlockLimits
+from tcms_daq.drivers import registry
 from tcms_daq.errors import ConfigError
 
 KINDS = ("angle", "torque", "loader")

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.base import LoaderStatus
 from tcms_daq.analysis.noise import white_noise_std
+from tcms_daq.drivers.base import LoaderStatus
 
 
 @dataclass(frozen=True)

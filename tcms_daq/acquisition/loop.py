@@ -21,7 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import (
+from tcms_daq.acquisition.align import Aligner
+from tcms_daq.acquisition.bench import Bench
+from tcms_daq.acquisition.fanout import FanOut
+from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
+from tcms_daq.acquisition.monitor import InterlockMonitor
+from tcms_daq.acquisition.schedulers import SteppedScheduler, ThreadedScheduler
+from tcms_daq.drivers.base import (
     Batch,
     DeviceFault,
     Disconnected,
@@ -30,12 +36,6 @@ from drivers.base import (
     LoaderStatus,
     concat_common_columns,
 )
-from tcms_daq.acquisition.align import Aligner
-from tcms_daq.acquisition.bench import Bench
-from tcms_daq.acquisition.fanout import FanOut
-from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
-from tcms_daq.acquisition.monitor import InterlockMonitor
-from tcms_daq.acquisition.schedulers import SteppedScheduler, ThreadedScheduler
 from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
 

@@ -29,7 +29,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import DeviceFault, InstrumentError, LoaderStatus
 from tcms_daq.acquisition.bench import Bench
 from tcms_daq.acquisition.fanout import Message
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip
@@ -47,6 +46,7 @@ from tcms_daq.acquisition.record import (
     StateChange,
     empty_samples,
 )
+from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
 from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment

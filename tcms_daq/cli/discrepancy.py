@@ -65,7 +65,7 @@ def run_stored(args: argparse.Namespace) -> int:
     """``tcms discrepancy --run ID [--apply]``: the stored run against the bench model in use, kept in the
     data directory's archive of analyses (as ``POST /api/discrepancy``); ``--apply`` adds what it names to the
     bench model as its next version (as ``POST /api/discrepancy/{id}/apply``)."""
-    from sim.physics import catalogue_model
+    from tcms_daq.sim.physics import catalogue_model
     from tcms_daq.store import STORE_FILENAME, RunStore
     from tcms_daq.store.discrepancy import ANALYSES_DIRNAME, AnalysisArchive
 

@@ -21,10 +21,10 @@ SEED = 100
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from sim.trials import make_pair
     from tcms_daq.compensation.calibration import CALIBRATION_COLUMNS
     from tcms_daq.compensation.table4 import load_table4
     from tcms_daq.samples import write_csv
+    from tcms_daq.sim.trials import make_pair
 
     out = Path(args.dir)
     try:

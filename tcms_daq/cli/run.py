@@ -159,9 +159,9 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile | Plan, se
     samples recorded so far are on the exception as ``record``.
     """
 
-    from sim.bench import SimulatedBench
     from tcms_daq.acquisition import ProfileRejected, TestRun, compose_bench
     from tcms_daq.acquisition.bench import identity_compensator
+    from tcms_daq.sim.bench import SimulatedBench
 
     config_dir = Path(cfg.source_path).parent if cfg.source_path else None
     built: list[SimulatedBench] = []  # the in-process bench's physics, kept for its truth

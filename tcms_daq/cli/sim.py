@@ -23,9 +23,9 @@ import signal
 import threading
 from typing import Any
 
-from sim.instruments.tcp import TcpServer
 from tcms_daq.cli.options import add_bench_config_options
 from tcms_daq.errors import ConfigError, TcmsError
+from tcms_daq.sim.instruments.tcp import TcpServer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -55,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _options(args: argparse.Namespace, cfg: Any):
-    from sim.instruments.serve import SimulatorOptions
+    from tcms_daq.sim.instruments.serve import SimulatorOptions
 
     table = dict((getattr(cfg, "model_extra", None) or {}).get("simulators", {}) or {})
     ports = dict(table.pop("ports", {}) or {})
@@ -92,10 +92,10 @@ def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from sim.bench import SimulatedBench
-    from sim.instruments.physics import SharedPhysics
-    from sim.instruments.serve import InstrumentSimulators
     from tcms_daq.config import load_bench_config
+    from tcms_daq.sim.bench import SimulatedBench
+    from tcms_daq.sim.instruments.physics import SharedPhysics
+    from tcms_daq.sim.instruments.serve import InstrumentSimulators
 
     if not args.speed > 0:
         raise ConfigError(f"--speed must be > 0, got {args.speed}")

@@ -17,7 +17,7 @@ M = TypeVar("M", bound=BaseModel)
 
 
 def packaged_config_dir() -> Path:
-    """The packaged default configuration (``tcms_daq/defaults``; ``config/`` in the source tree links to it)."""
+    """The packaged default configuration (``config/`` in the source tree, installed as ``tcms_daq.defaults``)."""
     return Path(str(resources.files("tcms_daq.defaults")))
 
 

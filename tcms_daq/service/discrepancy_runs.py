@@ -47,7 +47,7 @@ class DiscrepancyRuns:
         runs, RequestRejected (422, one line) for a run that cannot be compared (too few samples, no reducer,
         no torque–angle curve …).
         """
-        from sim.physics import catalogue_model
+        from tcms_daq.sim.physics import catalogue_model
 
         record = self.store.get_run(request.run_id)
         if record is None:

@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from tcms_daq.sim.testing import SpringBench
 
-from sim.testing import SpringBench
 from tcms_daq.acquisition import compose_bench
 from tcms_daq.procedure.profiles import continuous_profile
 
@@ -62,9 +62,10 @@ class ProtocolBench:
     one SimulatedBench ticking at real time × speed, and the bench config pointing at their ephemeral ports."""
 
     def __init__(self, speed: float, comm_timeout_s: float = 0.0):
-        from sim.bench import SimulatedBench
-        from sim.instruments.physics import SharedPhysics
-        from sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+        from tcms_daq.sim.bench import SimulatedBench
+        from tcms_daq.sim.instruments.physics import SharedPhysics
+        from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+
         from tcms_daq.config import load_bench_config
 
         self.speed = speed

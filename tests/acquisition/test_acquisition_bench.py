@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 import pytest
+from tcms_daq.drivers.base import CommandRejected, DeviceFault, Disconnected
+from tcms_daq.sim.virtual import VirtualBench, VirtualLoader, parse_virtual_url
 
-from drivers.base import CommandRejected, DeviceFault, Disconnected
-from sim.virtual import VirtualBench, VirtualLoader, parse_virtual_url
 from tcms_daq.acquisition import MonotonicClock, SimulatedClock, compose_bench
 from tcms_daq.acquisition.bench import read_bench_config
 from tcms_daq.errors import ConfigError

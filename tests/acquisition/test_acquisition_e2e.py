@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 import tomli_w
+from tcms_daq.sim.instruments.child import start_simulators, stop_process
 
-from sim.instruments.child import start_simulators, stop_process
 from tcms_daq.acquisition import TestRun, compose_bench
 from tcms_daq.cli import main
 from tcms_daq.procedure.profiles import continuous_profile

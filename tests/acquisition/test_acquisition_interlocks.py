@@ -7,8 +7,8 @@ import re
 
 import numpy as np
 import pytest
+from tcms_daq.drivers.base import InstrumentTimeout
 
-from drivers.base import InstrumentTimeout
 from tcms_daq.acquisition import InterlockLimits, TestRun
 from tcms_daq.acquisition.interlocks import (
     TorqueRateMonitor,
@@ -214,7 +214,7 @@ def test_rate_monitor_spans_batches_and_ignores_noise():
 
 
 def test_loader_status_fault(make_bench):
-    from drivers.base import LoaderStatus
+    from tcms_daq.drivers.base import LoaderStatus
 
     assert check_loader_status(LoaderStatus("OPERATION ENABLED", 10.0, False)) is None
     trip = check_loader_status(LoaderStatus("FAULT", 0.0, True, error_code=0x8130, time_s=2.0))

@@ -8,8 +8,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from tcms_daq.drivers.base import CommandRejected
 
-from drivers.base import CommandRejected
 from tcms_daq.acquisition import TestRun, compose_bench
 from tcms_daq.acquisition.fanout import EventMessage
 from tcms_daq.config import load_bench_config

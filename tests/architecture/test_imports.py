@@ -1,6 +1,7 @@
 """The import structure, read from the source (imports inside functions included).
 
-* No cycle among the parts: the tcms_daq subpackages, ``drivers`` and ``sim``.
+* No cycle among the parts: the tcms_daq subpackages, ``drivers`` and ``sim`` (installed as ``tcms_daq.drivers`` and
+  ``tcms_daq.sim``: the folders beside ``tcms_daq/`` are named by the package they are installed as).
 * Drivers know nothing of the simulator.
 * The pure core (units, errors, samples, crossval, analysis, compensation, discrepancy, procedure, uncertainty, and the
   protocol definitions drivers and simulators share) imports nothing of the shell (drivers, sim, acquisition, store, service, cli, config files and the environment) nor the I/O libraries,
@@ -14,11 +15,12 @@ from collections import defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("tcms_daq", "drivers", "sim")
+# source folder -> the package it is installed as (pyproject.toml [tool.setuptools] package-dir)
+PACKAGES = {"tcms_daq": "tcms_daq", "drivers": "tcms_daq.drivers", "sim": "tcms_daq.sim"}
 CORE = {"tcms_daq.units", "tcms_daq.errors", "tcms_daq.samples", "tcms_daq.crossval", "tcms_daq.analysis",
         "tcms_daq.compensation", "tcms_daq.discrepancy", "tcms_daq.procedure", "tcms_daq.protocols",
         "tcms_daq.runstate", "tcms_daq.uncertainty", "tcms_daq.identity", "tcms_daq.spc"}
-SHELL = {"drivers", "sim", "tcms_daq.acquisition", "tcms_daq.store", "tcms_daq.service", "tcms_daq.cli",
+SHELL = {"tcms_daq.drivers", "tcms_daq.sim", "tcms_daq.acquisition", "tcms_daq.store", "tcms_daq.service", "tcms_daq.cli",
          "tcms_daq.settings"}
 IO_LIBRARIES = {"fastapi", "starlette", "uvicorn", "serial", "pymodbus", "can", "canopen", "psycopg", "asyncua",
                 "sqlite3", "socket"}
@@ -28,11 +30,11 @@ def _module_name(path: Path) -> str:
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts = parts[:-1]
-    return ".".join(parts)
+    return ".".join([PACKAGES[parts[0]], *parts[1:]])
 
 
 def _part(module: str) -> str:
-    """The part a module belongs to: ``tcms_daq.<sub>`` (or the top-level module), ``drivers``, ``sim``."""
+    """The part a module belongs to: ``tcms_daq.<sub>`` (``tcms_daq.drivers`` and ``tcms_daq.sim`` among them)."""
     pieces = module.split(".")
     if pieces[0] == "tcms_daq" and len(pieces) > 1:
         return ".".join(pieces[:2])
@@ -64,7 +66,7 @@ def _sources() -> list[tuple[Path, str]]:
 
 
 def _internal(name: str) -> bool:
-    return name.split(".")[0] in PACKAGES
+    return name.split(".")[0] == "tcms_daq"
 
 
 def _edges() -> dict[tuple[str, str], list[str]]:
@@ -116,7 +118,7 @@ def test_no_cycle_among_parts():
 
 
 def test_drivers_never_import_the_simulator():
-    bad = [where for (a, b), wheres in _edges().items() if a == "drivers" and b == "sim" for where in wheres]
+    bad = [where for (a, b), wheres in _edges().items() if a == "tcms_daq.drivers" and b == "tcms_daq.sim" for where in wheres]
     assert not bad, "\n".join(bad)
 
 
@@ -140,6 +142,20 @@ def test_the_walker_sees_function_local_and_relative_imports(tmp_path):
     pkg = tmp_path / "tcms_daq" / "analysis"
     pkg.mkdir(parents=True)
     src = pkg / "x.py"
-    src.write_text("def f():\n    from ..service import app\n    import sim.bench\n", encoding="utf-8")
+    src.write_text("def f():\n    from ..service import app\n    import tcms_daq.sim.bench\n", encoding="utf-8")
     found = {name for name, _ in _imports(src, "tcms_daq.analysis.x")}
-    assert {"tcms_daq.service", "tcms_daq.service.app", "sim.bench"} <= found
+    assert {"tcms_daq.service", "tcms_daq.service.app", "tcms_daq.sim.bench"} <= found
+
+
+def test_nothing_imports_the_source_folders_by_their_own_names():
+    """``drivers``, ``sim`` and ``benchmarks`` are not installed as top-level packages: an import of one by its folder's
+    name works in the source tree (the working directory is on the path) and fails in the wheel. Benchmarks and tests,
+    which are not installed, may import ``benchmarks``."""
+    bad: list[str] = []
+    for folder in (*PACKAGES, "tests", "benchmarks", "scripts"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            module = _module_name(path) if folder in PACKAGES else path.stem
+            forbidden = {"drivers", "sim"} | ({"benchmarks"} if folder in PACKAGES else set())
+            bad += [f"{path.relative_to(ROOT)}:{line} -> {target}"
+                    for target, line in _imports(path, module) if target.split(".")[0] in forbidden]
+    assert not bad, "\n".join(bad)

@@ -43,7 +43,8 @@ def test_run_is_compensated_and_raw_encoder_is_not(capsys):
 
 def test_sim_encoder_reads_through_the_forward_chain(repo_root):
     # the virtual bench's measuring-chain hook is the compensator's forward direction
-    from sim.bench import SimulatedBench
+    from tcms_daq.sim.bench import SimulatedBench
+
     from tcms_daq.config import load_bench_config
 
     cfg = load_bench_config(repo_root / "config" / "bench-sim.toml")

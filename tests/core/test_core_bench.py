@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from tcms_daq.sim.bench import SimulatedBench
+from tcms_daq.sim.physics import ReducerPhysics, physics_from_spec
 
-from sim.bench import SimulatedBench
-from sim.physics import ReducerPhysics, physics_from_spec
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import Samples
 
@@ -176,7 +176,7 @@ def test_effects_table_is_built_by_sim_effects(write, bench_text):
 
 
 def test_first_order_response_matches_the_recurrence_over_many_chunks():
-    from sim.drive import first_order_response
+    from tcms_daq.sim.drive import first_order_response
 
     rng = np.random.default_rng(0)
     v = rng.normal(size=3000)

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from sim.physics import (
+from tcms_daq.sim.physics import (
     ReducerPhysics,
     TwistState,
     elastic_twist_arcsec,
@@ -16,6 +15,7 @@ from sim.physics import (
     steady_loop_state,
     twist_arcsec,
 )
+
 from tcms_daq.units import ARCSEC_PER_RAD
 
 

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import pytest
-
-from sim.trials import CASES, make_pair
+from tcms_daq.sim.trials import CASES, make_pair
 
 
 @pytest.fixture(scope="session")

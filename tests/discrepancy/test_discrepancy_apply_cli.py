@@ -6,9 +6,9 @@ from __future__ import annotations
 import json
 
 import pytest
+from tcms_daq.sim.trials import bench_run
+from tcms_daq.sim.unmodelled import UNMODELLED
 
-from sim.trials import bench_run
-from sim.unmodelled import UNMODELLED
 from tcms_daq.cli import main
 from tcms_daq.store import STORE_FILENAME, RunStore
 

@@ -19,7 +19,7 @@ TOP_KEYS = {"effects", "aliases", "rms_before_arcsec", "rms_after_arcsec", "max_
 
 @pytest.fixture(scope="module")
 def csv_pair(tmp_path_factory, request):
-    from sim.trials import CASES, make_pair
+    from tcms_daq.sim.trials import CASES, make_pair
 
     measured, simulated, _ = make_pair(CASES["time_skew+interpolation_error"], 21)
     d = tmp_path_factory.mktemp("pair")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tcms_daq.sim.effects import HiddenEffects, effects_from_table, effects_to_table, from_config
 
-from sim.effects import HiddenEffects, effects_from_table, effects_to_table, from_config
 from tcms_daq.discrepancy.catalogue import separating_experiment
 from tcms_daq.discrepancy.design import build_design, load_direction, loop_groups
 from tcms_daq.errors import ConfigError, DataFormatError
@@ -106,7 +106,8 @@ def test_separating_experiment_names_the_design_change():
 
 def test_bench_config_switches_effects_on():
     """A [sim.effects] table in the bench config reaches the simulated bench through its effects hook."""
-    from sim.bench import SimulatedBench
+    from tcms_daq.sim.bench import SimulatedBench
+
     from tcms_daq.config import load_bench_config, load_reducers_for
 
     cfg = load_bench_config()

@@ -5,8 +5,8 @@ parameter recovered within 10 %, the held-out RMS brought to within 30 % of the 
 from __future__ import annotations
 
 import pytest
+from tcms_daq.sim.trials import CASES, PRIMARY
 
-from sim.trials import CASES, PRIMARY
 from tcms_daq.discrepancy.workflow import run_discrepancy
 
 EFFECT_CASES = [c for c in CASES if c != "null"]

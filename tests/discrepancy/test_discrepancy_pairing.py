@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tcms_daq.sim.physics import twist_arcsec
+from tcms_daq.sim.trials import TrialDesign, bench_run
 
-from sim.physics import twist_arcsec
-from sim.trials import TrialDesign, bench_run
 from tcms_daq.discrepancy.pairing import estimate_time_offset_s, pair
 from tcms_daq.discrepancy.workflow import run_discrepancy
 from tcms_daq.errors import DataFormatError

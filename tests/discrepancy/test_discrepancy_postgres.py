@@ -3,8 +3,9 @@ becomes that bench's next bench model version (not another bench's), and its nex
 
 from __future__ import annotations
 
-from sim.physics import catalogue_model
-from sim.trials import bench_run
+from tcms_daq.sim.physics import catalogue_model
+from tcms_daq.sim.trials import bench_run
+
 from tcms_daq.store import open_store
 from tcms_daq.store.discrepancy import AnalysisArchive, bench_model
 

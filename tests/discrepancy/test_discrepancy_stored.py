@@ -5,9 +5,9 @@ friction state the run started in."""
 from __future__ import annotations
 
 import numpy as np
+from tcms_daq.sim.bench import SimulatedBench
+from tcms_daq.sim.physics import TwistState, catalogue_model, physics_from_spec, twist_arcsec
 
-from sim.bench import SimulatedBench
-from sim.physics import TwistState, catalogue_model, physics_from_spec, twist_arcsec
 from tcms_daq.config import load_bench_config, load_reducer_catalogue
 from tcms_daq.discrepancy.stored import applied_torque_estimate, resimulate
 from tcms_daq.samples import Samples

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tcms_daq.sim.trials import make_pair
+from tcms_daq.sim.unmodelled import UNMODELLED
 
-from sim.trials import make_pair
-from sim.unmodelled import UNMODELLED
 from tcms_daq.discrepancy.verdict import noise_floor_arcsec
 from tcms_daq.discrepancy.workflow import run_discrepancy
 from tcms_daq.samples import Samples
@@ -183,7 +183,7 @@ def test_a_million_samples_at_the_same_noise_density_name_the_hidden_pair():
     look-alike (issue: it was scale_error)."""
     import dataclasses
 
-    from sim.trials import CASES, TrialDesign
+    from tcms_daq.sim.trials import CASES, TrialDesign
 
     base = TrialDesign()
     rate_hz = 13_750.0
@@ -209,7 +209,8 @@ def test_parameter_uncertainties_cover_the_hidden_values(case):
     model.toml with the fit range and the drift's reference time; over seeds the truth lies within 3 u.
     (Not for time_skew: its estimate is biased high by 0.5–1 %, more than its statistical uncertainty — a
     limit of the re-evaluated simulation, stated in docs/discrepancy.md.)"""
-    from sim.trials import CASES, PRIMARY
+    from tcms_daq.sim.trials import CASES, PRIMARY
+
     from tcms_daq.discrepancy.model_file import model_from_result, parse_model
 
     table = CASES[case]

@@ -6,10 +6,9 @@ from __future__ import annotations
 import uuid
 
 import pytest
-
-from sim.instruments.physics import SharedPhysics
-from sim.instruments.serve import InstrumentSimulators, SimulatorOptions
-from sim.testing import SpringBench
+from tcms_daq.sim.instruments.physics import SharedPhysics
+from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+from tcms_daq.sim.testing import SpringBench
 
 
 @pytest.fixture

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import pytest
 import serial
-
-from drivers.aed import AED
-from drivers.base import (
+from tcms_daq.drivers.aed import AED
+from tcms_daq.drivers.base import (
     CommandRejected,
     DeviceFault,
     Disconnected,
@@ -14,7 +13,7 @@ from drivers.base import (
     MalformedReply,
     TorqueSource,
 )
-from drivers.testing import ScriptedSerial
+from tcms_daq.drivers.testing import ScriptedSerial
 
 SETUP = [(b";", None), (b"COF3;", b"0\r\n"), (b"NOV2000;", b"0\r\n")]
 

@@ -8,8 +8,7 @@ import subprocess
 import sys
 
 import pytest
-
-from sim.instruments.child import running_simulators
+from tcms_daq.sim.instruments.child import running_simulators
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,7 @@ import time
 
 import can
 import pytest
-
-from drivers.base import (
+from tcms_daq.drivers.base import (
     CommandRejected,
     DeviceFault,
     Disconnected,
@@ -19,8 +18,9 @@ from drivers.base import (
     Loader,
     MalformedReply,
 )
-from drivers.cia402_canopen import CiA402Canopen, parse_can_url
-from drivers.testing import wait_until
+from tcms_daq.drivers.cia402_canopen import CiA402Canopen, parse_can_url
+from tcms_daq.drivers.testing import wait_until
+
 from tcms_daq.errors import ConfigError
 
 # short but not tight: the heartbeat timeout leaves room for a loaded 2-core CI machine
@@ -304,7 +304,7 @@ def test_a_lost_socketcand_link_kills_no_thread(make_sims, thread_deaths):
 def test_bus_read_errors_keep_the_receive_thread_alive(can_sims, thread_deaths, caplog):
     """python-can's receive thread gets a CanError from every read (a failing adapter): it stays alive and
     slowed down, the driver logs the loss once and the next command reconnects on a new bus."""
-    with caplog.at_level(logging.WARNING, logger="drivers.cia402_canopen"), _driver(can_sims) as drive:
+    with caplog.at_level(logging.WARNING, logger="tcms_daq.drivers.cia402_canopen"), _driver(can_sims) as drive:
         drive.enable()
         bus = drive.network.bus
         reads = []

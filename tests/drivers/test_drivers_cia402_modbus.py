@@ -6,8 +6,7 @@ import socket
 import time
 
 import pytest
-
-from drivers.base import (
+from tcms_daq.drivers.base import (
     CommandRejected,
     DeviceFault,
     Disconnected,
@@ -15,10 +14,11 @@ from drivers.base import (
     Loader,
     MalformedReply,
 )
-from drivers.cia402_modbus import CiA402Modbus
-from drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
-from drivers.testing import ManualTime, wait_until
-from sim.instruments.proxy import FaultProxy
+from tcms_daq.drivers.cia402_modbus import CiA402Modbus
+from tcms_daq.drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
+from tcms_daq.drivers.testing import ManualTime, wait_until
+from tcms_daq.sim.instruments.proxy import FaultProxy
+
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.modbus_map import load_register_map
 

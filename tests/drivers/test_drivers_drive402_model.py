@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from tcms_daq.sim.instruments.drive402 import Drive402Model, DriveCommandError
 
-from sim.instruments.drive402 import Drive402Model, DriveCommandError
 from tcms_daq.protocols.cia402 import state_from_statusword
 
 

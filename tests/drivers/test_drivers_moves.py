@@ -8,14 +8,13 @@ import time
 import uuid
 
 import pytest
-
-from drivers.base import CommandRejected
-from drivers.cia402_canopen import CiA402Canopen
-from drivers.cia402_modbus import CiA402Modbus
-from drivers.testing import wait_until
-from sim.bench import SimulatedBench
-from sim.instruments.physics import SharedPhysics
-from sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+from tcms_daq.drivers.base import CommandRejected
+from tcms_daq.drivers.cia402_canopen import CiA402Canopen
+from tcms_daq.drivers.cia402_modbus import CiA402Modbus
+from tcms_daq.drivers.testing import wait_until
+from tcms_daq.sim.bench import SimulatedBench
+from tcms_daq.sim.instruments.physics import SharedPhysics
+from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
 
 
 @pytest.fixture

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 import serial
+from tcms_daq.drivers.base import AngleSource, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
+from tcms_daq.drivers.nd287 import ND287, parse_frame
+from tcms_daq.drivers.testing import ScriptedSerial
 
-from drivers.base import AngleSource, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
-from drivers.nd287 import ND287, parse_frame
-from drivers.testing import ScriptedSerial
 from tcms_daq.protocols.nd287 import deg_to_dms_packed, dms_to_deg, format_frame
 
 # -- transcripts --------------------------------------------------------------------------------------------

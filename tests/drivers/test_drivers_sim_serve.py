@@ -9,14 +9,13 @@ import socket
 
 import pytest
 from pymodbus.client import ModbusTcpClient
-
-from drivers.aed import AED
-from drivers.base import DeviceFault
-from drivers.cia402_canopen import CiA402Canopen
-from drivers.cia402_modbus import CiA402Modbus
-from drivers.nd287 import ND287
-from drivers.testing import wait_until
-from sim.instruments.child import running_simulators
+from tcms_daq.drivers.aed import AED
+from tcms_daq.drivers.base import DeviceFault
+from tcms_daq.drivers.cia402_canopen import CiA402Canopen
+from tcms_daq.drivers.cia402_modbus import CiA402Modbus
+from tcms_daq.drivers.nd287 import ND287
+from tcms_daq.drivers.testing import wait_until
+from tcms_daq.sim.instruments.child import running_simulators
 
 
 @pytest.fixture(scope="module")

@@ -21,8 +21,8 @@ from contextlib import contextmanager
 import httpx
 import numpy as np
 import uvicorn
+from tcms_daq.sim.instruments.child import stop_process
 
-from sim.instruments.child import stop_process
 from tcms_daq.service.app import ServiceSettings, create_app
 from tcms_daq.service.runner import RUN_CHANNELS, RequestRejected, RunOutcome, TestPlan
 

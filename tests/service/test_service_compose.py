@@ -66,7 +66,7 @@ def test_compose_bench_points_at_the_sim_service_on_published_ports():
         url = urlparse(getattr(cfg.instruments, kind).url)
         assert url.hostname == "sim", f"{kind} must talk to the compose service 'sim'"
         assert url.port in sim_ports, f"{kind} port {url.port} is not published by the sim service"
-    from sim.instruments.serve import DEFAULT_PORTS
+    from tcms_daq.sim.instruments.serve import DEFAULT_PORTS
 
     assert {DEFAULT_PORTS["nd287"], DEFAULT_PORTS["aed"], DEFAULT_PORTS["socketcand"]} <= set(sim_ports)
     sim_check = " ".join(compose["services"]["sim"]["healthcheck"]["test"])

@@ -17,8 +17,8 @@ import httpx
 import pytest
 import tomli_w
 from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
+from tcms_daq.sim.instruments.child import start_simulators
 
-from sim.instruments.child import start_simulators
 from tcms_daq.config.loader import resolve_config_path
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 400, "cycles": 1, "rate_nm_per_s": 400}

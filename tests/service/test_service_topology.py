@@ -11,8 +11,7 @@ import httpx
 import pytest
 import tomli_w
 from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
-
-from sim.instruments.child import start_simulators
+from tcms_daq.sim.instruments.child import start_simulators
 
 REPO = Path(__file__).resolve().parents[2]
 
