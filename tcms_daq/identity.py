@@ -106,33 +106,113 @@ def headline_results(results: Mapping[str, Any] | None) -> dict[str, dict[str, A
     return out
 
 
+#: the test methods a result can come from: one position, several output positions (GB/T 40731), several rates
+TEST_METHODS: tuple[str, ...] = ("single", "positions", "rates")
+
+
+def test_method(request: Mapping[str, Any], profile: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """How the result was obtained: ``{"kind": "single" | "positions" | "rates", "stages": N, "series": key}``.
+
+    A test at N positions reports the worst of N (GB/T 40731), which is a different quantity from one position's
+    value, so results of different kinds, or of different N, are not one statistical series: ``series``
+    (``"single"``, ``"positions-4"``, ``"rates-3"``) names the series a result belongs to (SPC)."""
+    plan = (profile or {}).get("plan")
+    kind = plan if plan in TEST_METHODS else (
+        "positions" if request.get("positions") is not None else "rates" if request.get("rates") is not None
+        else "single")
+    stages = 1
+    if kind == "positions":
+        listed = (profile or {}).get("positions_deg")
+        spec = request.get("positions")
+        stages = len(listed) if isinstance(listed, list) else (
+            spec if isinstance(spec, int) and not isinstance(spec, bool) else len(spec) if isinstance(spec, list)
+            else 0)
+    elif kind == "rates":
+        listed = (profile or {}).get("rates_nm_per_s") or request.get("rates")
+        stages = len(listed) if isinstance(listed, list) else 0
+    return {"kind": kind, "stages": stages, "series": kind if kind == "single" else f"{kind}-{stages}"}
+
+
 def run_parameters(request: Mapping[str, Any], profile: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The parameters a result depends on: test torque, loops, profile, torque rate, steps and dwell."""
+    """The parameters a result depends on: test torque, loops, profile, torque rate, steps and dwell, and for a
+    plan of several stages its output positions (deg) or loading rates (N·m/s) and the speed of the moves."""
     keys = ("max_torque_nm", "cycles", "profile", "rate_nm_per_s", "step_nm", "dwell_s")
     params = {k: request[k] for k in keys if request.get(k) is not None}
-    for key in ("rate_nm_per_s", "conditioning_loops", "tip_dwell_s", "start"):
+    for key in ("rate_nm_per_s", "conditioning_loops", "tip_dwell_s", "start", "decision_rule"):
         if profile and profile.get(key) is not None and key not in params:
             params[key] = profile[key]
+    if request.get("decision_rule") is not None:
+        params["decision_rule"] = request["decision_rule"]
+    method = test_method(request, profile)
+    if method["kind"] == "positions":
+        listed = (profile or {}).get("positions_deg")
+        params["positions_deg"] = listed if isinstance(listed, list) else _positions_deg(request.get("positions"))
+        velocity = request.get("move_velocity_deg_per_s") or (profile or {}).get("move_velocity_deg_per_s")
+        if velocity is not None:
+            params["move_velocity_deg_per_s"] = velocity
+    elif method["kind"] == "rates":
+        listed = (profile or {}).get("rates_nm_per_s")
+        params["rates_nm_per_s"] = listed if isinstance(listed, list) else request.get("rates")
+        params.pop("rate_nm_per_s", None)  # each stage has its own
     return params
 
 
+def _positions_deg(spec: Any) -> list[float] | None:
+    from tcms_daq.procedure.plan import positions_from
+
+    try:
+        return positions_from(spec)
+    except (TypeError, ValueError):
+        return None
+
+
+def _snapshot_section(snapshot: Mapping[str, Any] | None, name: str) -> Mapping[str, Any]:
+    section = (snapshot or {}).get(name)
+    return section if isinstance(section, Mapping) else {}
+
+
+def ambient_temperature(request: Mapping[str, Any], snapshot: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The ambient temperature of the test (°C): the request's when it states one, else the bench configuration's
+    (``[certificate] ambient_temperature_c``), else None; ``source`` says which."""
+    stated = _number(request.get("ambient_temperature_c"))
+    if stated is not None:
+        return {"value_c": stated, "source": "request"}
+    configured = _number(_snapshot_section(snapshot, "certificate").get("ambient_temperature_c"))
+    if configured is not None:
+        return {"value_c": configured, "source": "bench configuration"}
+    return {"value_c": None, "source": None}
+
+
 def run_identity(*, run_id: str, request: Mapping[str, Any], profile: Mapping[str, Any] | None,
-                  results: Mapping[str, Any] | None, bench_id: str | None, bench_name: str | None,
-                  status: str, started_at_iso: str | None, compensation_version: int | None,
-                  compensation_sha256: str | None) -> dict[str, Any]:
-    """Everything that names a test and its outcome, as a flat JSON-able dict (the exports' metadata)."""
+                 results: Mapping[str, Any] | None, bench_id: str | None, bench_name: str | None,
+                 status: str, started_at_iso: str | None, compensation_version: int | None,
+                 compensation_sha256: str | None, config_snapshot: Mapping[str, Any] | None = None
+                 ) -> dict[str, Any]:
+    """Everything that names a test and its outcome, as a flat JSON-able dict (the exports' metadata).
+
+    ``plan`` and ``user`` are the test plan and the signed-in user a run records (None until runs record them);
+    ``bench_model_version`` is the bench model in use when the test started (the config snapshot's)."""
+    bench_model = (config_snapshot or {}).get("bench_model_version")
     return {
         "run_id": run_id,
         "status": status,
         "reducer": request.get("reducer"),
         "serial_number": request.get("serial_number"),
+        "customer": request.get("customer"),
+        "order_number": request.get("order_number"),
         "operator": request.get("operator"),
+        "user": request.get("user"),
+        "plan": request.get("plan"),
         "bench_id": bench_id,
         "bench_name": bench_name,
         "started_at": started_at_iso,
+        "method": test_method(request, profile),
         "parameters": run_parameters(request, profile),
+        "ambient_temperature": ambient_temperature(request, config_snapshot),
         "compensation_version": compensation_version,
         "compensation_sha256": compensation_sha256,
+        "bench_model_version": bench_model if isinstance(bench_model, int) and not isinstance(bench_model, bool)
+        else None,
         "verdict": decision(results),
         "results": headline_results(results),
     }
@@ -148,6 +228,10 @@ PARAMETER_LABELS: dict[str, tuple[str, str]] = {
     "conditioning_loops": ("conditioning loops", ""),
     "tip_dwell_s": ("dwell at ±T", "s"),
     "start": ("first load direction", ""),
+    "decision_rule": ("decision rule", ""),
+    "positions_deg": ("output positions", "°"),
+    "move_velocity_deg_per_s": ("output speed between positions", "°/s"),
+    "rates_nm_per_s": ("loading rates", "N·m/s"),
 }
 
 
@@ -157,7 +241,8 @@ def parameter_text(parameters: Mapping[str, Any]) -> list[str]:
     for key, (label, unit) in PARAMETER_LABELS.items():
         if key in parameters:
             value = parameters[key]
-            shown = f"{value:g}" if isinstance(value, float) else str(value)
+            shown = (", ".join(f"{v:g}" for v in value) if isinstance(value, list)
+                     else f"{value:g}" if isinstance(value, float) else str(value))
             out.append(f"{label} {shown}{' ' + unit if unit else ''}")
     return out
 
@@ -168,14 +253,19 @@ def identity_lines(identity: Mapping[str, Any]) -> list[str]:
     if identity.get("bench_id"):
         bench += f" (id {identity['bench_id']})"
     version = identity.get("compensation_version")
-    compensation = (f"version {version}" if version is not None else "the bench config's file") + (
+    compensation = (f"version {version}" if version is not None else "version not recorded") + (
         f", sha256 {str(identity['compensation_sha256'])[:12]}" if identity.get("compensation_sha256") else "")
+    model = identity.get("bench_model_version")
+    method = identity.get("method") or {}
     lines = [
         f"run {identity.get('run_id')} ({identity.get('status')}), started {identity.get('started_at') or '—'} UTC",
         f"reducer {identity.get('reducer') or '—'}, serial number {identity.get('serial_number') or '—'}",
         f"bench {bench}, operator {identity.get('operator') or '—'}",
+        f"customer {identity.get('customer') or '—'}, order {identity.get('order_number') or '—'}",
+        f"method: {method.get('kind') or 'single'}" + (f", {method.get('stages')} stages"
+                                                        if method.get("kind") not in (None, "single") else ""),
         "parameters: " + (", ".join(parameter_text(identity.get("parameters") or {})) or "—"),
-        f"compensation: {compensation}",
+        f"compensation: {compensation}; bench model version {model if model is not None else '—'}",
     ]
     results = identity.get("results") or {}
     lines += [f"{r['label']}: {r['text']}" for r in results.values() if isinstance(r, Mapping)]

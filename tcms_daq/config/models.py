@@ -324,6 +324,13 @@ class BenchSection(BaseModel):
     max_test_duration_s: float = Field(4 * 3600.0, gt=0.0)
     max_segments: int = Field(20_000, ge=1)
     decision_rule: DecisionRule = "guarded"  # ISO 14253-1: "guarded" (guard bands of U) or "simple" acceptance
+    # the bench as a machine (OPC 40001-1 Identification over OPC UA, the certificate): its nameplate
+    manufacturer: str | None = Field(None, max_length=200, description="who built the bench")
+    model: str | None = Field(None, max_length=200, description="the bench's model name")
+    serial_number: str | None = Field(None, max_length=64, description="the bench's serial number")
+    product_instance_uri: str | None = Field(
+        None, max_length=400, description="globally unique URI of this bench (default urn:tcms-daq:bench:<id>)")
+    location: str | None = Field(None, max_length=200, description="where the bench stands, in the plant's scheme")
 
     @property
     def rate_limit_nm_per_s(self) -> float:
@@ -343,6 +350,64 @@ def bench_id_from_name(name: str) -> str:
 
     slug = re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")[:64].rstrip("-")
     return slug or "bench"
+
+
+TRACEABILITY = ("The measuring instruments listed are calibrated by the laboratories named, whose certificates "
+                "state the traceability of their results to the International System of Units (SI) through "
+                "national measurement standards; the compensation and uncertainty evaluation follow JCGM 100 (GUM).")
+
+
+class CertificateSection(BaseModel):
+    """[certificate]: what the test certificate states beside the measurement: the issuing laboratory, the test
+    method of each kind of test (a reference a customer can look up), the ambient temperature when the request
+    gives none, and the traceability statement."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    laboratory: str | None = Field(None, max_length=300, description="the issuing laboratory: name and address")
+    method_single: str = Field("GB/T 35089-2018, torsional rigidity and lost motion from the hysteresis curve",
+                               max_length=300, description="the test method of a test at one output position")
+    method_positions: str = Field("GB/T 40731-2021, at several output positions (the result is the worst of them)",
+                                  max_length=300, description="the test method of a test at several positions")
+    method_rates: str = Field("GB/T 35089-2018, repeated at each loading rate (the result is the worst of them)",
+                              max_length=300, description="the test method of a test at several loading rates")
+    ambient_temperature_c: float | None = Field(None, ge=-40.0, le=80.0,
+                                                description="ambient temperature of the test room, °C")
+    traceability: str = Field(TRACEABILITY, max_length=1000)
+
+    def method(self, kind: str) -> str:
+        """The method reference of a test of ``kind`` (``single``, ``positions``, ``rates``)."""
+        return {"positions": self.method_positions, "rates": self.method_rates}.get(kind, self.method_single)
+
+
+OpcUaSecurityMode = Literal["SignAndEncrypt", "Sign", "None"]
+
+
+class OpcUaSection(BaseModel):
+    """[opcua]: the OPC UA server for the plant's MES (``tcms serve --opcua-port``): where it listens, its security
+    (Basic256Sha256 with Sign / SignAndEncrypt; "None" only when listed), and who may connect: named users with
+    password hashes (``tcms opcua-user NAME`` makes one), anonymous clients only when ``anonymous = true``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    port: int | None = Field(None, ge=0, le=65535, description="listen port (None: off unless --opcua-port)")
+    host: str = Field("127.0.0.1", min_length=1, max_length=253, description="bind address (loopback by default)")
+    security_modes: list[OpcUaSecurityMode] = Field(
+        default_factory=lambda: ["SignAndEncrypt", "Sign"], min_length=1,
+        description="Basic256Sha256 message security modes offered; 'None' (no security) only when listed")
+    anonymous: bool = Field(False, description="accept clients without a user name")
+    users: dict[str, str] = Field(default_factory=dict, description="user name -> password hash (scrypt$…)")
+
+    @model_validator(mode="after")
+    def _users(self) -> OpcUaSection:
+        for name, hashed in self.users.items():
+            if not name or len(name) > 64:
+                raise ValueError("opcua.users: a user name must have 1…64 characters")
+            if not hashed.startswith("scrypt$") or hashed.count("$") != 5:
+                raise ValueError(f"opcua.users.{name}: not a password hash (make one with `tcms opcua-user {name}`)")
+        if len(set(self.security_modes)) != len(self.security_modes):
+            raise ValueError("opcua.security_modes: a mode is repeated")
+        return self
 
 
 class StoreSection(BaseModel):
@@ -423,6 +488,8 @@ class BenchConfig(BaseModel):
     sim: SimConfig = Field(default_factory=SimConfig)
     procedure: TestProfile = Field(default_factory=TestProfile)
     uncertainty: BenchUncertainty = Field(default_factory=BenchUncertainty)
+    certificate: CertificateSection = Field(default_factory=CertificateSection)
+    opcua: OpcUaSection = Field(default_factory=OpcUaSection)
     source_path: str | None = Field(None, exclude=True)
 
     def chain_uncertainty(self) -> ChainUncertainty | None:

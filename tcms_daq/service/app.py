@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import AsyncIterator
+from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, HTTPException, Request
@@ -40,6 +41,7 @@ from tcms_daq.store.discrepancy import ANALYSES_DIRNAME
 __all__ = ["ServiceSettings", "create_app"]
 
 COMPENSATION_FILENAME = "compensation-active.toml"  # where uploads were kept before versions: imported once
+FROM_CONFIG = "from the bench configuration"  # the note of a compensation version the bench config supplied
 
 
 def _one_line_validation_error(exc: RequestValidationError) -> str:
@@ -62,6 +64,27 @@ def bench_identity(runner: Runner) -> tuple[str, str]:
     section = runner.config_snapshot().get("bench") or {}
     name = str(section.get("name") or "bench")
     return str(section.get("id") or bench_id_from_name(name)), name
+
+
+def compensation_in_use(bench: Runner, store: Store, saved: Path | None = None) -> int:
+    """Make the compensation in use a stored version and return its number, so every run records one.
+
+    An upload (or a rollback) stays in use over a restart. A bench whose compensation comes from its configuration
+    keeps that as a version too (note :data:`FROM_CONFIG`): on the first start, and again whenever the
+    configuration's compensator differs from the last one recorded from it. ``saved``: the file uploads were
+    kept in before versions existed, imported once."""
+    latest = store.compensation()
+    if latest is None and saved is not None and saved.is_file():
+        bench.set_compensator_toml(saved.read_text(encoding="utf-8"))
+        return store.add_compensation(bench.compensator_toml(), note=f"imported from {saved.name}").version
+    if latest is not None and not latest[0].note.startswith(FROM_CONFIG):
+        bench.set_compensator_toml(latest[1])
+        return latest[0].version
+    configured = bench.compensator_toml()  # what the bench configuration loaded
+    if latest is not None and latest[1] == configured:
+        return latest[0].version
+    source = str((bench.config_snapshot().get("bench") or {}).get("compensation") or "identity (no compensation)")
+    return store.add_compensation(configured, note=f"{FROM_CONFIG}: {source}"[:200]).version
 
 
 def create_app(settings: ServiceSettings, runner: Runner | None = None, store: Store | None = None) -> FastAPI:
@@ -89,13 +112,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
             await _stop(app)
 
     async def _serve(app: FastAPI, bench: Runner, store: Store) -> None:
-        # the compensation in use is the latest accepted version (a file from before versions is imported once)
-        saved_compensation = settings.data_dir / COMPENSATION_FILENAME
-        if store.compensation() is None and saved_compensation.is_file():
-            await asyncio.to_thread(bench.set_compensator_toml, saved_compensation.read_text(encoding="utf-8"))
-            store.add_compensation(bench.compensator_toml(), note=f"imported from {COMPENSATION_FILENAME}")
-        elif (latest := store.compensation()) is not None:
-            await asyncio.to_thread(bench.set_compensator_toml, latest[1])
+        await asyncio.to_thread(compensation_in_use, bench, store, settings.data_dir / COMPENSATION_FILENAME)
         live = LiveHub(settings.frame_rate_hz, settings.live_queue_frames, settings.live_stall_timeout_s,
                        settings.live_max_samples_per_frame)
         events = EventHub()

@@ -145,15 +145,21 @@ def _stream_file(path: Path) -> Iterator[bytes]:
             yield block
 
 
+#: the identity's scalars that Parquet's schema metadata and MDF4's common properties carry as keys of their own
+IDENTITY_KEYS = ("reducer", "serial_number", "customer", "order_number", "operator", "user", "plan", "bench_id",
+                 "bench_name", "status", "verdict", "compensation_version", "compensation_sha256",
+                 "bench_model_version")
+
+
 def parquet_metadata(meta: ExportMeta, time_s_at_start: float | None) -> dict[str, str]:
     """Parquet schema metadata: ``tcms`` (the whole document as JSON) and the identity's scalars as keys."""
     ident = meta.identity
     flat = {"run_id": meta.run_id, "start_time": meta.start_iso or "",
             "time_s_at_start": "" if time_s_at_start is None else repr(time_s_at_start)}
-    for key in ("reducer", "serial_number", "operator", "bench_id", "bench_name", "status", "verdict",
-                "compensation_version", "compensation_sha256"):
+    for key in IDENTITY_KEYS:
         value = ident.get(key)
         flat[key] = "" if value is None else str(value)
+    flat["method"] = str((ident.get("method") or {}).get("series") or "")
     flat["parameters"] = json.dumps(ident.get("parameters") or {})
     flat["results"] = json.dumps(ident.get("results") or {})
     flat["tcms"] = json.dumps(meta.document(time_s_at_start), allow_nan=False, default=str)

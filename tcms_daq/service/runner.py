@@ -240,7 +240,13 @@ class BenchRunner:
         return self.bench.clock.monotonic_at_zero_s()
 
     def config_snapshot(self) -> dict[str, Any]:
-        return {"source": str(self.config_path), "sim_speed": self.sim_speed, **self.config.model_dump(mode="json")}
+        """The configuration a run records (the OPC UA users' password hashes left out: only their names)."""
+        snapshot = {"source": str(self.config_path), "sim_speed": self.sim_speed,
+                    **self.config.model_dump(mode="json")}
+        opcua = snapshot.get("opcua")
+        if isinstance(opcua, dict) and isinstance(opcua.get("users"), dict):
+            opcua["users"] = sorted(opcua["users"])
+        return snapshot
 
     # -- compensation ----------------------------------------------------------------------------------------
     def compensator_toml(self) -> str:

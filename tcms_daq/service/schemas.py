@@ -10,7 +10,18 @@ from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, positions_from, ra
 from tcms_daq.runstate import RunState
 
 
-class TestRequest(BaseModel):
+class TestDocumentation(BaseModel):
+    """What a test request states for the certificate beside the test itself: who it is for and the conditions.
+    (Kept apart from the test's own fields; ``TestRequest`` inherits them.)"""
+
+    customer: str | None = Field(default=None, max_length=120, description="the customer the unit is tested for")
+    order_number: str | None = Field(default=None, max_length=64, description="the customer's order number")
+    ambient_temperature_c: float | None = Field(
+        default=None, ge=-40, le=80, description="ambient temperature during the test, °C (default: the bench "
+        "configuration's [certificate] ambient_temperature_c)")
+
+
+class TestRequest(TestDocumentation):
     """``POST /api/tests``: one torsional characteristic test.
 
     Continuous profiles ramp at ``rate_nm_per_s``; stepped profiles go in ``step_nm`` steps with ``dwell_s``

@@ -54,7 +54,8 @@ class TestManager:
                 request.model_dump(exclude_none=True),
                 self.runner.channels,
                 profile=plan.profile_summary,
-                config_snapshot=self.runner.config_snapshot(),
+                config_snapshot={**self.runner.config_snapshot(),
+                                 "bench_model_version": (m[0].version if (m := self.store.bench_model()) else 0)},
                 compensator_toml=self.runner.compensator_toml(),
                 compensation_version=(latest[0].version if (latest := self.store.compensation()) else None),
             )

@@ -102,7 +102,8 @@ class StoredRun:
                             bench_id=self.bench_id, bench_name=self.bench_name, status=self.status,
                             started_at_iso=summary["started_at"],
                             compensation_version=self.compensation_version,
-                            compensation_sha256=summary["compensation_sha256"])
+                            compensation_sha256=summary["compensation_sha256"],
+                            config_snapshot=self.config_snapshot)
 
 
 def text_sha256(text: str) -> str:

@@ -16,7 +16,8 @@ from svc_helpers import ScriptedRunner, results_with_uncertainty, serve, wait_fo
 from tcms_daq.samples import parse_csv_text
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 200, "cycles": 1, "rate_nm_per_s": 400,
-           "serial_number": "SN-4711", "operator": "Ada Lovelace"}
+           "serial_number": "SN-4711", "operator": "Ada Lovelace", "customer": "ACME Robotics",
+           "order_number": "PO-88"}
 # the renderings the contract asks for, written out by hand from the injected numbers
 RIGIDITY = "293.9 ± 2.3 N·m/arcmin (k = 2.05)"
 LOST_MOTION = "41.27 ± 0.82″ (k = 2.00)"
@@ -55,11 +56,14 @@ def test_mdf4_header_and_channels_carry_identity_and_start_at_the_test_start(fin
         assert header.subject == "RV-110E serial number SN-4711"
         text = header.description
         for expected in ("SN-4711", "Line 3 bench (id line-3)", "operator Ada Lovelace", "test torque 200 N·m",
-                         "torque rate 400 N·m/s", "compensation: the bench config's file", RIGIDITY, LOST_MOTION,
+                         "torque rate 400 N·m/s", "customer ACME Robotics, order PO-88",
+                         "compensation: version 1, sha256 ", "bench model version 0", RIGIDITY, LOST_MOTION,
                          BACKLASH, "verdict: pass"):
             assert expected in text, expected
         tree = header._common_properties["tcms"]
         assert tree["serial_number"] == "SN-4711" and tree["bench_id"] == "line-3" and tree["verdict"] == "pass"
+        assert tree["compensation_version"] == "1" and len(tree["compensation_sha256"]) == 64
+        assert tree["bench_model_version"] == "0" and tree["method"] == "single"
         assert json.loads(tree["results"])["rigidity_nm_per_arcmin"]["U"] == pytest.approx(2.3)
         # the header's start is the test's start (to the microsecond MDF keeps), not the download's
         assert abs((header.start_time - _started(c, run_id)).total_seconds()) < 1e-3
@@ -79,7 +83,9 @@ def test_parquet_schema_metadata_carries_identity_results_and_start(finished):
     md = {k.decode(): v.decode() for k, v in table.schema.metadata.items()}
     assert md["run_id"] == run_id and md["serial_number"] == "SN-4711" and md["reducer"] == "RV-110E"
     assert md["bench_id"] == "line-3" and md["bench_name"] == "Line 3 bench" and md["operator"] == "Ada Lovelace"
-    assert md["verdict"] == "pass" and md["compensation_version"] == ""
+    # the bench configuration's compensation is kept as version 1 on the service's first start
+    assert md["verdict"] == "pass" and md["compensation_version"] == "1" and md["bench_model_version"] == "0"
+    assert md["customer"] == "ACME Robotics" and md["order_number"] == "PO-88" and md["method"] == "single"
     assert json.loads(md["parameters"]) == {"max_torque_nm": 200.0, "cycles": 1, "profile": "continuous",
                                             "rate_nm_per_s": 400.0}
     results = json.loads(md["results"])
@@ -100,6 +106,7 @@ def test_csv_stays_canonical_with_a_sidecar_and_old_results_say_u_not_stated(fin
     side = c.get(f"/api/tests/{run_id}/metadata").json()
     assert side["identity"]["serial_number"] == "SN-4711" and side["identity"]["results"]["lost_motion_arcsec"][
         "text"] == LOST_MOTION
+    assert side["identity"]["compensation_version"] == 1 and side["identity"]["method"]["kind"] == "single"
     assert side["time_s_at_start"] == parse_csv_text(r.text)["time_s"][0]
     assert datetime.fromisoformat(side["start_time"]) == _started(c, run_id)
 

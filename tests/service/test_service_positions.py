@@ -64,6 +64,10 @@ def test_multi_position_test_streams_progress(settings_factory, sim_config):
         for e in res["positions"]:  # the simple model: the same reducer at every position
             assert 280 < e["rigidity_nm_per_arcmin"] < 330
         assert res["lost_motion_arcsec_max"] == max(e["lost_motion_arcsec"] for e in res["positions"])
+        identity = c.get(f"/api/tests/{run_id}/metadata").json()["identity"]  # the exports' identity
+        assert identity["parameters"]["positions_deg"] == [0.0, 90.0, 180.0, 270.0]
+        assert identity["method"] == {"kind": "positions", "stages": 4, "series": "positions-4"}
+        assert identity["compensation_version"] == 1 and identity["bench_model_version"] == 0
         report = c.get(f"/api/tests/{run_id}/report")
         assert report.status_code == 200 and "Positions (GB/T 40731)" in report.text
         stages = report.text.split("Positions (GB/T 40731)")[1].split("</table>")[0]
