@@ -22,6 +22,8 @@ from numpy.typing import ArrayLike, NDArray
 D2_MR2 = 1.128  # mean moving range of two / σ (normal data)
 D4_MR2 = 3.267  # upper control limit factor of the moving-range chart
 RUN_LENGTH = 8  # Western Electric rule 2
+MIN_BASELINE = 2  # the fewest runs a moving range, hence limits, can be computed from
+RECOMMENDED_BASELINE = 20  # limits from fewer runs are provisional (σ̂ from MR̄ scatters by about 1/√(n−1)·0.8)
 
 
 @dataclass(frozen=True)

@@ -415,14 +415,20 @@ class ImrChartView(BaseModel):
 
 
 class SpcChartView(BaseModel):
-    """``GET /api/spc/chart``."""
+    """``GET /api/spc/chart``: one series (a reducer model, a test method, one bench or the fleet)."""
 
     quantity: str
     unit: str
     reducer: str
     bench: str | None
+    method: str = Field(description="the series' test method: single, positions-N or rates-N")
+    methods: dict[str, int] = Field(description="completed runs of this reducer (and bench) by test method")
     runs: list[SpcRun]
-    chart: ImrChartView
+    baseline_n: int = Field(description="runs in the baseline that sets the limits")
+    limits: Literal["none", "provisional", "established"] = Field(
+        description="none: too few runs for limits (chart null); provisional: a baseline under 20 runs")
+    note: str = Field(description="the baseline and the state of the limits in words")
+    chart: ImrChartView | None
 
 
 class BenchBiasRow(BaseModel):
@@ -441,6 +447,7 @@ class BenchBiasView(BaseModel):
     quantity: str
     unit: str
     reducer: str
+    method: str = Field(description="the test method of the runs used: single, positions-N or rates-N")
     reference: str | None = Field(description="the bench whose bias is 0 (null: the benches' mean is 0)")
     dof: int
     residual_sd: float = Field(description="repeatability of one test, pooled")

@@ -98,7 +98,9 @@ def test_fleet_page_searches_links_overlays_and_charts(settings_factory, tmp_pat
             page.click("#spc-form button[type=submit]")
             page.wait_for_function("document.querySelector('#bias tbody').innerText.includes('line-b')")
             summary = page.inner_text("#spc-summary")
-            assert summary.startswith("12 runs of RV-110E (fleet); baseline 6")
+            assert summary.startswith("12 runs of RV-110E, single position (fleet); baseline of 6 runs: limits "
+                                      "provisional until 20 runs"), summary
+            assert page.inner_text("#s-method") == "single position (12 runs)"
             bias_rows = page.inner_text("#bias tbody")
             assert "line-a (reference)" in bias_rows and "0.000 N·m/arcmin" in bias_rows
             line_b = [row for row in bias_rows.splitlines() if row.startswith("line-b")][0]

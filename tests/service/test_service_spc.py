@@ -68,8 +68,16 @@ def test_spc_chart_and_bias_over_a_shared_store(settings_factory, postgres_url, 
         assert c.get("/api/spc/chart", params={"reducer": "RV-110E", "bench": "line-a", "baseline_until": until}
                      ).json()["chart"]["baseline_n"] == 5
 
+        assert chart["limits"] == "established" and chart["note"] == "baseline of 22 runs"
+        assert chart["method"] == "single" and chart["methods"] == {"single": 28}
+        few = c.get("/api/spc/chart", params={"reducer": "RV-110E", "bench": "line-a", "baseline_runs": 5}).json()
+        assert few["limits"] == "provisional" and few["baseline_n"] == 5 and "provisional until 20" in few["note"]
+        none = c.get("/api/spc/chart", params={"reducer": "RV-60N"})
+        assert none.status_code == 200 and none.json()["chart"] is None and none.json()["limits"] == "none"
+        assert none.json()["note"].startswith("too few runs: 0 completed single runs of RV-60N")
+
         for path, params, word in (
-                ("/api/spc/chart", {"reducer": "RV-60N"}, "at least 2"),
+                ("/api/spc/chart", {"reducer": "RV-110E", "method": "positions"}, "method"),
                 ("/api/spc/chart", {"reducer": "RV-110E", "quantity": "torque"}, "quantity"),
                 ("/api/spc/chart", {"reducer": "RV-110E", "baseline_runs": 1}, "baseline_runs"),
                 ("/api/spc/chart", {"reducer": "RV-110E", "baseline_runs": 5, "baseline_until": until}, "not both"),
@@ -78,3 +86,32 @@ def test_spc_chart_and_bias_over_a_shared_store(settings_factory, postgres_url, 
                 ("/api/spc/bias", {"reducer": "RV-60N"}, "two benches")):
             r = c.get(path, params=params)
             assert r.status_code == 422 and word in r.json()["detail"], (params, r.text)
+
+
+def test_spc_series_are_per_test_method(settings_factory, tmp_path):
+    """4-position tests (the worst of 4: stiffer-looking units read lower) and single-position tests of the same
+    reducer are separate series: each chart holds one method only, and a method with too few runs says so."""
+    rng = np.random.default_rng(11)
+    with open_store(None, tmp_path / "data", bench_id="line-a", bench_name="bench line-a") as store:
+        for i in range(30):
+            positions = i % 3 == 0  # every third test at 4 positions
+            request = {"reducer": "RV-110E", "serial_number": f"SN-{i}", **({"positions": 4} if positions else {})}
+            profile = {"plan": "positions", "positions_deg": [0.0, 90.0, 180.0, 270.0]} if positions else None
+            store.create_run(f"run-{i:02d}", request, ("time_s",), profile=profile)
+            value = rng.normal(294.0, 0.5) - (6.0 if positions else 0.0)  # the worst of 4 sits lower
+            store.set_status(f"run-{i:02d}", "completed", results={"rigidity_nm_per_arcmin": value})
+        store.create_run("run-rates", {"reducer": "RV-110E", "rates": [50.0, 100.0, 200.0]}, ("time_s",))
+        store.set_status("run-rates", "completed", results={"rigidity_nm_per_arcmin": 290.0})
+    with serve(settings_factory(), runner=ScriptedRunner(bench_id="line-a")) as server:
+        c = server.client()
+        single = c.get("/api/spc/chart", params={"reducer": "RV-110E"}).json()
+        four = c.get("/api/spc/chart", params={"reducer": "RV-110E", "method": "positions-4"}).json()
+        assert single["methods"] == four["methods"] == {"positions-4": 10, "rates-3": 1, "single": 20}
+        assert [r["id"] for r in single["runs"]] == [f"run-{i:02d}" for i in range(30) if i % 3]
+        assert [r["id"] for r in four["runs"]] == [f"run-{i:02d}" for i in range(0, 30, 3)]
+        assert single["chart"]["out_of_control"] == [] and four["chart"]["out_of_control"] == []
+        assert abs(single["chart"]["center"] - four["chart"]["center"] - 6.0) < 1.0
+        assert four["baseline_n"] == 10 and four["limits"] == "provisional"
+        rates = c.get("/api/spc/chart", params={"reducer": "RV-110E", "method": "rates-3"}).json()
+        assert rates["chart"] is None and rates["note"].startswith("too few runs: 1 completed rates-3 runs")
+        assert "(other methods: positions-4 (10), single (20))" in rates["note"]

@@ -1,5 +1,9 @@
-"""SPC of a fleet's results: I-MR control charts per reducer model (and bench), bench-to-bench bias from
-reference units tested on several benches (:mod:`tcms_daq.spc`; the runs from the shared store)."""
+"""SPC of a fleet's results: I-MR control charts per reducer model, test method (and bench), bench-to-bench bias
+from reference units tested on several benches (:mod:`tcms_daq.spc`; the runs from the shared store).
+
+A series holds results of one test method only (:func:`tcms_daq.identity.test_method`): a test at 4 output
+positions reports the worst of 4, a different quantity from one position's value, so ``single``, ``positions-4``
+and ``rates-3`` are separate charts and separate bias estimates."""
 
 from __future__ import annotations
 
@@ -8,12 +12,12 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
 
-from tcms_daq.identity import HEADLINES
+from tcms_daq.identity import HEADLINES, test_method
 from tcms_daq.service.deps import Store, errors
 from tcms_daq.service.routes.tests import unix_seconds
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import BenchBiasView, SpcChartView
-from tcms_daq.spc import bench_bias, individuals_chart
+from tcms_daq.spc import MIN_BASELINE, RECOMMENDED_BASELINE, bench_bias, individuals_chart
 from tcms_daq.store import RunQuery, StoredRun
 
 router = APIRouter(prefix="/api/spc", tags=["spc"])
@@ -24,58 +28,84 @@ MAX_RUNS = 10_000
 _Name = Annotated[str, Query(min_length=1, max_length=200)]
 
 
-def _completed(store: Store, reducer: str, bench: str | None, quantity: str) -> list[tuple[StoredRun, float]]:
-    """Completed runs of ``reducer`` (on ``bench``) with a finite ``quantity``, oldest first."""
+_Method = Annotated[str, Query(pattern=r"^(single|positions-[0-9]{1,2}|rates-[0-9]{1,2})$", description=(
+    "the test method of the series: 'single' (one position), 'positions-N' (worst of N output positions) or "
+    "'rates-N' (worst of N loading rates)"))]
+
+
+def _completed(store: Store, reducer: str, bench: str | None, quantity: str
+               ) -> list[tuple[StoredRun, float, str]]:
+    """Completed runs of ``reducer`` (on ``bench``) with a finite ``quantity``, oldest first, each with the series
+    of its test method."""
     runs = store.list_runs(MAX_RUNS, 0, RunQuery(reducer=reducer, bench=bench, status="completed"))
     out = []
     for run in reversed(runs):
         value = (run.results or {}).get(quantity)
         if isinstance(value, int | float) and not isinstance(value, bool) and value == value and abs(value) != float("inf"):
-            out.append((run, float(value)))
+            out.append((run, float(value), str(test_method(run.request, run.profile)["series"])))
     return out
+
+
+def _methods(points: list[tuple[StoredRun, float, str]]) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for _, _, series in points:
+        counts[series] = counts.get(series, 0) + 1
+    return dict(sorted(counts.items()))
 
 
 @router.get("/chart", response_model=SpcChartView, responses=errors(422))
 def control_chart(store: Store, reducer: _Name, quantity: Quantity = "rigidity_nm_per_arcmin",
+                  method: _Method = "single",
                   bench: Annotated[str | None, Query(min_length=1, max_length=200)] = None,
                   baseline_runs: Annotated[int | None, Query(ge=2, le=MAX_RUNS)] = None,
                   baseline_until: Annotated[datetime | None, Query(
                       description="the baseline is every run created up to this time (ISO 8601)")] = None,
                   ) -> dict[str, Any]:
-    """Individuals / moving-range chart of one result of the completed runs of a reducer model (on one bench, or
-    the fleet), in test order; limits from the baseline: the first ``baseline_runs`` runs (default 20, or all
-    when fewer) or the runs up to ``baseline_until``."""
+    """Individuals / moving-range chart of one result of the completed runs of a reducer model tested by one
+    method (on one bench, or the fleet), in test order; limits from the baseline: the first ``baseline_runs``
+    runs (default 20, or all when fewer) or the runs up to ``baseline_until``. ``methods`` counts the runs of
+    every method; ``limits`` says whether the baseline sets limits at all (``none``: fewer than 2 runs, no chart),
+    ``provisional`` (fewer than 20) or ``established``, and ``note`` says it in words."""
     if baseline_runs is not None and baseline_until is not None:
         raise RequestRejected("give baseline_runs or baseline_until, not both")
-    points = _completed(store, reducer, bench, quantity)
+    everything = _completed(store, reducer, bench, quantity)
+    points = [(r, v) for r, v, series in everything if series == method]
     if baseline_until is not None:
         until = unix_seconds(baseline_until)
         n = sum(1 for run, _ in points if until is not None and run.created_at <= until + 0.001)
     else:
-        n = min(baseline_runs or 20, len(points))
-    if len(points) < 2 or n < 2:
-        where = f" on bench {bench}" if bench else ""
-        raise RequestRejected(f"{len(points)} completed runs of {reducer}{where} with {quantity} ({n} in the "
-                              "baseline): a control chart needs at least 2 in its baseline")
+        n = min(baseline_runs or RECOMMENDED_BASELINE, len(points))
+    where = f" on bench {bench}" if bench else ""
+    runs = [{"id": r.id, "created_at": r.summary()["created_at"], "bench_id": r.bench_id,
+             "serial_number": r.request.get("serial_number"), "value": v} for r, v in points]
+    view: dict[str, Any] = {"quantity": quantity, "unit": UNITS[quantity], "reducer": reducer, "bench": bench,
+                            "method": method, "methods": _methods(everything), "runs": runs, "baseline_n": n}
+    if len(points) < MIN_BASELINE or n < MIN_BASELINE:
+        others = ", ".join(f"{k} ({c})" for k, c in view["methods"].items() if k != method)
+        view.update(chart=None, limits="none", note=(
+            f"too few runs: {len(points)} completed {method} runs of {reducer}{where} with {quantity}, {n} of them "
+            f"in the baseline; control limits need at least {MIN_BASELINE}"
+            + (f" (other methods: {others})" if others else "")))
+        return view
     chart = individuals_chart([v for _, v in points], n)
-    return {"quantity": quantity, "unit": UNITS[quantity], "reducer": reducer, "bench": bench,
-            "runs": [{"id": r.id, "created_at": r.summary()["created_at"], "bench_id": r.bench_id,
-                      "serial_number": r.request.get("serial_number"), "value": v} for r, v in points],
-            "chart": chart.to_dict()}
+    provisional = n < RECOMMENDED_BASELINE
+    view.update(chart=chart.to_dict(), limits="provisional" if provisional else "established", note=(
+        f"baseline of {n} runs" + (f": limits provisional until {RECOMMENDED_BASELINE} runs" if provisional else "")))
+    return view
 
 
 @router.get("/bias", response_model=BenchBiasView, responses=errors(422))
-def bias(store: Store, reducer: _Name, quantity: Quantity = "rigidity_nm_per_arcmin",
+def bias(store: Store, reducer: _Name, quantity: Quantity = "rigidity_nm_per_arcmin", method: _Method = "single",
          reference: Annotated[str | None, Query(min_length=1, max_length=200,
                                                 description="bench id whose bias is 0 (default: mean 0)")] = None,
          ) -> dict[str, Any]:
     """Each bench's bias on one result, from the reference units (same serial number) of a reducer model tested
-    on several benches, with its standard and expanded uncertainty (Student's t, 95 %)."""
-    points = [(r, v) for r, v in _completed(store, reducer, None, quantity)
-              if r.bench_id and isinstance(r.request.get("serial_number"), str)]
+    by one method on several benches, with its standard and expanded uncertainty (Student's t, 95 %)."""
+    points = [(r, v) for r, v, series in _completed(store, reducer, None, quantity)
+              if series == method and r.bench_id and isinstance(r.request.get("serial_number"), str)]
     try:
         est = bench_bias([r.request["serial_number"] for r, _ in points], [str(r.bench_id) for r, _ in points],
                          [v for _, v in points], reference=reference)
     except ValueError as exc:
-        raise RequestRejected(f"{reducer}, {quantity}: {exc}") from None
-    return {"quantity": quantity, "unit": UNITS[quantity], "reducer": reducer, **est.to_dict()}
+        raise RequestRejected(f"{reducer}, {quantity}, {method} tests: {exc}") from None
+    return {"quantity": quantity, "unit": UNITS[quantity], "reducer": reducer, "method": method, **est.to_dict()}

@@ -110,20 +110,41 @@
   // ---- SPC ----
   let spcPlot = null, mrPlot = null;
   function line(n, v) { return Array.from({ length: n }, () => v); }
+  // a series is one test method: one position, the worst of N positions, the worst of N loading rates
+  function methodLabel(m) {
+    const [kind, n] = m.split("-");
+    return kind === "positions" ? `worst of ${n} positions` : kind === "rates" ? `worst of ${n} loading rates`
+      : "single position";
+  }
+  function showMethods(methods, chosen) {
+    const select = $("s-method");
+    const keys = Array.from(new Set([chosen, ...Object.keys(methods)]));
+    select.innerHTML = keys.map((m) => `<option value="${esc(m)}"${m === chosen ? " selected" : ""}>` +
+      `${esc(methodLabel(m))} (${methods[m] || 0} runs)</option>`).join("");
+  }
   $("spc-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
-    const q = new URLSearchParams({ reducer: $("s-reducer").value.trim(), quantity: $("s-quantity").value });
+    const q = new URLSearchParams({ reducer: $("s-reducer").value.trim(), quantity: $("s-quantity").value,
+      method: $("s-method").value || "single" });
     if ($("s-bench").value.trim()) q.set("bench", $("s-bench").value.trim());
     if ($("s-baseline").value) q.set("baseline_runs", $("s-baseline").value);
     let chart;
     try { chart = (await api("/api/spc/chart?" + q)).data; } catch (e) { $("spc-summary").textContent = e.message; return; }
+    showMethods(chart.methods, chart.method);
+    if (spcPlot) { spcPlot.destroy(); spcPlot = null; }
+    if (mrPlot) { mrPlot.destroy(); mrPlot = null; }
+    const where = chart.bench ? " on " + chart.bench : " (fleet)";
+    if (!chart.chart) {  // too few runs: no limits, say so
+      $("spc-summary").textContent = `${chart.runs.length} runs of ${chart.reducer}, ${methodLabel(chart.method)}` +
+        `${where}: ${chart.note}`;
+      $("bias").tBodies[0].innerHTML = `<tr><td colspan="5" class="muted">–</td></tr>`;
+      return;
+    }
     const c = chart.chart, n = c.values.length, x = Array.from({ length: n }, (_, i) => i + 1);
     const flagged = c.values.map((v, i) => (c.flags[i].length ? v : null));
-    $("spc-summary").textContent = `${n} runs of ${chart.reducer}${chart.bench ? " on " + chart.bench : " (fleet)"}; ` +
-      `baseline ${c.baseline_n}: centre ${c.center.toPrecision(5)}, σ̂ ${c.sigma.toPrecision(3)} ${chart.unit}; ` +
+    $("spc-summary").textContent = `${n} runs of ${chart.reducer}, ${methodLabel(chart.method)}${where}; ` +
+      `${chart.note}: centre ${c.center.toPrecision(5)}, σ̂ ${c.sigma.toPrecision(3)} ${chart.unit}; ` +
       `out of control: ${c.out_of_control.length ? c.out_of_control.map((i) => chart.runs[i].id).join(", ") : "none"}`;
-    if (spcPlot) spcPlot.destroy();
-    if (mrPlot) mrPlot.destroy();
     spcPlot = new uPlot({
       width: width($("plot-spc")), height: 240, scales: { x: { time: false } },
       axes: [{ label: "run (test order)" }, { label: chart.unit, size: 70 }],
@@ -140,7 +161,7 @@
         { label: "MR̄", stroke: "#157a2e", dash: [4, 4], points: { show: false } },
         { label: "UCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } }],
     }, [x, c.moving_range, line(n, c.mr_center), line(n, c.mr_ucl)], $("plot-mr"));
-    const b = new URLSearchParams({ reducer: chart.reducer, quantity: chart.quantity });
+    const b = new URLSearchParams({ reducer: chart.reducer, quantity: chart.quantity, method: chart.method });
     if ($("s-reference").value.trim()) b.set("reference", $("s-reference").value.trim());
     const body = $("bias").tBodies[0];
     try {
