@@ -91,13 +91,15 @@ def decision_rule(results: Mapping[str, Any] | None) -> str:
 
 
 def headline_results(results: Mapping[str, Any] | None) -> dict[str, dict[str, Any]]:
-    """Each headline result: value, expanded uncertainty U, coverage factor k, unit and the rendered text."""
+    """Each headline result: value, standard uncertainty u, expanded uncertainty U, coverage factor k, unit and the
+    rendered text."""
     out: dict[str, dict[str, Any]] = {}
     for h in HEADLINES:
         entry = uncertainty_entry(results, h.key)
         out[h.key] = {
             "label": h.label,
             "value": _number((results or {}).get(h.key)),
+            "u": None if entry is None else _number(entry.get("u")),
             "U": None if entry is None else float(entry["U"]),
             "k": None if entry is None else _number(entry.get("k")),
             "unit": h.unit,

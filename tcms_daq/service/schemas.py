@@ -131,32 +131,90 @@ class VerdictView(BaseModel):
     checks: dict[str, CheckView] = Field(default_factory=dict)
 
 
+class StageResultView(BaseModel):
+    """One stage of a test at several output positions or loading rates: where it was and what it measured."""
+
+    model_config = ConfigDict(extra="allow")
+
+    position_deg: float | None = Field(None, description="output position of this stage, ° (positions tests)")
+    rate_nm_per_s: float | None = Field(None, description="loading rate of this stage, N·m/s")
+    rigidity_nm_per_arcmin: float | None = Field(None, description="torsional rigidity, N·m/arcmin")
+    lost_motion_arcsec: float | None = Field(None, description="lost motion, arcsec")
+    backlash_arcsec: float | None = Field(None, description="backlash (loop width at zero torque), arcsec")
+    uncertainty: dict[str, UncertaintyEntry] = Field(default_factory=dict,
+                                                     description="this stage's results with U (k), by result name")
+
+
 class TestResults(BaseModel):
-    """A run's evaluation (the keys of ``tcms analyze --json``); the typed ones are the shared result contract,
-    every other key of the evaluation is kept as it is. Runs evaluated before uncertainty budgets have
-    ``uncertainty`` empty."""
+    """A run's evaluation (the keys of ``tcms analyze --json``). The headline results are declared with their
+    unit; their expanded uncertainty U (with k and the budget) is ``uncertainty[<name>]``. A test at several
+    positions or rates reports the worst stage (``summary_rule``) and each stage in ``positions`` / ``rates``.
+    Every other key of the evaluation is kept as it is. Runs evaluated before uncertainty budgets have
+    ``uncertainty`` empty; a result that could not be evaluated is null."""
 
     __test__ = False
     model_config = ConfigDict(extra="allow")
 
+    rigidity_nm_per_arcmin: float | None = Field(
+        None, description="torsional rigidity, N·m/arcmin (secant over the rigidity interval, mean of both sides); "
+        "U: uncertainty.rigidity_nm_per_arcmin.U")
+    lost_motion_arcsec: float | None = Field(
+        None, description="lost motion, arcsec (midline at ± the lost-motion torque); U: uncertainty.lost_motion_arcsec.U")
+    backlash_arcsec: float | None = Field(
+        None, description="backlash, arcsec (loop width at zero torque); U: uncertainty.backlash_arcsec.U")
+    loop_energy_j: float | None = Field(None, description="energy dissipated per loop (∮T dθ), J")
+    loading_rate_nm_per_s: float | None = Field(None, description="measured loading rate, N·m/s")
+    test_torque_nm: float | None = Field(None, description="test torque T the loops reached, N·m")
+    rated_torque_nm: float | None = Field(None, description="the reducer's rated torque, N·m")
+    n_loops: int | None = Field(None, description="evaluated loops")
+    k1_nm_per_rad: float | None = Field(None, description="Harmonic Drive K1, N·m/rad")
+    k2_nm_per_rad: float | None = Field(None, description="Harmonic Drive K2, N·m/rad")
+    k3_nm_per_rad: float | None = Field(None, description="Harmonic Drive K3, N·m/rad")
+    plan: Literal["positions", "rates"] | None = Field(None, description="a test of several stages: its kind")
+    summary_rule: str | None = Field(None, description="how the stages are summarised (the worst of them)")
+    positions: list[StageResultView] | None = Field(None, description="each output position's results")
+    rates: list[StageResultView] | None = Field(None, description="each loading rate's results")
     uncertainty: dict[str, UncertaintyEntry] = Field(default_factory=dict)
     uncertainty_basis: str | None = None
     verdict: VerdictView | None = None
     warnings: list[str] = Field(default_factory=list)
 
 
+class MeasuredValue(BaseModel):
+    """One headline result as it leaves the bench: value, standard and expanded uncertainty (u, U = k·u), coverage
+    factor k and unit."""
+
+    label: str = Field(description="what it is, e.g. 'torsional rigidity'")
+    value: float | None = Field(description="the result in ``unit`` (null: not evaluated)")
+    u: float | None = Field(description="combined standard uncertainty in ``unit`` (null: not stated)")
+    U: float | None = Field(description="expanded uncertainty (about 95 %) in ``unit`` (null: not stated)")
+    k: float | None = Field(description="coverage factor of U")
+    unit: str
+    text: str = Field(description="'value ± U unit (k = …)' rounded to two significant digits of U")
+
+
+class HeadlineResults(BaseModel):
+    """The three results a test is judged on, each with its unit and U."""
+
+    rigidity_nm_per_arcmin: MeasuredValue
+    lost_motion_arcsec: MeasuredValue
+    backlash_arcsec: MeasuredValue
+
+
 class TestSummary(BaseModel):
+    __test__ = False
+
     id: str
     status: RunState  # one of the stored states: queued, running, completed, aborted, failed, interrupted
     created_at: str | None
     started_at: str | None
     finished_at: str | None
-    request: dict[str, Any]
+    request: TestRequest = Field(description="the request the test was started with")
     results: TestResults | None
     error: str | None
     sample_count: int
     channels: list[str]
-    compensation_version: int | None = None  # the accepted compensation upload the run used (None: config file)
+    compensation_version: int | None = None  # the compensation version the run used (None: recorded before)
     compensation_sha256: str | None = None  # of the compensator TOML the run used (single-run view)
     bench_id: str | None = Field(None, description="the bench that ran it ([bench] id; None: recorded before fleets)")
     bench_name: str | None = None
@@ -164,6 +222,29 @@ class TestSummary(BaseModel):
         None, description="the results' decision (ISO 14253-1 when stated; else pass/fail); None: no verdict")
     headline: dict[str, str] = Field(default_factory=dict, description=(
         "rigidity, lost motion and backlash as text: 'value ± U unit (k = …)', 'value unit (U not stated)' or '—'"))
+    headline_results: HeadlineResults | None = Field(
+        None, description="rigidity, lost motion and backlash with value, U, k and unit (null: no results)")
+
+
+def request_echo(stored: dict[str, Any]) -> TestRequest:
+    """A stored request as the request model. One a later model would refuse (an older run's) is echoed as it
+    was stored, its fields as they are (keys the model no longer has are left out)."""
+    from pydantic import ValidationError
+
+    try:
+        return TestRequest.model_validate(stored)
+    except ValidationError:
+        return TestRequest.model_construct(**{k: v for k, v in stored.items() if k in TestRequest.model_fields})
+
+
+def summary_view(summary: dict[str, Any]) -> TestSummary:
+    """The API's view of :meth:`tcms_daq.store.StoredRun.summary`, its request echoed as the request model."""
+    from tcms_daq.identity import headline_results
+
+    results = summary.get("results")
+    return TestSummary.model_validate({
+        **summary, "request": request_echo(summary.get("request") or {}),
+        "headline_results": headline_results(results) if results else None})
 
 
 class LoopView(BaseModel):

@@ -17,9 +17,12 @@ from tcms_daq.service.testruns import Conflict, UnknownRun
 
 router = APIRouter(prefix="/api/compensation", tags=["compensation"])
 
-TOML_BODY = {"requestBody": {"required": True, "description": "the compensator as TOML ([compensator] terms)",
+# The body is read as bytes whatever its Content-Type: TOML text, declared as application/toml (its media type,
+# RFC 9618) and as application/octet-stream, which client generators (openapi-python-client) know as a file body
+TOML_BODY = {"requestBody": {"required": True, "description": "the compensator as UTF-8 TOML ([compensator] terms)",
                              "content": {"application/toml": {"schema": {"type": "string"}},
-                                         "text/plain": {"schema": {"type": "string"}}}}}
+                                         "application/octet-stream": {"schema": {"type": "string",
+                                                                                 "format": "binary"}}}}}
 TOML_ANSWER: dict[int | str, dict[str, Any]] = {200: {"description": "the compensator now in use, as TOML (header X-Compensation-Version)",
                      "content": {"application/toml": {"schema": {"type": "string"}}}}}
 

@@ -14,7 +14,7 @@ from tcms_daq.service import exports
 from tcms_daq.service.deps import AUTH, Manager, Store, StoredRunDep, errors
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import RequestRejected
-from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary
+from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary, summary_view
 from tcms_daq.store import RunQuery, StoreError
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
@@ -60,18 +60,19 @@ def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, 
                                                        "schema": {"type": "integer"}}}}})
 def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depends(run_query)],
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-               offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[dict[str, Any]]:
+               offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[TestSummary]:
     """Stored tests of every bench sharing the store, newest first, one page at a time (``limit``, ``offset``;
     the header ``X-Total-Count`` counts all pages). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
     (exact, any case), ``status``, ``verdict`` (pass / fail / undecided), ``q`` (a substring of the id, serial
     number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601)."""
     response.headers["X-Total-Count"] = str(store.count_runs(query))
-    return [r.summary() for r in store.list_runs(limit, offset, query)]
+    return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query)]
 
 
 @router.get("/{run_id}", response_model=TestSummary, responses=errors(404))
-def get_test(run: StoredRunDep) -> dict[str, Any]:
-    return run.summary()
+def get_test(run: StoredRunDep) -> TestSummary:
+    """One test: its request, status, results (headline results with unit and U) and where it ran."""
+    return summary_view(run.summary())
 
 
 @router.get("/{run_id}/profile", response_model=dict[str, Any], responses=errors(404))
