@@ -352,11 +352,6 @@ def bench_id_from_name(name: str) -> str:
     return slug or "bench"
 
 
-TRACEABILITY = ("The measuring instruments listed are calibrated by the laboratories named, whose certificates "
-                "state the traceability of their results to the International System of Units (SI) through "
-                "national measurement standards; the compensation and uncertainty evaluation follow JCGM 100 (GUM).")
-
-
 class CertificateSection(BaseModel):
     """[certificate]: what the test certificate states beside the measurement: the issuing laboratory, the test
     method of each kind of test (a reference a customer can look up), the ambient temperature when the request
@@ -365,22 +360,25 @@ class CertificateSection(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     laboratory: str | None = Field(None, max_length=300, description="the issuing laboratory: name and address")
-    method_single: str = Field("GB/T 35089-2018, torsional rigidity and lost motion from the hysteresis curve",
-                               max_length=300, description="the test method of a test at one output position")
-    method_positions: str = Field("GB/T 40731-2021, at several output positions (the result is the worst of them)",
-                                  max_length=300, description="the test method of a test at several positions")
-    method_rates: str = Field("GB/T 35089-2018, repeated at each loading rate (the result is the worst of them)",
-                              max_length=300, description="the test method of a test at several loading rates")
+    method_single: str | None = Field(None, max_length=300, description=(
+        "the test method of a test at one output position (default: the certificate catalogue's, GB/T 35089)"))
+    method_positions: str | None = Field(None, max_length=300, description=(
+        "the test method of a test at several output positions (default: the catalogue's, GB/T 40731)"))
+    method_rates: str | None = Field(None, max_length=300,
+                                     description="the test method of a test at several loading rates")
     ambient_temperature_c: float | None = Field(None, ge=-40.0, le=80.0,
                                                 description="ambient temperature of the test room, °C")
-    traceability: str = Field(TRACEABILITY, max_length=1000)
+    traceability: str | None = Field(None, max_length=1000, description=(
+        "the traceability statement (default: the certificate catalogue's)"))
 
-    def method(self, kind: str) -> str:
-        """The method reference of a test of ``kind`` (``single``, ``positions``, ``rates``)."""
+    def method(self, kind: str) -> str | None:
+        """The configured method reference of a test of ``kind`` (``single``, ``positions``, ``rates``); None:
+        the certificate's default for that kind."""
         return {"positions": self.method_positions, "rates": self.method_rates}.get(kind, self.method_single)
 
 
 OpcUaSecurityMode = Literal["SignAndEncrypt", "Sign", "None"]
+SECURE_MODES: tuple[OpcUaSecurityMode, ...] = ("SignAndEncrypt", "Sign")
 
 
 class OpcUaSection(BaseModel):
@@ -393,7 +391,7 @@ class OpcUaSection(BaseModel):
     port: int | None = Field(None, ge=0, le=65535, description="listen port (None: off unless --opcua-port)")
     host: str = Field("127.0.0.1", min_length=1, max_length=253, description="bind address (loopback by default)")
     security_modes: list[OpcUaSecurityMode] = Field(
-        default_factory=lambda: ["SignAndEncrypt", "Sign"], min_length=1,
+        default_factory=lambda: list(SECURE_MODES), min_length=1,
         description="Basic256Sha256 message security modes offered; 'None' (no security) only when listed")
     anonymous: bool = Field(False, description="accept clients without a user name")
     users: dict[str, str] = Field(default_factory=dict, description="user name -> password hash (scrypt$…)")
