@@ -31,8 +31,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "sqlite:///path (default: $TCMS_STORE_URL, else the config's [store] url, else the SQLite "
                         "file in the data directory)")
     p.add_argument("--opcua-port", type=int, default=None, metavar="N",
-                   help="serve the bench's state and results over OPC UA at opc.tcp://127.0.0.1:N (0 = any free "
-                        "port; off by default)")
+                   help="serve the bench as an OPC UA machine (OPC 40001-1) with its results (OPC 40001-101) on port "
+                        "N (0 = any free port; default: the config's [opcua] port, else off); security and users "
+                        "from [opcua]")
+    p.add_argument("--opcua-host", default=None, metavar="ADDRESS",
+                   help="interface the OPC UA server binds (default: [opcua] host, 127.0.0.1)")
     p.add_argument("--sim-speed", type=float, default=1.0,
                    help="simulated seconds per real second for a simulated bench (default 1 = real time)")
     p.add_argument("--read-token", choices=["auto", "on", "off"], default="auto",
@@ -85,13 +88,24 @@ def run(args: argparse.Namespace) -> int:
         store_kind(store_url)
     except TcmsError as exc:
         raise ConfigError(str(exc)) from None
-    if args.opcua_port:
-        _check_port_free(args.opcua_port)
+    opcua = runner.config.opcua
+    if args.opcua_host:
+        opcua = opcua.model_copy(update={"host": args.opcua_host})
+    opcua_port = args.opcua_port if args.opcua_port is not None else opcua.port
+    if opcua_port is not None:
+        from tcms_daq.service.opcua import OpcUaError, check_config
+
+        try:
+            check_config(opcua, data_dir)
+        except OpcUaError as exc:
+            raise ConfigError(str(exc)) from None
+        if opcua_port:
+            _check_port_free(opcua.host, opcua_port)
     store = _open_store(store_url, data_dir, runner)
     everywhere = args.host in ("0.0.0.0", "::", "")
     settings = ServiceSettings(
         data_dir=data_dir, config_path=args.config, store_url=store_url, sim_speed=args.sim_speed,
-        opcua_port=args.opcua_port, api_token=_service_token(runner.config),
+        opcua_port=opcua_port, opcua=opcua, api_token=_service_token(runner.config),
         # Host check against DNS rebinding on loopback; bound to all interfaces the names are not known here
         allowed_hosts=None if everywhere else ("127.0.0.1", "localhost", "::1", "[::1]", args.host),
         read_token_required=args.read_token == "on" or (args.read_token == "auto" and not _loopback(args.host)),
@@ -123,15 +137,15 @@ def run(args: argparse.Namespace) -> int:
     return 0 if server.started else 1
 
 
-def _check_port_free(port: int) -> None:
-    """The OPC UA port can be bound on 127.0.0.1 (one-line error otherwise)."""
+def _check_port_free(host: str, port: int) -> None:
+    """The OPC UA port can be bound on ``host`` (one-line error otherwise)."""
     import socket
 
-    with socket.socket() as probe:
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
         try:
-            probe.bind(("127.0.0.1", port))
+            probe.bind((host, port))
         except OSError as exc:
-            raise ConfigError(f"--opcua-port {port}: cannot listen on 127.0.0.1:{port} ({exc.strerror})") from None
+            raise ConfigError(f"OPC UA port {port}: cannot listen on {host}:{port} ({exc.strerror})") from None
 
 
 def _open_store(url: str | None, data_dir: Path, runner):

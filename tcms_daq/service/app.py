@@ -131,8 +131,12 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
             from tcms_daq.service.opcua import OpcUaBridge
 
             fallback_id, fallback_name = bench_identity(bench)
+            configured = getattr(getattr(bench, "config", None), "opcua", None)
+            section = bench.config_snapshot().get("bench")
             opcua = OpcUaBridge(store, store.bench_id or fallback_id, store.bench_name or fallback_name,
-                                settings.opcua_port)
+                                settings.opcua_port, config=settings.opcua or configured, data_dir=settings.data_dir,
+                                nameplate=section if isinstance(section, dict) else None,
+                                bench_connected=lambda: bench.status().get("connected"))
             events.add_listener(opcua.on_event)
             await asyncio.to_thread(opcua.start)
             app.state.opcua = opcua

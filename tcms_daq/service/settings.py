@@ -15,7 +15,8 @@ class ServiceSettings:
     data_dir: Path
     config_path: Path | None = None
     store_url: str | None = None  # postgresql://… (None: the SQLite file in data_dir)
-    opcua_port: int | None = None  # OPC UA server on opc.tcp://127.0.0.1:<port> (None: off; 0: any free port)
+    opcua_port: int | None = None  # OPC UA server on opc.tcp://<[opcua] host>:<port> (None: off; 0: any free port)
+    opcua: Any = None  # the [opcua] section (tcms_daq.config.models.OpcUaSection; None: the bench config's)
     sim_speed: float = 1.0
     api_token: str | None = None
     frame_rate_hz: float = 25.0
