@@ -19,18 +19,17 @@ from tcms_daq.analysis.rounding import with_uncertainty
 
 @dataclass(frozen=True)
 class Headline:
-    """One headline result: its key in the results dict, a label for people, its unit, its OPC UA name."""
+    """One headline result: its key in the results dict, a label for people, its unit."""
 
     key: str
     label: str
     unit: str
-    browse_name: str
 
 
 HEADLINES: tuple[Headline, ...] = (
-    Headline("rigidity_nm_per_arcmin", "torsional rigidity", "N·m/arcmin", "RigidityNmPerArcmin"),
-    Headline("lost_motion_arcsec", "lost motion", "arcsec", "LostMotionArcsec"),
-    Headline("backlash_arcsec", "backlash", "arcsec", "BacklashArcsec"),
+    Headline("rigidity_nm_per_arcmin", "torsional rigidity", "N·m/arcmin"),
+    Headline("lost_motion_arcsec", "lost motion", "arcsec"),
+    Headline("backlash_arcsec", "backlash", "arcsec"),
 )
 
 
