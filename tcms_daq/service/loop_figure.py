@@ -50,7 +50,8 @@ def loop_centre_arcsec(torque_nm: np.ndarray, angle_arcsec: np.ndarray) -> float
     return float(np.mean(at_zero)) if len(at_zero) == 2 else float(np.mean(angle[near]))
 
 
-def _windows(time_s: np.ndarray, loops: list[Mapping[str, Any]], stage: int | None) -> np.ndarray:
+def evaluated_mask(time_s: np.ndarray, loops: list[Mapping[str, Any]], stage: int | None = None) -> np.ndarray:
+    """The samples inside the evaluated loops (of stage ``stage``; None: of every stage) by their time windows."""
     mask = np.zeros(time_s.size, dtype=bool)
     for lp in loops:
         if lp.get("evaluated") and (stage is None or lp.get("stage") == stage):
@@ -75,7 +76,7 @@ def relative_loops(columns: Mapping[str, np.ndarray], results: Mapping[str, Any]
     stages: list[int | None] = list(numbered) if staged and numbered else [None]
     out = []
     for stage in stages:
-        mask = _windows(time_s, loops, stage) if loops else np.ones(len(torque), dtype=bool)
+        mask = evaluated_mask(time_s, loops, stage) if loops else np.ones(len(torque), dtype=bool)
         if not mask.any():
             mask = np.ones(len(torque), dtype=bool)
         t, a = torque[mask], angle[mask]

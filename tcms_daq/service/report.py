@@ -11,6 +11,7 @@ import numpy as np
 
 from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import NOT_STATED, with_uncertainty
+from tcms_daq.service.loop_figure import evaluated_mask
 from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
@@ -87,10 +88,7 @@ def loops_per_stage(columns: Mapping[str, np.ndarray], results: Mapping[str, Any
     keep = np.zeros(time_s.size, dtype=bool)
     shift = {k: np.zeros(time_s.size) for k in ("angle_arcsec", "encoder_arcsec") if k in columns}
     for stage in sorted({lp.get("stage") for lp in loops if lp.get("evaluated")}):
-        mask = np.zeros(time_s.size, dtype=bool)
-        for lp in loops:
-            if lp.get("stage") == stage and lp.get("evaluated"):
-                mask |= (time_s >= lp["start_time_s"]) & (time_s <= lp["end_time_s"])
+        mask = evaluated_mask(time_s, [lp for lp in loops if lp.get("stage") == stage])
         keep |= mask
         for key in shift:
             if mask.any():
