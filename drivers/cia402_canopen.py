@@ -46,7 +46,13 @@ from tcms_daq.drivers.cia402 import CiA402Loader
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.errors import ConfigError
-from tcms_daq.protocols.cia402 import CW_DISABLE_VOLTAGE, drive_eds_path, to_int16
+from tcms_daq.protocols.cia402 import (
+    CW_DISABLE_VOLTAGE,
+    MIN_HEARTBEAT_CONSUMER_PERIODS,
+    drive_eds_path,
+    heartbeat_consumer_timeout_ms,
+    to_int16,
+)
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +141,7 @@ class CiA402Canopen(CiA402Loader):
         heartbeat_ms: int = 100,
         heartbeat_timeout_s: float | None = None,
         master_heartbeat_ms: int = 100,
-        drive_consumer_timeout_ms: int = 500,
+        drive_consumer_timeout_ms: int | None = None,
         state_timeout_s: float = 2.0,
         connect_timeout_s: float = 2.0,
         reconnect_attempts: int = 2,
@@ -162,7 +168,16 @@ class CiA402Canopen(CiA402Loader):
         self.heartbeat_ms = int(heartbeat_ms)
         self.heartbeat_timeout_s = float(heartbeat_timeout_s or max(3.5 * heartbeat_ms / 1000.0, 0.2))
         self.master_heartbeat_ms = int(master_heartbeat_ms)
-        self.drive_consumer_timeout_ms = int(drive_consumer_timeout_ms)
+        # the drive's heartbeat consumer: derived from this master's producer period with margin (a loaded host may
+        # hold the producer thread up for a few periods; that must not fault the drive), 0 = off
+        self.drive_consumer_timeout_ms = (heartbeat_consumer_timeout_ms(self.master_heartbeat_ms)
+                                          if drive_consumer_timeout_ms is None else int(drive_consumer_timeout_ms))
+        if self.drive_consumer_timeout_ms and (
+                self.master_heartbeat_ms <= 0
+                or self.drive_consumer_timeout_ms < MIN_HEARTBEAT_CONSUMER_PERIODS * self.master_heartbeat_ms):
+            raise ValueError(f"{name}: drive_consumer_timeout_ms {self.drive_consumer_timeout_ms} must be at least "
+                             f"{MIN_HEARTBEAT_CONSUMER_PERIODS} master heartbeat periods ({self.master_heartbeat_ms} ms)"
+                             " with the master's heartbeat on")
         self.connect_timeout_s = float(connect_timeout_s)
         self.reconnect_attempts = int(reconnect_attempts)
         # one reconnect attempt waits this long for the drive's heartbeat (default: as long as connect() does)

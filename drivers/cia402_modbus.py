@@ -9,6 +9,14 @@ Kinco-style: controlword 0x3100, statusword 0x3200, 32-bit values low word first
 - anything else (``/dev/ttyUSB0``, ``rfc2217://…``) a serial line with RTU framing, opened through pyserial
   (``drivers.modbus_rtu.RtuSerialClient``: replies read by their known length, t3.5 kept before each request)
 
+The drive's own communication watchdog: ``connect()`` arms it (``comm_timeout_ms`` into the map's
+``comm_timeout`` register, ``abort_connection_option`` into 0x6007), so silence of this master for that long —
+a dead service, a cut cable, a hung host — makes the drive react by itself (default: fault 0x8130, torque
+off). Every request feeds it; a keep-alive thread reads the statusword when nothing else was sent for a quarter
+of the timeout, so the drive is fed while this driver is connected whatever its user does. ``close()`` of a
+drive that is not powered disarms it (a commissioning tool may then talk to the drive); ``comm_timeout_ms = 0``
+runs without (not recommended: the drive then keeps its torque when the software dies).
+
 Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; Modbus exception 4 (device failure)
 → DeviceFault, other exception responses → CommandRejected; connection lost and the bounded reconnect failed
 → Disconnected; statusword FAULT → DeviceFault with the drive's error code (0x603F).
@@ -16,6 +24,8 @@ Failures: no answer → InstrumentTimeout; a broken answer → MalformedReply; M
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -36,8 +46,13 @@ from tcms_daq.drivers.cia402 import CiA402Loader
 from tcms_daq.drivers.modbus_rtu import RtuSerialClient
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
+from tcms_daq.config.models import DEFAULT_COMM_TIMEOUT_MS
 from tcms_daq.errors import ConfigError
+from tcms_daq.protocols.cia402 import ABORT_CONNECTION_FAULT, ABORT_CONNECTION_OPTIONS, state_from_statusword
 from tcms_daq.protocols.modbus_map import RegisterMap, load_register_map
+
+log = logging.getLogger(__name__)
+POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
 
 EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                    4: "device failure", 6: "device busy", 10: "gateway path unavailable",
@@ -90,7 +105,14 @@ class CiA402Modbus(CiA402Loader):
         serial_line: bool = False,
         counts_per_rev: int = 1 << 20,
         move_torque_window_nm: float | None = None,
+        comm_timeout_ms: int = DEFAULT_COMM_TIMEOUT_MS,
+        abort_connection_option: int = ABORT_CONNECTION_FAULT,
     ):
+        if not (isinstance(comm_timeout_ms, int) and 0 <= comm_timeout_ms <= 0xFFFF):
+            raise ValueError(f"{name}: comm_timeout_ms must be 0 (off) … 65535, got {comm_timeout_ms!r}")
+        if abort_connection_option not in ABORT_CONNECTION_OPTIONS:
+            raise ValueError(f"{name}: abort_connection_option must be one of {ABORT_CONNECTION_OPTIONS} (0x6007), "
+                             f"got {abort_connection_option!r}")
         super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
                          state_timeout_s=state_timeout_s, clock=clock, timebase=timebase)
         if not (isinstance(counts_per_rev, int) and counts_per_rev > 0):
@@ -108,6 +130,18 @@ class CiA402Modbus(CiA402Loader):
         self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
                                   trace_packet=self._trace, serial_line=serial_line, timebase=timebase)
         self.reconnects = 0
+        self.comm_timeout_ms = comm_timeout_ms
+        self.abort_connection_option = abort_connection_option
+        if comm_timeout_ms and "comm_timeout" not in self.map.registers:
+            raise ConfigError(f"{name}: the register map has no 'comm_timeout' register: the drive's communication "
+                              "watchdog cannot be armed (add the drive's register, or set comm_timeout_ms = 0 to run "
+                              "without it: the drive then keeps its torque when this software dies)")
+        # one request at a time on the client: the keep-alive thread shares it with the user's calls
+        self._io_lock = threading.RLock()
+        self._last_request = time.monotonic()  # real time: the drive's watchdog counts real time
+        self._keepalive: threading.Thread | None = None
+        self._keepalive_stop = threading.Event()
+        self._rearm = False  # re-arm the watchdog before the next command (after a reconnect)
 
     # -- Modbus access with error mapping --------------------------------------------------------------
 
@@ -117,6 +151,13 @@ class CiA402Modbus(CiA402Loader):
         return self._user_trace(sending, data) if self._user_trace is not None else data
 
     def _call(self, what: str, func, *args, **kwargs):
+        with self._io_lock:
+            try:
+                return self._call_locked(what, func, *args, **kwargs)
+            finally:
+                self._last_request = time.monotonic()
+
+    def _call_locked(self, what: str, func, *args, **kwargs):
         for attempt in range(2):
             self._rx_seen = b""
             try:
@@ -165,6 +206,7 @@ class CiA402Modbus(CiA402Loader):
                 self.timebase.sleep(self.reconnect_delay_s)
             if self.client.connect():
                 self.reconnects += 1
+                self._rearm = bool(self.comm_timeout_ms)  # the drive may have restarted with its own setting
                 return
         raise Disconnected(
             self.name, f"link to {self.url} lost ({reason}); {self.reconnect_attempts} reconnect attempts failed"
@@ -196,11 +238,74 @@ class CiA402Modbus(CiA402Loader):
         if not self.client.connect():
             raise Disconnected(self.name, f"cannot connect to {self.url}")
         self._configure_scaling(self.read_register("rated_torque"))
+        self._arm_watchdog()
+
+    def _arm_watchdog(self) -> None:
+        """The drive's reaction (0x6007) first, then its timeout; read back, so a drive that ignores the write is
+        found now, not when the software dies. Starts the keep-alive thread."""
+        if not self.comm_timeout_ms:
+            log.warning("%s: communication watchdog off (comm_timeout_ms = 0): the drive keeps its torque if this "
+                        "software or its link dies", self.name)
+            return
+        if "abort_connection_option" in self.map.registers:
+            self.write_register("abort_connection_option", self.abort_connection_option)
+        self.write_register("comm_timeout", self.comm_timeout_ms)
+        armed = self.read_register("comm_timeout")
+        if armed != self.comm_timeout_ms:
+            raise CommandRejected(self.name, f"communication timeout reads {armed} ms after writing "
+                                  f"{self.comm_timeout_ms} ms: the drive's watchdog is not armed")
+        self._start_keepalive()
+
+    def _start_keepalive(self) -> None:
+        if self._keepalive is not None and self._keepalive.is_alive():
+            return
+        self._keepalive_stop.clear()
+        self._keepalive = threading.Thread(target=self._feed_watchdog, name=f"modbus-keepalive-{self.url}",
+                                           daemon=True)
+        self._keepalive.start()
+
+    def _feed_watchdog(self) -> None:
+        """Keep-alive (own thread): a statusword read whenever nothing was sent for a quarter of the timeout. A
+        request already under way feeds the drive by itself, so the thread never queues behind one."""
+        period_s = self.comm_timeout_ms / 4000.0
+        while not self._keepalive_stop.wait(period_s / 2):
+            if time.monotonic() - self._last_request < period_s or not self.client.connected:
+                continue
+            if not self._io_lock.acquire(blocking=False):
+                continue
+            try:
+                self._call_locked("keep-alive read statusword", self.client.read_holding_registers,
+                                  self.map["statusword"].address, count=1)
+            except Exception as exc:  # noqa: BLE001 - the user's own calls report the link's errors
+                log.debug("%s: keep-alive: %s", self.name, exc)
+            finally:
+                self._last_request = time.monotonic()
+                self._io_lock.release()
+
+    def _stop_keepalive(self) -> None:
+        self._keepalive_stop.set()
+        thread, self._keepalive = self._keepalive, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(max(1.0, 2 * self.timeout_s))
 
     def close(self) -> None:
+        """Stop feeding; disarm the drive's watchdog only when the drive is not powered (a drive left enabled
+        keeps it armed: it then stops by itself)."""
+        self._stop_keepalive()
+        if self.comm_timeout_ms and self.client.connected:
+            try:
+                if state_from_statusword(self.read_register("statusword")) not in POWERED_STATES:
+                    self.write_register("comm_timeout", 0)
+            except (InstrumentTimeout, MalformedReply, DeviceFault, CommandRejected, Disconnected) as exc:
+                log.debug("%s: disarming the watchdog on close: %s", self.name, exc)
         self.client.close()
 
     # -- CiA402Loader primitives: one register per object ----------------------------------------------
+
+    def _ensure_ready(self) -> None:
+        if self._rearm:
+            self._rearm = False
+            self._arm_watchdog()
 
     def _read_statusword(self) -> int:
         return self.read_register("statusword")

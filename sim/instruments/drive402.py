@@ -11,9 +11,11 @@ physics (applied motor torque, true output twist in counts of ``counts_per_rev``
 when |actual − effective target| ≤ ``target_window_permille``.
 
 Safety: quick stop (option 0x605A = 2: ramp to zero with the quick-stop slope, then SWITCH ON DISABLED;
-5…8: stay in QUICK STOP ACTIVE); a fault (``inject_fault(code)``, or ``communication_lost()`` = 0x8130) goes
-FAULT REACTION ACTIVE → FAULT with the torque removed at once, sets 0x603F/0x1001 and notifies the EMCY
-listeners; leaving FAULT sends the EMCY error reset (code 0).
+5…8: stay in QUICK STOP ACTIVE); a fault (``inject_fault(code)``) goes FAULT REACTION ACTIVE → FAULT with the
+torque removed at once, sets 0x603F/0x1001 and notifies the EMCY listeners; leaving FAULT sends the EMCY error
+reset (code 0). The communication watchdog (``communication_lost()``, called by a front end whose master went
+silent: CANopen heartbeat consumer, Modbus communication timeout ``comm_timeout_ms``) reacts as the abort
+connection option code 0x6007 says: 1 fault 0x8130 (the default), 2 disable voltage, 3 quick stop, 0 nothing.
 
 Profile position (mode 1, 0x6502 = 0x0009 with mode 4): in OPERATION ENABLED a rising edge of controlword bit 4
 (new set-point) turns the output to the target position 0x607A (counts of ``counts_per_rev`` per output
@@ -30,6 +32,10 @@ from collections.abc import Callable
 from tcms_daq.sim.instruments.physics import PhysicsReading, SharedPhysics
 
 from tcms_daq.protocols.cia402 import (
+    ABORT_CONNECTION_DISABLE_VOLTAGE,
+    ABORT_CONNECTION_FAULT,
+    ABORT_CONNECTION_OPTIONS,
+    ABORT_CONNECTION_QUICK_STOP,
     CW_NEW_SET_POINT,
     EMCY_COMMUNICATION,
     MODE_PROFILE_POSITION,
@@ -84,8 +90,14 @@ class Drive402Model:
         quick_stop_option: int = 2,
         target_window_permille: int = 5,
         counts_per_rev: int = 1 << 20,
+        comm_timeout_ms: int = 1000,
+        abort_connection_option: int = ABORT_CONNECTION_FAULT,
     ):
         self.physics = physics
+        # the communication watchdog's settings (Modbus: the comm timeout register; 0 = off) and reaction (0x6007);
+        # factory defaults, kept over a power cycle (a real drive stores them)
+        self.comm_timeout_ms = int(comm_timeout_ms)
+        self.abort_connection_option = int(abort_connection_option)
         self.lock = physics.lock
         self.rated_torque_mnm = int(rated_torque_mnm)
         self.max_torque_permille = int(max_torque_permille)
@@ -272,6 +284,19 @@ class Drive402Model:
                 raise DriveCommandError(f"rated torque {mnm} mN·m out of range")
             self.rated_torque_mnm = int(mnm)
 
+    def write_comm_timeout(self, timeout_ms: int) -> None:
+        with self.lock:
+            if not 0 <= timeout_ms <= 0xFFFF:
+                raise DriveCommandError(f"communication timeout {timeout_ms} ms out of range (0 = off … 65535)")
+            self.comm_timeout_ms = int(timeout_ms)
+
+    def write_abort_connection_option(self, option: int) -> None:
+        with self.lock:
+            option = to_int16(option)
+            if option not in ABORT_CONNECTION_OPTIONS:
+                raise DriveCommandError(f"abort connection option {option} not supported (0, 1, 2, 3)")
+            self.abort_connection_option = option
+
     def write_quick_stop_option(self, option: int) -> None:
         with self.lock:
             option = to_int16(option)
@@ -292,11 +317,26 @@ class Drive402Model:
             self._set_state(State.FAULT)
             self._emcy(self.error_code, self.error_register)
 
-    def communication_lost(self) -> None:
-        """The master's heartbeat or requests stopped: fault 0x8130 if the drive is powering the load."""
+    def communication_lost(self) -> str | None:
+        """The master's heartbeat or requests stopped: if the drive is powering the load, the reaction of the
+        abort connection option code (0x6007); returns what it did (None: nothing)."""
         with self.lock:
-            if self.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+            if self.state not in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+                return None
+            option = self.abort_connection_option
+            if option == ABORT_CONNECTION_FAULT:
                 self.inject_fault(EMCY_COMMUNICATION)
+                return "fault 0x8130"
+            if option == ABORT_CONNECTION_DISABLE_VOLTAGE:
+                self.target_torque_permille = 0
+                self._set_state(State.SWITCH_ON_DISABLED)
+                return "disable voltage"
+            if option == ABORT_CONNECTION_QUICK_STOP:
+                self.target_torque_permille = 0
+                if self.state is State.OPERATION_ENABLED:
+                    self._set_state(State.QUICK_STOP_ACTIVE)
+                return "quick stop"
+            return None
 
     # -- internals -------------------------------------------------------------------------------------
 

@@ -4,8 +4,13 @@ Holding registers follow the register map (``config/modbus-drive.toml``); addres
 exception 2. The SimDevice ``action`` refreshes measured registers from the drive model on every read and
 pushes writes into it; writes to read-only registers → exception 2, values the drive refuses → exception 3
 (4 when refused in the present state). Fault injection: ``inject("mute")`` makes the server swallow requests
-(the client times out). ``comm_timeout_s`` > 0 arms a communication watchdog: no request for that long while
-the drive is enabled → drive fault 0x8130.
+(the client times out).
+
+Communication watchdog, as a real drive's connection monitoring: once this front end has had a request, a
+silence longer than the drive's communication timeout (``Drive402Model.comm_timeout_ms``, the ``comm_timeout``
+register; 0 = off) makes the drive react as its abort connection option code 0x6007 says (``abort_connection_option``
+register; fault 0x8130 by default) — once per silence, and only while the drive is powering the load. A front
+end that never had a request (the RTU port while a master uses TCP) does not watch.
 """
 
 from __future__ import annotations
@@ -44,7 +49,6 @@ class DriveModbusServer:
         host: str = "127.0.0.1",
         port: int = 0,
         framer: str = "tcp",
-        comm_timeout_s: float = 0.0,
     ):
         if framer not in ("tcp", "rtu"):
             raise ValueError(f"framer must be 'tcp' or 'rtu', got {framer!r}")
@@ -53,13 +57,13 @@ class DriveModbusServer:
         self.host = host
         self.port = port
         self.framer = framer
-        self.comm_timeout_s = float(comm_timeout_s)
         self.fault: str | None = None
         self.requests = 0
         self._by_address = regmap.by_address()
         self._server: ModbusTcpServer | ModbusSerialServer | None = None
-        self._last_request = time.monotonic()
+        self._last_request: float | None = None  # None: no request since start, or the watchdog reacted
         self._watchdog: asyncio.Task | None = None
+        self.watchdog_reactions: list[str] = []  # what the watchdog did, for tests and the control channel
 
     def inject(self, fault: str | None) -> None:
         if fault is not None and fault not in FAULTS:
@@ -84,6 +88,8 @@ class DriveModbusServer:
             "torque_slope": lambda: d.torque_slope_permille_per_s,
             "rated_torque": lambda: d.rated_torque_mnm,
             "quick_stop_option": lambda: d.quick_stop_option,
+            "comm_timeout": lambda: d.comm_timeout_ms,
+            "abort_connection_option": lambda: d.abort_connection_option,
             "target_position": lambda: d.target_position_counts,
             "profile_velocity": lambda: d.profile_velocity_counts_per_s,
         }
@@ -99,6 +105,8 @@ class DriveModbusServer:
             "torque_slope": d.write_torque_slope,
             "rated_torque": d.write_rated_torque,
             "quick_stop_option": d.write_quick_stop_option,
+            "comm_timeout": d.write_comm_timeout,
+            "abort_connection_option": d.write_abort_connection_option,
             "target_position": d.write_target_position,
             "profile_velocity": d.write_profile_velocity,
         }
@@ -182,9 +190,8 @@ class DriveModbusServer:
             )
             await server.serve_forever(background=True)
         self._server = server
-        self._last_request = time.monotonic()
-        if self.comm_timeout_s > 0:
-            self._watchdog = asyncio.create_task(self._watch())
+        self._last_request = None
+        self._watchdog = asyncio.create_task(self._watch())
         return self.port
 
     async def stop(self) -> None:
@@ -199,6 +206,12 @@ class DriveModbusServer:
 
     async def _watch(self) -> None:
         while True:
-            await asyncio.sleep(self.comm_timeout_s / 4)
-            if time.monotonic() - self._last_request > self.comm_timeout_s:
-                self.drive.communication_lost()
+            timeout_s = self.drive.comm_timeout_ms / 1000.0
+            await asyncio.sleep(min(0.05, timeout_s / 4) if timeout_s > 0 else 0.05)
+            last = self._last_request
+            if timeout_s <= 0 or last is None or time.monotonic() - last <= timeout_s:
+                continue
+            self._last_request = None  # one reaction per silence
+            reaction = self.drive.communication_lost()
+            if reaction is not None:
+                self.watchdog_reactions.append(reaction)

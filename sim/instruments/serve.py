@@ -53,7 +53,10 @@ class SimulatorOptions:
     counts_per_rev: int = 1 << 20
     heartbeat_ms: int = 100
     modbus_map: str | None = None  # path of the register map TOML; None = config/modbus-drive.toml
-    modbus_comm_timeout_s: float = 0.0  # 0 = no Modbus communication watchdog
+    # the drive's communication watchdog as it leaves the factory (the master sets its own over the link):
+    # Modbus silence (s) before it reacts (0 = off), and its reaction (0x6007: 1 fault, 2 disable, 3 quick stop)
+    modbus_comm_timeout_s: float = 1.0
+    abort_connection_option: int = 1
 
     @staticmethod
     def from_mapping(data: dict[str, Any], **overrides: Any) -> SimulatorOptions:
@@ -150,6 +153,8 @@ class InstrumentSimulators:
             rated_torque_mnm=round(opts.rated_torque_nm * 1000),
             max_torque_permille=opts.max_torque_permille,
             counts_per_rev=opts.counts_per_rev,
+            comm_timeout_ms=round(opts.modbus_comm_timeout_s * 1000),
+            abort_connection_option=opts.abort_connection_option,
         )
         if "modbus" in want or "modbus_rtu" in want:
             from tcms_daq.sim.instruments.drive_modbus import DriveModbusServer
@@ -160,13 +165,11 @@ class InstrumentSimulators:
             if "modbus" in want:
                 self.modbus = modbus = DriveModbusServer(
                     drive, regmap, host=opts.host, port=opts.ports.get("modbus", 0),
-                    comm_timeout_s=opts.modbus_comm_timeout_s,
                 )
                 self.ports["modbus"] = loop.run(modbus.start())
             if "modbus_rtu" in want:
                 self.modbus_rtu = modbus_rtu = DriveModbusServer(
                     drive, regmap, host=opts.host, port=opts.ports.get("modbus_rtu", 0), framer="rtu",
-                    comm_timeout_s=opts.modbus_comm_timeout_s,
                 )
                 self.ports["modbus_rtu"] = loop.run(modbus_rtu.start())
         if "canopen" in want:

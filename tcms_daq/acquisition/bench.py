@@ -27,6 +27,9 @@ from tcms_daq.drivers import registry
 from tcms_daq.errors import ConfigError
 
 KINDS = ("angle", "torque", "loader")
+# [instruments.loader] fields of the drive's communication watchdog (config.models.LoaderInstrumentConfig): each goes
+# to the loader driver only when it takes it (the CANopen and the Modbus drive take different ones)
+WATCHDOG_FIELDS = ("comm_timeout_ms", "abort_connection_option", "master_heartbeat_ms", "drive_consumer_timeout_ms")
 
 
 def identity_compensator(angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
@@ -141,6 +144,14 @@ def _accepts(cls: Any, name: str) -> bool:
     return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
+def _takes(cls: Any, name: str) -> bool:
+    """``cls(...)`` has a parameter ``name`` (by name: a driver taking ``**options`` does not take them all)."""
+    try:
+        return name in inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: float | None = None,
                   physics_factory: Callable[[Any], Any] | None = None, compensator: Any = None) -> Bench:
     """Build a :class:`Bench` (not yet connected) from a bench config (mapping or the core's config model).
@@ -182,6 +193,8 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
         opts.pop("uncertainty", None)  # the declared uncertainty of its reading: the evaluation's, not the driver's
         opts = {k: v for k, v in opts.items() if v is not None}
         cls = registry.driver_class(driver_name)
+        if kind == "loader":
+            opts = {k: v for k, v in opts.items() if k not in WATCHDOG_FIELDS or _takes(cls, k)}
         from_config = getattr(cls, "from_config", None)
         if from_config is None and "clock" not in opts and _accepts(cls, "clock"):
             opts["clock"] = real_clock.now

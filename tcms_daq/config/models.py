@@ -294,12 +294,34 @@ class AngleInstrumentConfig(InstrumentConfig):
     uncertainty: AngleUncertainty | None = None
 
 
+DEFAULT_COMM_TIMEOUT_MS = 500  # Modbus: the drive reacts after this much silence of its master (the driver's default)
+
+
+class LoaderInstrumentConfig(InstrumentConfig):
+    """[instruments.loader]: also the drive's own communication watchdog, armed by the driver on connect so a dead
+    service or a silent link stops the drive by itself (docs/hardware.md). Over Modbus: ``comm_timeout_ms`` of
+    silence (0 = off, not recommended) and the drive's reaction ``abort_connection_option`` (CiA 402 0x6007:
+    1 fault 0x8130, 2 disable voltage, 3 quick stop). Over CANopen the drive's heartbeat consumer
+    (``drive_consumer_timeout_ms``; None: ten periods of ``master_heartbeat_ms``, at most 1 s). A driver gets the
+    fields it takes."""
+
+    comm_timeout_ms: int = Field(DEFAULT_COMM_TIMEOUT_MS, ge=0, le=65535, strict=True,
+                                 description="Modbus: the drive reacts after this much silence (ms; 0 = off)")
+    abort_connection_option: Literal[1, 2, 3] = Field(
+        1, description="the drive's reaction (0x6007): 1 fault, 2 disable voltage, 3 quick stop")
+    master_heartbeat_ms: int | None = Field(None, ge=10, le=1000, strict=True,
+                                            description="CANopen: this master's heartbeat period (ms)")
+    drive_consumer_timeout_ms: int | None = Field(
+        None, ge=0, le=65535, strict=True,
+        description="CANopen: the drive faults (0x8130) after this much silence of the master's heartbeat (ms)")
+
+
 class InstrumentsConfig(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     angle: AngleInstrumentConfig = Field(default_factory=AngleInstrumentConfig)
     torque: TorqueInstrumentConfig = Field(default_factory=TorqueInstrumentConfig)
-    loader: InstrumentConfig = Field(default_factory=InstrumentConfig)
+    loader: LoaderInstrumentConfig = Field(default_factory=LoaderInstrumentConfig)
 
 
 class BenchSection(BaseModel):

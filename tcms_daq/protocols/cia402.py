@@ -24,6 +24,28 @@ CW_FAULT_RESET = 0x0080
 
 EMCY_COMMUNICATION = 0x8130  # heartbeat / life guard error
 
+# The drive's own communication watchdog (a dead master or a silent link stops the drive by itself).
+# 0x6007 abort connection option code (CiA 402): what the drive does when its connection to the master is lost
+# (heartbeat / node guarding on CANopen, the communication timeout on Modbus)
+ABORT_CONNECTION_NO_ACTION = 0
+ABORT_CONNECTION_FAULT = 1  # fault 0x8130: the fault reaction takes the torque off, the drive ends in FAULT
+ABORT_CONNECTION_DISABLE_VOLTAGE = 2
+ABORT_CONNECTION_QUICK_STOP = 3  # quick stop ramp, then (0x605A = 1/2) SWITCH ON DISABLED
+ABORT_CONNECTION_OPTIONS = (ABORT_CONNECTION_NO_ACTION, ABORT_CONNECTION_FAULT, ABORT_CONNECTION_DISABLE_VOLTAGE,
+                            ABORT_CONNECTION_QUICK_STOP)
+# CANopen: the drive's heartbeat consumer (0x1016) waits this many periods of the master's heartbeat producer, so
+# a master thread held up by a loaded machine for a few periods is not taken for a dead master
+HEARTBEAT_CONSUMER_PERIODS = 10
+MIN_HEARTBEAT_CONSUMER_PERIODS = 3
+MAX_DEFAULT_CONSUMER_TIMEOUT_MS = 1000
+
+
+def heartbeat_consumer_timeout_ms(master_heartbeat_ms: int) -> int:
+    """The drive's heartbeat consumer time (ms) for a master producing every ``master_heartbeat_ms``: ten periods,
+    at most 1 s of silence (and never fewer than three periods)."""
+    return max(MIN_HEARTBEAT_CONSUMER_PERIODS * master_heartbeat_ms,
+               min(HEARTBEAT_CONSUMER_PERIODS * master_heartbeat_ms, MAX_DEFAULT_CONSUMER_TIMEOUT_MS))
+
 # (mask, value, name), most specific first
 STATES = (
     (0x4F, 0x00, "NOT READY TO SWITCH ON"),

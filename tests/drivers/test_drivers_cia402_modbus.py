@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 import time
+from pathlib import Path
 
 import pytest
 from tcms_daq.drivers.base import (
@@ -19,6 +20,7 @@ from tcms_daq.drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, 
 from tcms_daq.drivers.testing import ManualTime, wait_until
 from tcms_daq.sim.instruments.proxy import FaultProxy
 
+from tcms_daq.config.loader import packaged_config_dir as tcms_config_dir
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.modbus_map import load_register_map
 
@@ -184,13 +186,80 @@ def test_device_fault_and_reset(drive_sims):
         assert drive.status().state == "OPERATION ENABLED"
 
 
-def test_comm_watchdog_faults_the_drive(make_sims):
-    sims = make_sims(instruments=("modbus",), modbus_comm_timeout_s=0.2)
-    with _tcp(sims) as drive:
+WATCHDOG_MS = 200  # the drive's communication timeout these tests arm (real time)
+
+
+def _powering(sims) -> bool:
+    return sims.drive.state.label in ("OPERATION ENABLED", "QUICK STOP ACTIVE")
+
+
+def _stopped_by_itself(sims) -> bool:
+    """The simulated drive (read directly, not over the link) no longer powers the load, torque near zero."""
+    return not _powering(sims) and abs(sims.physics.latest().applied_torque_nm) < 20.0
+
+
+def test_connect_arms_the_drive_watchdog_and_keeps_it_fed(make_sims):
+    sims = make_sims(instruments=("modbus",))  # the drive's factory setting: 1 s, fault
+    sims.physics.start(speed=1.0)
+    with _tcp(sims, comm_timeout_ms=WATCHDOG_MS, torque_slope_nm_per_s=20000.0) as drive:
+        assert sims.drive.comm_timeout_ms == WATCHDOG_MS and sims.drive.abort_connection_option == 1
         drive.enable()
-        time.sleep(0.4)  # the master goes quiet
+        drive.set_torque(300.0)
+        # no call of the user for many timeouts: the driver's keep-alive feeds the drive
+        quiet_until = time.monotonic() + 5 * WATCHDOG_MS / 1000.0
+        while time.monotonic() < quiet_until:
+            assert _powering(sims), sims.drive.state
+            time.sleep(0.01)
+        assert sims.modbus.watchdog_reactions == []
+        drive.disable()
+    assert sims.drive.comm_timeout_ms == 0  # closed with the drive disabled: disarmed
+
+
+@pytest.mark.parametrize("option, final", [(1, "FAULT"), (3, "SWITCH ON DISABLED"), (2, "SWITCH ON DISABLED")])
+def test_a_dead_master_stops_the_drive_by_itself(make_sims, option, final):
+    """The master dies (no close: its keep-alive and socket just stop) with torque on: the drive reacts as its
+    abort connection option says within the timeout, without any word from the master."""
+    sims = make_sims(instruments=("modbus",))
+    sims.physics.start(speed=1.0)
+    drive = _tcp(sims, comm_timeout_ms=WATCHDOG_MS, abort_connection_option=option, torque_slope_nm_per_s=20000.0)
+    drive.connect()
+    drive.enable()
+    drive.set_torque(-600.0)
+    assert wait_until(lambda: sims.physics.latest().applied_torque_nm < -590.0)
+    drive._stop_keepalive()  # the process is gone: nothing feeds the drive any more
+    drive.client.close()
+    assert wait_until(lambda: _stopped_by_itself(sims), timeout_s=10 * WATCHDOG_MS / 1000.0 + 2.0)
+    assert sims.drive.state.label == final
+    if option == 1:
+        assert sims.drive.error_code == 0x8130
+    assert len(sims.modbus.watchdog_reactions) == 1
+
+
+def test_a_mute_link_stops_the_drive_by_itself(make_sims):
+    sims = make_sims(instruments=("modbus",))
+    sims.physics.start(speed=1.0)
+    with _tcp(sims, comm_timeout_ms=WATCHDOG_MS, torque_slope_nm_per_s=20000.0) as drive:
+        drive.enable()
+        drive.set_torque(500.0)
+        assert wait_until(lambda: sims.physics.latest().applied_torque_nm > 490.0)
+        sims.inject("modbus", "mute")  # the drive hears nothing (the keep-alive's requests are lost)
+        assert wait_until(lambda: _stopped_by_itself(sims), timeout_s=10 * WATCHDOG_MS / 1000.0 + 2.0)
+        sims.inject("modbus", None)
         status = drive.status()
         assert status.fault and status.error_code == 0x8130
+
+
+def test_watchdog_needs_its_register_or_an_explicit_off(tmp_path, drive_sims):
+    packaged = Path(str(tcms_config_dir())) / "modbus-drive.toml"
+    lines = [ln for ln in packaged.read_text().splitlines() if not ln.startswith("comm_timeout ")]
+    without = tmp_path / "map.toml"
+    without.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ConfigError, match="comm_timeout"):
+        _tcp(drive_sims, register_map=without)
+    with _tcp(drive_sims, register_map=without, comm_timeout_ms=0) as drive:  # explicitly off: runs, warned
+        assert drive.status().state == "SWITCH ON DISABLED"
+    with pytest.raises(ValueError, match="abort_connection_option"):
+        _tcp(drive_sims, abort_connection_option=7)
 
 
 def test_quick_stop_ramps_down_and_disables(drive_sims):
