@@ -200,6 +200,8 @@ class CiA402Canopen(CiA402Loader):
         self.reconnects = 0
         self._wanted = False  # connect() was called and close() was not: reconnect on a lost link
         self._lost = False  # the bounded reconnect was spent without success: later calls only re-probe
+        self._bus_error = False  # the bus reported a read/send error since it was opened
+        self.late_heartbeats = 0  # the drive's heartbeat came back after a short wait, link kept (diagnostics)
 
     # -- link management -------------------------------------------------------------------------------
 
@@ -259,6 +261,30 @@ class CiA402Canopen(CiA402Loader):
         node.nmt.add_heartbeat_callback(self._on_heartbeat)
         node.emcy.add_callback(self._on_emcy)
         self.network, self.node = network, node
+        self._bus_error = False
+        self._start_master_heartbeat()
+
+    def _start_master_heartbeat(self) -> None:
+        """This master's heartbeat producer on its own thread (python-can's cyclic task, catching up after a stall),
+        from the moment the bus is open until it is torn down: it keeps running through a (re)configuration, so
+        the drive's consumer never sees the master fall silent while the link is only being checked."""
+        network = self.network
+        if self.master_heartbeat_ms <= 0 or network is None or network.bus is None:
+            return
+        task = self._master_heartbeat
+        if task is not None and not getattr(task, "stopped", False):
+            return
+        message = can.Message(arbitration_id=0x700 + self.master_node_id, data=[0x05], is_extended_id=False)
+        self._master_heartbeat = ThreadBasedCyclicSendTask(
+            network.bus, network.send_lock, message, self.master_heartbeat_ms / 1000.0,
+            on_error=self._on_producer_error,
+        )
+
+    def _on_producer_error(self, exc: Exception) -> bool:
+        """A failed heartbeat send stops the producer (python-can logs it); the next command restarts it on a bus
+        that is still open, or reconnects."""
+        self._bus_error = True
+        return False
 
     def _teardown(self) -> None:
         task, self._master_heartbeat = self._master_heartbeat, None
@@ -292,16 +318,10 @@ class CiA402Canopen(CiA402Loader):
             self._sdo_write(0x1016, (self.master_node_id << 16) | self.drive_consumer_timeout_ms, subindex=1)
         self._read_pdo_mapping()
         self._target_permille = 0
-        if self.master_heartbeat_ms > 0:
-            message = can.Message(arbitration_id=0x700 + self.master_node_id, data=[0x05], is_extended_id=False)
-            # on_error -> False: a broken link stops the producer quietly; the heartbeat check reports it
-            network = self.network
-            if network is None or network.bus is None:
-                raise Disconnected(self.name, "CAN bus closed during configuration")
-            self._master_heartbeat = ThreadBasedCyclicSendTask(
-                network.bus, network.send_lock, message, self.master_heartbeat_ms / 1000.0,
-                on_error=lambda exc: False,
-            )
+        network = self.network
+        if network is None or network.bus is None:
+            raise Disconnected(self.name, "CAN bus closed during configuration")
+        self._start_master_heartbeat()
         with self._cond:
             self._tpdo1 = self._tpdo2 = None  # only values sent after this (re)start count
             self._malformed = None
@@ -340,7 +360,15 @@ class CiA402Canopen(CiA402Loader):
         if not self._wanted:
             raise Disconnected(self.name, "not connected; call connect() first")
         alive = self.network is not None and self._heartbeat_alive()
+        if not alive and not self._lost and self.network is not None and not self._bus_error:
+            # the bus is open and healthy: a heartbeat late on a loaded machine is not a lost link. Wait one more
+            # heartbeat timeout before tearing the link down (which silences this master and faults the drive)
+            alive = self._wait_heartbeat(self.heartbeat_timeout_s)
+            if alive:
+                self.late_heartbeats += 1
+                log.info("%s: the drive's heartbeat was late (> %g s); link kept", self.name, self.heartbeat_timeout_s)
         if alive and not self._booted:
+            self._start_master_heartbeat()  # restarted if a send error stopped it
             return
         if alive:
             reason = "drive restarted (boot-up)"
@@ -382,6 +410,7 @@ class CiA402Canopen(CiA402Loader):
     def _on_link_error(self, exc: Exception) -> None:
         """The receive thread's bus read failed: the link is lost now (the next command reconnects, bounded);
         logged once per link, and the thread is slowed down instead of spinning on a dead bus."""
+        self._bus_error = True
         with self._cond:
             first = self._last_heartbeat is not None
             self._last_heartbeat = None

@@ -155,9 +155,47 @@ def test_heartbeat_loss_is_disconnected(can_sims):
         with pytest.raises(Disconnected, match="heartbeat lost"):
             drive.status()
         can_sims.inject("canopen", None)
-        # the master went quiet while reconnecting: the drive's heartbeat consumer faulted it (0x8130)
-        assert wait_until(lambda: drive.status().fault)
-        assert drive.status().error_code == 0x8130
+        # this master's heartbeat went on through the reconnect attempts (only the drive's stopped): the drive's
+        # consumer had no reason to fault, and the link comes back
+        assert wait_until(lambda: drive.status().state == "OPERATION ENABLED", timeout_s=5.0)
+        assert can_sims.canopen.consumer_reactions == []
+
+
+def test_a_late_drive_heartbeat_keeps_the_link(can_sims):
+    """A drive heartbeat later than the timeout (a loaded machine) is waited for once more before the link is torn
+    down: no reconnect, no silence of this master, no 0x8130."""
+    with _driver(can_sims) as drive:
+        drive.enable()
+        with drive._cond:
+            drive._last_heartbeat = time.monotonic() - 10.0  # as if the last heartbeat had come long ago
+        assert drive.status().state == "OPERATION ENABLED"
+        assert drive.late_heartbeats == 1 and drive.reconnects == 0
+        assert can_sims.canopen.consumer_reactions == []
+
+
+def test_a_dead_master_faults_the_drive_by_itself(can_sims):
+    """The master process dies with torque on (its bus and heartbeat producer just stop, nothing is said): the drive's
+    heartbeat consumer faults it (0x8130, torque off) within its consumer time."""
+    drive = _driver(can_sims)
+    drive.connect()
+    drive.enable()
+    drive.set_torque(-600.0)
+    assert wait_until(lambda: can_sims.physics.latest().applied_torque_nm < -590.0)
+    drive._teardown()  # no close(): the consumer stays armed
+    consumer_s = FAST["drive_consumer_timeout_ms"] / 1000.0
+    assert wait_until(lambda: can_sims.drive.state.label == "FAULT", timeout_s=10 * consumer_s + 2.0)
+    assert can_sims.drive.error_code == 0x8130
+    assert wait_until(lambda: abs(can_sims.physics.latest().applied_torque_nm) < 20.0)
+    assert can_sims.canopen.consumer_reactions == ["fault 0x8130"]
+
+
+def test_consumer_time_is_derived_from_the_master_heartbeat():
+    url = "virtual://derived"
+    assert CiA402Canopen(url, master_heartbeat_ms=100).drive_consumer_timeout_ms == 1000
+    assert CiA402Canopen(url, master_heartbeat_ms=50).drive_consumer_timeout_ms == 500
+    assert CiA402Canopen(url, master_heartbeat_ms=500).drive_consumer_timeout_ms == 1500  # three periods at least
+    with pytest.raises(ValueError, match="at least 3 master heartbeat periods"):
+        CiA402Canopen(url, master_heartbeat_ms=100, drive_consumer_timeout_ms=250)
 
 
 LOADER_CALLS = {
