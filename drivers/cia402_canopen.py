@@ -262,12 +262,12 @@ class CiA402Canopen(CiA402Loader):
         node.emcy.add_callback(self._on_emcy)
         self.network, self.node = network, node
         self._bus_error = False
-        self._start_master_heartbeat()
 
     def _start_master_heartbeat(self) -> None:
         """This master's heartbeat producer on its own thread (python-can's cyclic task, catching up after a stall),
-        from the moment the bus is open until it is torn down: it keeps running through a (re)configuration, so
-        the drive's consumer never sees the master fall silent while the link is only being checked."""
+        started once the drive's heartbeat was seen and its consumer armed, running until the link is torn down.
+        A link declared lost stays torn down until the drive is heard again: this master then falls silent on
+        purpose, and the drive's consumer stops the drive by itself."""
         network = self.network
         if self.master_heartbeat_ms <= 0 or network is None or network.bus is None:
             return

@@ -48,11 +48,15 @@ from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.config.models import DEFAULT_COMM_TIMEOUT_MS
 from tcms_daq.errors import ConfigError
-from tcms_daq.protocols.cia402 import ABORT_CONNECTION_FAULT, ABORT_CONNECTION_OPTIONS, state_from_statusword
+from tcms_daq.protocols.cia402 import (
+    ABORT_CONNECTION_FAULT,
+    ABORT_CONNECTION_OPTIONS,
+    POWERED_STATES,
+    state_from_statusword,
+)
 from tcms_daq.protocols.modbus_map import RegisterMap, load_register_map
 
 log = logging.getLogger(__name__)
-POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
 
 EXCEPTION_NAMES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                    4: "device failure", 6: "device busy", 10: "gateway path unavailable",

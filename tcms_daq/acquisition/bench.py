@@ -5,6 +5,11 @@ driver takes). The composer does not know which drivers are simulated: a driver 
 ``from_config(kind, options, context)`` to share state with its siblings (the in-process virtual bench does,
 so its three instruments drive one physics object); otherwise it is built as ``cls(**options)``.
 
+``connect()`` ends with a safe start (:meth:`Bench.make_safe`): the loader's state and torque are read before
+anything else, and a drive found enabled or under torque is ramped to zero and disabled (one left in FAULT is
+reported: its torque is off). The report (:class:`SafeStart`) says what was found and done; the service refuses
+tests until it is safe.
+
 The clock follows the drivers: when all three instruments expose the same ``time_source`` (an object with
 ``now_s()`` and ``advance(duration_s)``), the bench runs on that simulated clock; when none does, on real
 monotonic time. Mixing the two on one bench is refused.
@@ -13,7 +18,9 @@ monotonic time. Mixing the two on one bench is refused.
 from __future__ import annotations
 
 import inspect
+import logging
 import math
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +31,13 @@ import numpy as np
 from tcms_daq.acquisition.clock import Clock, MonotonicClock, SimulatedClock
 from tcms_daq.acquisition.interlocks import InterlockLimits
 from tcms_daq.drivers import registry
+from tcms_daq.drivers.base import InstrumentError
 from tcms_daq.errors import ConfigError
+from tcms_daq.protocols.cia402 import POWERED_STATES
+
+log = logging.getLogger(__name__)
+SAFE_TORQUE_SHARE = 0.01  # a drive is "under torque" above this share of the bench's torque limit
+DEFAULT_SAFE_TORQUE_NM = 20.0  # … or above this when the bench has no finite limit
 
 KINDS = ("angle", "torque", "loader")
 # [instruments.loader] fields of the drive's communication watchdog (config.models.LoaderInstrumentConfig): each goes
@@ -35,6 +48,36 @@ WATCHDOG_FIELDS = ("comm_timeout_ms", "abort_connection_option", "master_heartbe
 def identity_compensator(angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
     """No correction: θ_c = θ."""
     return angle_arcsec
+
+
+@dataclass
+class SafeStart:
+    """What the safe start found on the loader, what it did, and whether the bench is safe now.
+
+    found_*: the state, torque (N·m) and error code read first; actions: what was done, in order; safe: not powered
+    and |torque| within ``safe_torque_nm``; message: one line for the log, the event and a 409."""
+
+    found_state: str | None
+    found_torque_nm: float | None
+    found_error_code: int
+    actions: list[str]
+    safe: bool
+    message: str
+    safe_torque_nm: float
+    final_state: str | None = None
+    final_torque_nm: float | None = None
+    at_monotonic_s: float = field(default_factory=time.monotonic)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"found_state": self.found_state, "found_torque_nm": self.found_torque_nm,
+                "found_error_code": self.found_error_code, "actions": list(self.actions), "safe": self.safe,
+                "message": self.message, "safe_torque_nm": self.safe_torque_nm, "final_state": self.final_state,
+                "final_torque_nm": self.final_torque_nm}
+
+
+def is_safe(state: str, torque_nm: float, safe_torque_nm: float) -> bool:
+    """A loader that cannot apply torque and carries none (within ``safe_torque_nm``)."""
+    return state not in POWERED_STATES and abs(torque_nm) <= safe_torque_nm
 
 
 @dataclass
@@ -55,6 +98,14 @@ class Bench:
     description: dict[str, Any] = field(default_factory=dict)
     interlocks: dict[str, Any] = field(default_factory=dict)  # [interlocks] of the config: InterlockLimits fields
     connected: bool = False
+    safe_start: SafeStart | None = None  # what connect() found on the loader and did about it
+
+    @property
+    def safe_torque_nm(self) -> float:
+        """Torque (N·m) above which a loader counts as under torque: 1 % of the bench's limit."""
+        if math.isfinite(self.max_torque_nm):
+            return SAFE_TORQUE_SHARE * self.max_torque_nm
+        return DEFAULT_SAFE_TORQUE_NM
 
     def compensate(self, angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
         apply = getattr(self.compensator, "apply", None)
@@ -91,6 +142,48 @@ class Bench:
                     pass
             raise
         self.connected = True
+        self.safe_start = self.make_safe()
+
+    def make_safe(self) -> SafeStart:
+        """Safe start: read the loader's state and torque first; one enabled or under torque is ramped to zero
+        (the driver's default slope) and disabled, one in FAULT is reported (its torque is off; the next test
+        resets it). Logged at WARNING when anything was found, INFO otherwise; never raises for the loader."""
+        loader, limit = self.loader, self.safe_torque_nm
+        name = getattr(loader, "name", "loader")
+        try:
+            found = loader.status()
+        except InstrumentError as exc:
+            report = SafeStart(None, None, 0, [], False, f"safe start: cannot read {name}: {exc}", limit)
+            log.error("%s", report.message)
+            return report
+        fault = f" 0x{found.error_code:04X}" if found.fault else ""
+        what = f"{name} found {found.state}{fault} at {found.torque_actual_nm:.1f} N·m"
+        actions: list[str] = []
+        final = found
+        if not is_safe(found.state, found.torque_actual_nm, limit) or found.state in POWERED_STATES:
+            try:
+                if found.state in POWERED_STATES:
+                    loader.set_torque(0.0)
+                    actions.append("target torque 0 (ramped)")
+                loader.disable()
+                actions.append("disabled")
+                final = loader.status()
+            except InstrumentError as exc:
+                actions.append(f"failed: {exc}")
+        safe = is_safe(final.state, final.torque_actual_nm, limit)
+        if not actions and found.fault:
+            message = f"safe start: {what}: safe (torque off; the next test resets the fault)"
+        elif not actions:
+            message = f"safe start: {what}: safe, nothing to do"
+        elif safe:
+            message = f"safe start: {what}: brought to {final.state} at {final.torque_actual_nm:.1f} N·m"
+        else:
+            message = (f"safe start: {what}: NOT safe ({'; '.join(actions)}; now {final.state} at "
+                       f"{final.torque_actual_nm:.1f} N·m)")
+        report = SafeStart(found.state, found.torque_actual_nm, found.error_code if found.fault else 0, actions,
+                           safe, message, limit, final.state, final.torque_actual_nm)
+        log.log(logging.WARNING if actions or found.fault or not safe else logging.INFO, "%s", message)
+        return report
 
     def close(self) -> None:
         for drv in self.instruments().values():

@@ -16,13 +16,14 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from tcms_daq.acquisition.align import Aligner
-from tcms_daq.acquisition.bench import Bench
+from tcms_daq.acquisition.bench import POWERED_STATES, Bench
 from tcms_daq.acquisition.fanout import FanOut
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
 from tcms_daq.acquisition.monitor import InterlockMonitor
@@ -40,9 +41,7 @@ from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
 
 log = logging.getLogger(__name__)
-# CiA 402 states in which the drive can apply torque (a loader left in one after a run is disabled)
 REAL_STEP_S = 0.02  # a paced simulated clock steps about 50 times per real second
-POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
 
 
 def _error_trip(kind: str, exc: Exception, time_s: float) -> Trip | None:
@@ -79,6 +78,7 @@ class _Channel:
         self.errors_total = 0
         self.readings = 0
         self.last_arrival_s = now_s
+        self.last_arrival_real_s: float | None = None  # time.monotonic() of the last reading (None: none yet)
         self.last_value: float | None = None
         self.last_error: str | None = None
         self.busy_since: float | None = None  # clock time the pending request started
@@ -217,6 +217,7 @@ class AcquisitionLoop:
                 ch.pending.append(batch)
             ch.readings += len(batch)
             ch.last_arrival_s = self.clock.now()
+            ch.last_arrival_real_s = time.monotonic()
             ch.last_value = float(batch.value[-1])
         return len(batch)
 
@@ -256,6 +257,7 @@ class AcquisitionLoop:
         ch.errors_in_row = 0
         ch.readings += 1
         ch.last_arrival_s = self.clock.now()
+        ch.last_arrival_real_s = time.monotonic()
         self.last_status = status
         trip = check_loader_status(status) if self.drive_fault_armed else None
         if trip is not None:
@@ -362,8 +364,27 @@ class AcquisitionLoop:
             self.scheduler.pass_time(self, now, dt)
 
     def channel_stats(self) -> dict[str, dict]:
-        return {k: {"instrument": c.name, "readings": c.readings, "errors": c.errors_total}
-                for k, c in self._channels.items()}
+        """Per channel: counters, the last value (the loader's is its status), how old it is in real seconds
+        (``age_s``) and the link: ``up``, ``stale`` (no new reading for the watchdog time) or ``down`` (its last
+        request failed: ``last_error`` says how). A reading of a link that is not up is not live."""
+        now = time.monotonic()
+        stale_s = self.stale_after_real_s()
+        stats = {}
+        for kind, c in self._channels.items():
+            age_s = None if c.last_arrival_real_s is None else now - c.last_arrival_real_s
+            link = ("down" if c.errors_in_row else
+                    "stale" if age_s is None or age_s > stale_s else "up")
+            stats[kind] = {"instrument": c.name, "readings": c.readings, "errors": c.errors_total,
+                           "last_value": c.last_value if kind != "loader" else None, "age_s": age_s, "link": link,
+                           "last_error": c.last_error if c.errors_in_row else None}
+        return stats
+
+    def stale_after_real_s(self) -> float:
+        """Real seconds without a reading after which a channel counts as stale (the watchdog time; 1 s at least)."""
+        timeout = self.monitor.stale_timeout_s()
+        speed = getattr(self.clock, "speed", 1.0)
+        real = timeout / speed if timeout is not None and math.isfinite(speed) and speed > 0 else None
+        return max(1.0, real or 1.0)
 
     def latest_torque_nm(self) -> float | None:
         return self._channels["torque"].last_value

@@ -277,6 +277,12 @@ class TestRun:
             if not self.bench.connected:
                 self.bench.connect()
                 own_connect = True
+                safe_start = self.bench.safe_start  # what connecting found on the loader and did about it
+                if safe_start is not None and (safe_start.actions or safe_start.found_error_code
+                                               or not safe_start.safe):
+                    self.record.notes.append(safe_start.message)
+                if safe_start is not None and not safe_start.safe:
+                    raise TcmsError(safe_start.message)
             if acq is None:
                 acq = AcquisitionLoop(self.bench, self.limits)
                 self._acq = acq

@@ -58,6 +58,9 @@ STATES = (
     (0x4F, 0x08, "FAULT"),
 )
 
+# the states in which a drive can apply torque
+POWERED_STATES = frozenset({"OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"})
+
 # statusword mask/value that each target state is recognised by
 STATE_PATTERN = {name: (mask, value) for mask, value, name in STATES}
 

@@ -147,6 +147,10 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
                 opcua.live(columns)
 
         await asyncio.to_thread(bench.open, sink)
+        safe_start = getattr(bench, "safe_start", None)
+        report = safe_start() if safe_start is not None else None
+        if report is not None:  # what the bench's safe start found on the loader and did about it
+            events.publish("bench_safe_start", **report)
 
     async def _stop(app: FastAPI) -> None:
         state = app.state

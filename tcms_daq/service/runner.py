@@ -147,6 +147,9 @@ class BenchRunner:
         if not self.bench.connected:  # tcms serve connects first, to fail with one line before it starts
             self.bench.connect()
         self.acq = AcquisitionLoop(self.bench)
+        report = getattr(self.bench, "safe_start", None)
+        if report is not None and not report.safe:
+            self.acq.disable_pending = True  # the status poll disables the loader as soon as it answers
         self._live_sub = self.acq.fanout.subscribe_callback(self._to_live, name="live", maxsize=64)
         self.acq.start()
         if self.acq.clock.stepped:
@@ -189,13 +192,15 @@ class BenchRunner:
     def status(self) -> dict[str, Any]:
         loader = None
         trip = None
+        stats = self.acq.channel_stats() if self.acq is not None else {}
         if self.acq is not None:
             st = self.acq.last_status
             if st is not None:
+                link = stats.get("loader", {})
                 loader = {"state": st.state, "torque_actual_nm": st.torque_actual_nm, "fault": st.fault,
-                          "error_code": st.error_code, "position_deg": st.position_deg, "moving": st.moving}
+                          "error_code": st.error_code, "position_deg": st.position_deg, "moving": st.moving,
+                          "age_s": link.get("age_s"), "live": link.get("link") == "up"}
             trip = self.acq.trip.to_dict() if self.acq.trip is not None else None
-        stats = self.acq.channel_stats() if self.acq is not None else {}
         instruments = {
             kind: {**dict(self.bench.description.get(kind, {})),
                    **stats.get(kind, {}), **({"status": loader} if kind == "loader" else {})}
@@ -219,8 +224,32 @@ class BenchRunner:
             "test_bounds": self.test_bounds(),
             "acquisition_step": ({"clock_s": self.acq.period_s, "real_s": self.acq.step_real_s}
                                  if self.acq is not None else None),
+            "safe_start": self.safe_start(),
+            "not_ready": self.not_ready_reason(),
         }
 
+    def safe_start(self) -> dict[str, Any] | None:
+        """What the bench's safe start found on the loader and did (``acquisition.bench.SafeStart``)."""
+        report = getattr(self.bench, "safe_start", None)
+        return report.to_dict() if report is not None else None
+
+    def not_ready_reason(self) -> str | None:
+        """Why no test may start now (None: it may): the safe start left the loader unsafe and no fresh status has
+        shown it safe since (the status poll disables a loader left enabled as soon as it answers)."""
+        from tcms_daq.acquisition.bench import is_safe
+
+        report = getattr(self.bench, "safe_start", None)
+        if report is None or report.safe:
+            return None
+        if self.acq is not None:
+            status = self.acq.last_status
+            link = self.acq.channel_stats()["loader"]
+            if status is not None and link["link"] == "up" and is_safe(status.state, status.torque_actual_nm,
+                                                                      report.safe_torque_nm):
+                report.safe = True
+                report.message += f"; safe since ({status.state} at {status.torque_actual_nm:.1f} N·m)"
+                return None
+        return f"the bench is not safe yet: {report.message}"
     def test_bounds(self) -> dict[str, float]:
         """The bounds ``POST /api/tests`` checks (``check_test_bounds`` and the torque limits), for forms."""
         section = self.config.bench

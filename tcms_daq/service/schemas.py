@@ -305,6 +305,8 @@ class LoaderStatusView(BaseModel):
     error_code: int = Field(description="0x603F error code (0: none)")
     position_deg: float | None = Field(default=None, description="the output's position (0x6064), deg")
     moving: bool = Field(default=False, description="a move between test positions is under way")
+    age_s: float | None = Field(default=None, description="real seconds since this status was read")
+    live: bool = Field(default=True, description="false: the loader's link is down or stale, this status is old")
 
 
 class InstrumentView(BaseModel):
@@ -316,6 +318,25 @@ class InstrumentView(BaseModel):
     readings: int | None = None
     errors: int | None = None
     status: LoaderStatusView | None = None
+    last_value: float | None = Field(default=None, description="the last reading (the channel's unit)")
+    age_s: float | None = Field(default=None, description="real seconds since the last reading (None: none yet)")
+    link: Literal["up", "stale", "down"] | None = Field(
+        default=None, description="up; stale: no new reading for the watchdog time; down: the last request failed")
+    last_error: str | None = Field(default=None, description="why the link is down")
+
+
+class SafeStartView(BaseModel):
+    """What the service found on the loader when it connected, and what it did (the safe start)."""
+
+    found_state: str | None
+    found_torque_nm: float | None
+    found_error_code: int
+    actions: list[str]
+    safe: bool
+    message: str
+    safe_torque_nm: float
+    final_state: str | None = None
+    final_torque_nm: float | None = None
 
 
 class InterlockView(BaseModel):
@@ -372,6 +393,8 @@ class BenchStatus(BaseModel):
     reducers: list[ReducerView]
     test_bounds: TestBounds | None = None
     acquisition_step: AcquisitionStep | None = None
+    safe_start: SafeStartView | None = None
+    not_ready: str | None = Field(default=None, description="why no test is accepted now (409), None: ready")
     active_test: str | None
     live: LiveRates
 

@@ -48,6 +48,10 @@ class TestManager:
         with self._lock:
             if self._active_id is not None:
                 raise Conflict(f"test {self._active_id} is still active; abort it or wait for it to finish")
+            not_ready = getattr(self.runner, "not_ready_reason", None)
+            reason = not_ready() if not_ready is not None else None
+            if reason is not None:  # e.g. the safe start found the drive enabled and could not disable it yet
+                raise Conflict(reason)
             run_id = new_run_id()
             record = self.store.create_run(
                 run_id,
