@@ -68,7 +68,8 @@ class DriveCanopenNode:
         self._consumer: tuple[int, float] | None = None  # (master node id, timeout s)
         self._master_seen: float | None = None
         self._last_cycle: float | None = None
-        self.consumer_reactions: list[str] = []  # what the heartbeat consumer did (tests, diagnostics)
+        # what the heartbeat consumer did and when (time.monotonic(), system-wide): tests and the control channel
+        self.consumer_reactions: list[dict[str, float | str]] = []
         self.rpdos_received = 0
         self._sdo_subscribed = True
 
@@ -236,6 +237,7 @@ class DriveCanopenNode:
                 self._master_seen = None  # one reaction per loss
                 reaction = self.drive.communication_lost()
                 if reaction is not None:
-                    self.consumer_reactions.append(reaction)
+                    self.consumer_reactions.append({"reaction": reaction, "at_monotonic_s": now,
+                                                    "silent_s": now - seen})
         except Exception as exc:  # noqa: BLE001 - keep the node alive; the bus may be reconnecting
             log.debug("drive CANopen sim cycle: %s", exc)

@@ -63,7 +63,8 @@ class DriveModbusServer:
         self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._last_request: float | None = None  # None: no request since start, or the watchdog reacted
         self._watchdog: asyncio.Task | None = None
-        self.watchdog_reactions: list[str] = []  # what the watchdog did, for tests and the control channel
+        # what the watchdog did and when (time.monotonic(), system-wide): tests and the control channel
+        self.watchdog_reactions: list[dict[str, float | str]] = []
 
     def inject(self, fault: str | None) -> None:
         if fault is not None and fault not in FAULTS:
@@ -214,4 +215,5 @@ class DriveModbusServer:
             self._last_request = None  # one reaction per silence
             reaction = self.drive.communication_lost()
             if reaction is not None:
-                self.watchdog_reactions.append(reaction)
+                self.watchdog_reactions.append({"reaction": reaction, "at_monotonic_s": time.monotonic(),
+                                                "silent_s": time.monotonic() - last})

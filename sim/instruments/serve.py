@@ -245,6 +245,15 @@ class InstrumentSimulators:
             self._require(self.drive, "drive").power_cycle()
             self.canopen.start()
 
+    def watchdog_reactions(self) -> list[dict[str, float | str]]:
+        """What the drive's communication watchdogs did (Modbus timeout, CANopen heartbeat consumer), in order:
+        ``{"link", "reaction", "at_monotonic_s", "silent_s"}``."""
+        found = [{"link": "modbus", **r} for server in (self.modbus, self.modbus_rtu) if server is not None
+                 for r in server.watchdog_reactions]
+        if self.canopen is not None:
+            found += [{"link": "canopen", **r} for r in self.canopen.consumer_reactions]
+        return sorted(found, key=lambda r: float(r["at_monotonic_s"]))
+
     def inject(self, instrument: str, fault: str | None) -> None:
         """Fault injection by name: nd287/aed: mute, garbage, partial, encoder_fault/sensor_fault;
         modbus: mute; drive: a fault code (int, e.g. 0x2310) raises a drive fault with EMCY;

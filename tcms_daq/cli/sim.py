@@ -180,6 +180,8 @@ class ControlServer(TcpServer):
                 "applied_torque_nm": latest.applied_torque_nm,
                 "drive": None if drive is None else {
                     "state": drive.state.label, "statusword": drive.statusword(), "error_code": drive.error_code,
+                    "comm_timeout_ms": drive.comm_timeout_ms, "abort_connection_option": drive.abort_connection_option,
                 },
+                "watchdog_reactions": sims.watchdog_reactions(),
             }
         raise ValueError(f"unknown command {cmd!r} (inject, restart, status)")

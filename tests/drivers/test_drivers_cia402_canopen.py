@@ -159,7 +159,7 @@ def test_heartbeat_loss_is_disconnected(can_sims):
         # consumer stopped the drive by itself (0x8130)
         assert wait_until(lambda: drive.status().fault)
         assert drive.status().error_code == 0x8130
-        assert can_sims.canopen.consumer_reactions == ["fault 0x8130"]
+        assert [r["reaction"] for r in can_sims.canopen.consumer_reactions] == ["fault 0x8130"]
 
 
 def test_a_late_drive_heartbeat_keeps_the_link(can_sims):
@@ -187,7 +187,7 @@ def test_a_dead_master_faults_the_drive_by_itself(can_sims):
     assert wait_until(lambda: can_sims.drive.state.label == "FAULT", timeout_s=10 * consumer_s + 2.0)
     assert can_sims.drive.error_code == 0x8130
     assert wait_until(lambda: abs(can_sims.physics.latest().applied_torque_nm) < 20.0)
-    assert can_sims.canopen.consumer_reactions == ["fault 0x8130"]
+    assert [r["reaction"] for r in can_sims.canopen.consumer_reactions] == ["fault 0x8130"]
 
 
 def test_consumer_time_is_derived_from_the_master_heartbeat():
