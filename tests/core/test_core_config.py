@@ -171,3 +171,18 @@ def test_overrides_change_a_copy_before_validation():
         apply_overrides({}, ["no-equals-sign"])
     with pytest.raises(ConfigError, match="bench.name is not a table"):
         apply_overrides({"bench": {"name": "x"}}, ["bench.name.deeper=1"])
+
+
+def test_loader_watchdog_fields_are_typed_with_safe_defaults():
+    """[instruments.loader]: the drive's communication watchdog is on by default (<= 1 s of silence) and its fields
+    are checked at the boundary (no coercion, no out-of-range reaction)."""
+    from pydantic import ValidationError
+
+    from tcms_daq.config.models import InstrumentsConfig
+
+    loader = InstrumentsConfig().loader
+    assert 0 < loader.comm_timeout_ms <= 1000 and loader.abort_connection_option == 1
+    for bad in ({"comm_timeout_ms": "500"}, {"comm_timeout_ms": -1}, {"abort_connection_option": 0},
+                {"master_heartbeat_ms": 5}):
+        with pytest.raises(ValidationError):
+            InstrumentsConfig.model_validate({"loader": bad})
