@@ -16,6 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tcms_daq.config.models import CompensationChecks
 from tcms_daq.errors import TcmsError
 from tcms_daq.service.schemas import TestRequest
 
@@ -60,6 +61,8 @@ class Runner(Protocol):
     def compensator_toml(self) -> str: ...
 
     def set_compensator_toml(self, text: str) -> None: ...
+
+    def compensation_checks(self) -> CompensationChecks: ...
 
     def plan(self, request: TestRequest) -> TestPlan: ...
 
@@ -267,12 +270,17 @@ class BenchRunner:
         except (TcmsError, RecursionError, TypeError, ValueError) as exc:
             raise RequestRejected(f"compensation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
                                   ) from None
-        problems = plausibility_problems(compensator)
+        problems = plausibility_problems(compensator, self.compensation_checks())
         if problems:
             more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
             raise RequestRejected(f"compensation not plausible: {problems[0]}{more}")
         self.bench.compensator = compensator  # one attribute swap: the next batch uses it
         self.bench.description["compensation"] = "uploaded (PUT /api/compensation)"
+
+    def compensation_checks(self) -> CompensationChecks:
+        """The bands an uploaded compensator must keep (the bench config's [compensation_checks])."""
+        checks: CompensationChecks = self.config.compensation_checks
+        return checks
 
     # -- tests -----------------------------------------------------------------------------------------------
     def plan(self, request: TestRequest) -> TestPlan:

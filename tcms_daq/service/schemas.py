@@ -384,6 +384,15 @@ class CompensationVersion(BaseModel):
     rollback_of: int | None = None
 
 
+class CompensationDryRun(BaseModel):
+    """``PUT /api/compensation?dry_run=true``: what the upload would do; nothing is stored."""
+
+    reference: str = Field(description="the record the change is judged on: the last completed run or a synthetic loop")
+    rigidity_change_pct: float | None = Field(description="relative change of the reference's rigidity, % "
+                                              "(+: stiffer; null: the upload leaves no usable slope)")
+    refused: str | None = Field(description="why the upload would be refused without force=true (null: accepted)")
+
+
 class DiscrepancyListItem(BaseModel):
     id: str
     run_id: str
