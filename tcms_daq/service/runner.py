@@ -228,6 +228,7 @@ class BenchRunner:
         """The bounds ``POST /api/tests`` checks (``check_test_bounds`` and the torque limits), for forms."""
         section = self.config.bench
         return {
+            "min_torque_nm": section.min_test_torque_nm,
             "max_torque_nm": self.bench.max_torque_nm,
             "min_rate_nm_per_s": section.min_rate_nm_per_s,
             "max_rate_nm_per_s": section.rate_limit_nm_per_s,
@@ -291,6 +292,10 @@ class BenchRunner:
         if spec is None:
             raise RequestRejected(f"unknown reducer {request.reducer!r} (known: {', '.join(self.reducers)})")
         torque = request.max_torque_nm
+        smallest = self.config.bench.min_test_torque_nm
+        if torque < smallest:
+            raise RequestRejected(f"max_torque_nm {torque:g} N·m is below the bench's minimum test torque "
+                                  f"{smallest:g} N·m ([bench] min_test_torque_nm)")
         if torque > self.bench.max_torque_nm:
             raise RequestRejected(
                 f"max_torque_nm {torque:g} N·m exceeds the bench limit {self.bench.max_torque_nm:g} N·m"
