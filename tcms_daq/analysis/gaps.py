@@ -18,38 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tcms_daq.config.models import GapSettings
 from tcms_daq.samples import Samples
 
 __all__ = ["TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapSettings", "exclude_gapped_loops", "find_gaps"]
 
 #: per aligned sample: time between the torque readings that bracket it (s); 0 when a reading has its stamp
 TORQUE_INTERVAL_COLUMN = "torque_interval_s"
-
-
-@dataclass(frozen=True)
-class GapSettings:
-    """limit_s: the longest stretch without readings of a channel that is not a gap (s); None: ``limit_periods``
-    of the channel's median reading period, at least ``min_limit_s`` (a loaded machine delays a poll now and
-    then). min_loops: the fewest evaluated loops (per stage) a run must keep to complete."""
-
-    limit_s: float | None = None
-    limit_periods: float = 5.0
-    min_limit_s: float = 0.2
-    min_loops: int = 1
-
-    def __post_init__(self) -> None:
-        if self.limit_s is not None and not self.limit_s > 0:
-            raise ValueError(f"gap limit_s must be > 0, got {self.limit_s}")
-        if not (self.limit_periods > 0 and self.min_limit_s >= 0 and self.min_loops >= 1):
-            raise ValueError("gap limit_periods must be > 0, min_limit_s >= 0 and min_loops >= 1")
-
-    def limit_for(self, periods_s: np.ndarray) -> float:
-        """The gap limit (s) of a channel whose reading periods are ``periods_s``."""
-        if self.limit_s is not None:
-            return self.limit_s
-        finite = periods_s[np.isfinite(periods_s)]  # zeros count: torque readings stamped with the angle's
-        typical = float(np.median(finite)) if finite.size else 0.0
-        return max(self.limit_periods * typical, self.min_limit_s)
 
 
 @dataclass(frozen=True)

@@ -441,6 +441,31 @@ class CompensationChecks(BaseModel):
     synthetic_rigidity_nm_per_arcmin: float = Field(300.0, gt=0.0)
 
 
+class GapSettings(BaseModel):
+    """[gaps]: what a gap in the data is (``tcms_daq.analysis.gaps``). limit_s: the longest stretch without readings
+    of a channel that is not a gap (s, clock time); None: ``limit_periods`` of the channel's median reading period,
+    at least ``min_limit_s`` (a loaded machine delays a poll now and then). min_loops: the fewest evaluated loops
+    (per stage) a run must keep, once the loops with a gap are left out, to complete."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    limit_s: float | None = Field(None, gt=0.0)
+    limit_periods: float = Field(5.0, gt=0.0)
+    min_limit_s: float = Field(0.2, ge=0.0)
+    min_loops: int = Field(1, ge=1)
+
+    def limit_for(self, periods_s: Any) -> float:
+        """The gap limit (s) of a channel whose reading periods (s, a numpy array) are ``periods_s``."""
+        import numpy as np
+
+        if self.limit_s is not None:
+            return self.limit_s
+        periods = np.asarray(periods_s, dtype=float)
+        finite = periods[np.isfinite(periods)]  # zeros count: torque readings stamped with the angle's
+        typical = float(np.median(finite)) if finite.size else 0.0
+        return max(self.limit_periods * typical, self.min_limit_s)
+
+
 class RichReducerConfig(BaseModel):
     """[sim.rich]: the richer reducer model of the simulated bench (``sim/reducer_model.py``), used when
     ``[sim] model = "rich"``. Variations over the output position φ are a once-per-revolution term and a term
@@ -512,6 +537,7 @@ class BenchConfig(BaseModel):
     certificate: CertificateSection = Field(default_factory=CertificateSection)
     opcua: OpcUaSection = Field(default_factory=OpcUaSection)
     compensation_checks: CompensationChecks = Field(default_factory=CompensationChecks)
+    gaps: GapSettings = Field(default_factory=GapSettings)
     source_path: str | None = Field(None, exclude=True)
 
     def chain_uncertainty(self) -> ChainUncertainty | None:
