@@ -10,7 +10,9 @@ Scaling: torque_nm = value / NOV_effective × nominal_torque_nm (the sensor's no
 project convention [P]) and raises DeviceFault.
 
 Serial format 8 data bits, even parity, 1 stop bit (factory 9600 Bd). After a reconnect (e.g. the amplifier was
-power-cycled) the driver re-sends its configuration before the next measurement.
+power-cycled and came up with its power-on settings) the driver re-sends its configuration before the next
+measurement: the format (``COF3``), the scaling (``NOV``) and the zero: the tare value read back (``TAV?``) after
+the last ``TAR`` is written again (``TAV<±n>``), so that the readings after a restart count from the same zero.
 """
 
 from __future__ import annotations
@@ -71,6 +73,7 @@ class AED(SerialInstrument):
         self.nominal_torque_nm = float(nominal_torque_nm)
         self.nominal_output = nominal_output
         self._configured_epoch: int | None = None
+        self._tare_counts: int | None = None  # the amplifier's tare value after our last TAR (restored on restart)
 
     @property
     def nm_per_count(self) -> float:
@@ -93,6 +96,8 @@ class AED(SerialInstrument):
             self.link.send(b";")  # clear whatever half command the amplifier holds
             self._setting(b"COF3;")
             self._setting(b"NOV%d;" % self.nominal_output)
+            if self._tare_counts is not None:
+                self._setting(b"TAV%+d;" % self._tare_counts)
             if epoch == self.link.reconnects:
                 break
         self._configured_epoch = self.link.reconnects
@@ -129,5 +134,11 @@ class AED(SerialInstrument):
         return time_s, value * self.nm_per_count
 
     def tare(self) -> None:
+        """Zero the amplifier at the present load and keep its tare value, to restore it after a restart."""
         self._ensure_configured()
         self._setting(b"TAR;")
+        reply = self._query(b"TAV?;")
+        try:
+            self._tare_counts = int(reply.strip())
+        except ValueError:
+            raise MalformedReply(self.name, f"TAV? reply {reply!r} is not a signed integer") from None

@@ -2,7 +2,8 @@
 
 Commands end with ';' or LF, case-insensitive; a lone terminator just clears. Implemented: ``COF3`` (ASCII
 value format; other formats are rejected), ``COF?``, ``NOV<n>``/``NOV?``, ``TAR`` (tare at the present
-reading), ``TAV?`` (tare value in output counts), ``MSV?`` (``+0012345\\r\\n``), ``IDN?``. Settings answer
+reading), ``TAV?`` (tare value in output counts) and ``TAV<±n>`` (set it: a host restores its zero after the
+amplifier was power-cycled), ``MSV?`` (``+0012345\\r\\n``), ``IDN?``. Settings answer
 ``0\\r\\n``, unknown or invalid commands ``?\\r\\n``. Value = (sensor torque − tare) / nominal torque × NOV
 (NOV 0 = 1 000 000). The device fault ``sensor_fault`` makes ``MSV?`` return the overflow marker ``+9999999``.
 """
@@ -75,6 +76,12 @@ class AEDServer(TcpInstrumentServer):
             return b"HBM,AED-SIM,TCMS,1.0\r\n"
         if cmd == "TAR":
             self.tare_nm = self.torque_nm()
+            return b"0\r\n"
+        if cmd.startswith("TAV") and cmd[3:].lstrip("+-").isdigit() and len(cmd) > 3:
+            counts = int(cmd[3:])
+            if abs(counts) >= OVERFLOW_VALUE:
+                return b"?\r\n"
+            self.tare_nm = counts / self.counts_per_nm
             return b"0\r\n"
         if cmd.startswith("COF") and cmd[3:].isdigit():
             if int(cmd[3:]) != 3:

@@ -11,13 +11,17 @@ stamped before the first torque reading take the first torque value.
 
 When both channels come from one instrument (the virtual bench), the stamps coincide and the interpolation
 returns the torque readings unchanged. Extra per-reading columns of the angle source (the simulation's truth)
-travel with their angle readings.
+travel with their angle readings. Each released reading also carries ``torque_interval_s``: the time between the
+two torque readings its torque was interpolated from (0 when a torque reading has its stamp; for a reading
+released on zero-order hold, at least the time since the last torque reading), so that a gap in the torque
+channel stays visible after alignment (``tcms_daq.analysis.gaps``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN
 from tcms_daq.drivers.base import concat_common_columns
 
 # torque history kept for interpolation (s); older readings are never needed once angles pass them
@@ -70,21 +74,32 @@ class Aligner:
         if not take.any():
             return np.empty(0), np.empty(0), np.empty(0)
         # release in order: everything up to the last releasable reading
-        t, tq, a = self._release(int(np.flatnonzero(take)[-1]) + 1)
+        t, tq, a = self._release(int(np.flatnonzero(take)[-1]) + 1, now_s)
         keep_from = np.searchsorted(self._tq_t, t[-1] - _KEEP_S)
         keep_from = min(int(keep_from), len(self._tq_t) - 2) if len(self._tq_t) >= 2 else 0
         self._tq_t = self._tq_t[max(keep_from, 0):]
         self._tq_v = self._tq_v[max(keep_from, 0):]
         return t, tq, a
 
-    def _release(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The first ``n`` held angle readings with their interpolated torque; their extras go to
-        ``released_extra``."""
+    def _release(self, n: int, now_s: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first ``n`` held angle readings with their interpolated torque; their extras (and the torque
+        interval of each) go to ``released_extra``."""
         t, a = self._ang_t[:n], self._ang_v[:n]
         tq = np.interp(t, self._tq_t, self._tq_v)
         self.released_extra = self._release_extra(n)
+        self.released_extra[TORQUE_INTERVAL_COLUMN] = self._torque_interval(t, now_s)
         self._ang_t, self._ang_v = self._ang_t[n:], self._ang_v[n:]
         return t, tq, a
+
+    def _torque_interval(self, t: np.ndarray, now_s: float) -> np.ndarray:
+        """Time (s) between the torque readings at or before and at or after each stamp in ``t`` (0 at a torque
+        stamp); after the last torque reading, ``now_s`` − that reading; before the first, infinite."""
+        after = np.searchsorted(self._tq_t, t, side="left")
+        before = np.searchsorted(self._tq_t, t, side="right") - 1
+        n = len(self._tq_t)
+        later = np.where(after < n, self._tq_t[np.minimum(after, n - 1)], max(now_s, float(self._tq_t[-1])))
+        earlier = np.where(before >= 0, self._tq_t[np.maximum(before, 0)], -np.inf)
+        return later - earlier
 
     def flush(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Release every held angle reading (end of run); without any torque reading they are discarded."""

@@ -46,6 +46,7 @@ from tcms_daq.acquisition.record import (
     StateChange,
     empty_samples,
 )
+from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapSettings, exclude_gapped_loops
 from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
@@ -79,7 +80,9 @@ class ProcedureOptions:
     max_stop_s: every exit disables the loader within this time, whatever the profile: the ramp from the
     *measured* torque is steepened so that it takes at most RAMP_SHARE_OF_STOP of it;
     kept_columns: the sample columns the run record keeps in memory (None: every column; the service keeps the
-    canonical three, since its store records the channels as they arrive).
+    canonical three, since its store records the channels as they arrive; the torque interval is kept for the gap
+    check whatever this says);
+    gaps: what a gap in the data is and how many loops must be left without one (``tcms_daq.analysis.gaps``).
     """
 
     settle_s: float = 0.2
@@ -89,6 +92,7 @@ class ProcedureOptions:
     ramp_down_timeout_s: float = 3.0
     max_stop_s: float = 5.0
     kept_columns: tuple[str, ...] | None = None
+    gaps: GapSettings = GapSettings()
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_stop_s) and self.max_stop_s > 0):
@@ -288,7 +292,8 @@ class TestRun:
                 self._acq = acq
             acq.drive_fault_armed = False  # until _prepare has reset a fault an earlier run left
             acq.set_limits(self.limits)
-            buffer = SampleBuffer(self.options.kept_columns)  # every batch, copied in by the acquisition thread: the run's samples
+            kept = self.options.kept_columns
+            buffer = SampleBuffer(None if kept is None else (*kept, TORQUE_INTERVAL_COLUMN))  # every batch, copied in by the acquisition thread: the run's samples
             acq.fanout.add_sink(buffer.append)
             subs = [acq.fanout.subscribe_callback(cb, maxsize=self.subscriber_queue) for cb in self.subscribers]
             self._publish_state()
@@ -313,7 +318,7 @@ class TestRun:
             self._transition(EVALUATING)
             self._collect(buffer)
             if self.evaluate is not None:
-                self.record.evaluation = self.evaluate(self.record.evaluated_samples())
+                self.record.evaluation = self._evaluate_without_gaps()
             self._transition(COMPLETED)
         except (InterlockTripped, AbortRequested) as exc:
             self._finish_early(acq, buffer, ABORTED, exc)
@@ -352,6 +357,18 @@ class TestRun:
                 self.record.finished_wall = time.time()
                 self._done.set()
         return self.record
+
+    def _evaluate_without_gaps(self) -> dict[str, Any] | None:
+        """The evaluation of the loops that hold no gap (each left-out loop a warning naming the gap); a
+        ProcedureError (the run fails) when too few loops are left."""
+        assert self.evaluate is not None
+        exclusion = exclude_gapped_loops(self.record.evaluated_samples(), self.options.gaps)
+        if exclusion.reason is not None:
+            raise ProcedureError(exclusion.reason)
+        evaluation = self.evaluate(exclusion.samples)
+        if exclusion.warnings and isinstance(evaluation, dict):
+            evaluation["warnings"] = [*exclusion.warnings, *(evaluation.get("warnings") or [])]
+        return evaluation
 
     # -- the phases ----------------------------------------------------------------------------------
     def _prepare(self, acq: AcquisitionLoop) -> None:

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from tcms_daq.analysis.evaluation import jsonable
+from tcms_daq.analysis.gaps import exclude_gapped_loops
 from tcms_daq.cli.options import add_bench_config_options, add_decision_rule_option
 from tcms_daq.config import (
     BenchConfig,
@@ -148,6 +149,7 @@ class SimulatedRun:
     compensation: str = "identity"
     plan: Plan | None = None
     stage_truths: list[dict[str, Any]] | None = None  # per stage of a plan of several (simulated benches)
+    gap_warnings: tuple[str, ...] = ()  # the loops left out of ``evaluated`` for a gap in the data
 
 
 def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile | Plan, seed: int | None = None,
@@ -209,8 +211,11 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile | Plan, se
                 t["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
         used_seed = cfg.sim.seed
     truth = None if truths is None else (truths[0] if len(truths) == 1 else _worst_truth(truths))
-    return SimulatedRun(cfg, reducer, plan.first, used_seed, record, rec.evaluated_samples(), truth, compensation,
-                        plan, truths if plan.kind != "single" else None)
+    exclusion = exclude_gapped_loops(rec.evaluated_samples(), cfg.gaps)
+    if exclusion.reason is not None:
+        raise TcmsError(f"test failed: {exclusion.reason}")
+    return SimulatedRun(cfg, reducer, plan.first, used_seed, record, exclusion.samples, truth, compensation,
+                        plan, truths if plan.kind != "single" else None, tuple(exclusion.warnings))
 
 
 def _truths(sim_bench, plan: Plan, reducer: ReducerSpec) -> list[dict[str, Any]]:
@@ -251,6 +256,7 @@ def evaluate_run(result: SimulatedRun, rule: str | None = None):
 
     ev = evaluate_for_reducer(result.evaluated, result.reducer, result.profile.test_torque_nm,
                               **_uncertainty_options(result, rule))
+    ev.warnings[:0] = result.gap_warnings
     if result.compensation.startswith("none") and result.config.bench.compensation:
         ev.uncertainty_basis = (f"{ev.uncertainty_basis}; compensation skipped: the measuring chain's geometric "
                                 "errors it corrects are not in U")
@@ -263,6 +269,8 @@ def evaluate_plan_run(result: SimulatedRun, rule: str | None = None) -> dict[str
     from tcms_daq.procedure.evaluation import evaluate_plan
 
     out = evaluate_plan(result.evaluated, result.plan, result.reducer, **_uncertainty_options(result, rule))
+    if result.gap_warnings:
+        out["warnings"] = [*result.gap_warnings, *(out.get("warnings") or [])]
     if result.stage_truths is not None:
         for entry, truth in zip(out.get("positions") or out.get("rates") or [], result.stage_truths, strict=True):
             entry["truth"] = {k: v for k, v in truth.items() if k != "physics"}

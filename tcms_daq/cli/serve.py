@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import logging
 import math
 from pathlib import Path
 
@@ -68,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from tcms_daq.service.app import ServiceSettings, create_app
-    from tcms_daq.service.auth import RedactTokenInAccessLog
+    from tcms_daq.service.auth import redact_tokens_in_logs
     from tcms_daq.service.runner import BenchRunner
     from tcms_daq.store.opening import store_kind
 
@@ -129,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     _print_banner(args, app, runner, sock.getsockname()[1], store)
     config = uvicorn.Config(app, log_level=args.log_level, ws_per_message_deflate=False, lifespan="on",
                             timeout_graceful_shutdown=10)
-    logging.getLogger("uvicorn.access").addFilter(RedactTokenInAccessLog())
+    redact_tokens_in_logs()  # after uvicorn configured its loggers and handlers
     server = _server(config)
     server.run(sockets=[sock])  # after a signal, uvicorn re-raises it here: the process ends with its status
     if not server.started:

@@ -343,6 +343,7 @@ class BenchSection(BaseModel):
     min_rate_nm_per_s: float = Field(0.05, gt=0.0)
     max_rate_nm_per_s: float | None = Field(None, gt=0.0)  # None: max_torque_nm per second
     min_step_nm: float = Field(0.1, gt=0.0)
+    min_test_torque_nm: float = Field(1.0, gt=0.0)  # a test request below this torque is refused
     max_test_duration_s: float = Field(4 * 3600.0, gt=0.0)
     max_segments: int = Field(20_000, ge=1)
     decision_rule: DecisionRule = "guarded"  # ISO 14253-1: "guarded" (guard bands of U) or "simple" acceptance
@@ -440,6 +441,53 @@ class StoreSection(BaseModel):
     url: str | None = Field(None, min_length=1)
 
 
+class CompensationChecks(BaseModel):
+    """[compensation_checks]: what an uploaded compensator must keep (``tcms_daq.compensation.plausibility``).
+
+    Bands per term type: |scale coefficient| ≤ max_scale (dimensionless); |torsion| ≤ max_torsion_arcsec_per_nm
+    (a real shaft between the measuring planes is a few ″/kN·m); |offset| and any other angle parameter ≤
+    max_offset_arcsec; a periodic term's amplitude √(sin² + cos²) ≤ max_periodic_amplitude_arcsec and its
+    period within [min_period_arcsec, one revolution]; at most max_terms terms. max_rigidity_change_pct: an upload
+    that changes the rigidity of the reference record (the last completed run, else a synthetic linear loop of
+    synthetic_rigidity_nm_per_arcmin up to the bench's max torque) by more is refused unless forced."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_terms: int = Field(64, ge=1, le=10_000)
+    max_scale: float = Field(0.10, gt=0.0, lt=1.0)
+    max_torsion_arcsec_per_nm: float = Field(0.1, gt=0.0)
+    max_offset_arcsec: float = Field(3600.0, gt=0.0)
+    max_periodic_amplitude_arcsec: float = Field(60.0, gt=0.0)
+    min_period_arcsec: float = Field(1.0, gt=0.0)
+    max_rigidity_change_pct: float = Field(5.0, gt=0.0)
+    synthetic_rigidity_nm_per_arcmin: float = Field(300.0, gt=0.0)
+
+
+class GapSettings(BaseModel):
+    """[gaps]: what a gap in the data is (``tcms_daq.analysis.gaps``). limit_s: the longest stretch without readings
+    of a channel that is not a gap (s, clock time); None: ``limit_periods`` of the channel's median reading period,
+    at least ``min_limit_s`` (a loaded machine delays a poll now and then). min_loops: the fewest evaluated loops
+    (per stage) a run must keep, once the loops with a gap are left out, to complete."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    limit_s: float | None = Field(None, gt=0.0)
+    limit_periods: float = Field(5.0, gt=0.0)
+    min_limit_s: float = Field(0.2, ge=0.0)
+    min_loops: int = Field(1, ge=1)
+
+    def limit_for(self, periods_s: Any) -> float:
+        """The gap limit (s) of a channel whose reading periods (s, a numpy array) are ``periods_s``."""
+        import numpy as np
+
+        if self.limit_s is not None:
+            return self.limit_s
+        periods = np.asarray(periods_s, dtype=float)
+        finite = periods[np.isfinite(periods)]  # zeros count: torque readings stamped with the angle's
+        typical = float(np.median(finite)) if finite.size else 0.0
+        return max(self.limit_periods * typical, self.min_limit_s)
+
+
 class RichReducerConfig(BaseModel):
     """[sim.rich]: the richer reducer model of the simulated bench (``sim/reducer_model.py``), used when
     ``[sim] model = "rich"``. Variations over the output position φ are a once-per-revolution term and a term
@@ -510,6 +558,8 @@ class BenchConfig(BaseModel):
     uncertainty: BenchUncertainty = Field(default_factory=BenchUncertainty)
     certificate: CertificateSection = Field(default_factory=CertificateSection)
     opcua: OpcUaSection = Field(default_factory=OpcUaSection)
+    compensation_checks: CompensationChecks = Field(default_factory=CompensationChecks)
+    gaps: GapSettings = Field(default_factory=GapSettings)
     source_path: str | None = Field(None, exclude=True)
 
     def chain_uncertainty(self) -> ChainUncertainty | None:

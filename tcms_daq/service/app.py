@@ -24,7 +24,7 @@ from fastapi_offline import FastAPIOffline
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from tcms_daq.analysis.evaluation import jsonable
-from tcms_daq.service.auth import ReadTokenMiddleware, resolve_token
+from tcms_daq.service.auth import ReadTokenMiddleware, redact_tokens_in_logs, resolve_token
 from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
 from tcms_daq.service.events import EventHub
 from tcms_daq.service.limits import BodySizeLimit
@@ -51,6 +51,18 @@ def _one_line_validation_error(exc: RequestValidationError) -> str:
         msg = str(err.get("msg", "invalid value")).removeprefix("Value error, ")  # a validator's own message
         parts.append(f"{loc}: {msg}" if loc else msg)
     return "; ".join(parts) or "invalid request"
+
+
+def _encodable(value: Any) -> Any:
+    """``value`` with every string made encodable as UTF-8 (a lone surrogate a client sent is echoed as ``\\ud800``
+    text, so that the answer that names it can be sent)."""
+    if isinstance(value, str):
+        return value.encode("utf-8", "backslashreplace").decode("utf-8")
+    if isinstance(value, dict):
+        return {_encodable(k): _encodable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_encodable(v) for v in value]
+    return value
 
 
 def _operation_id(route: APIRoute) -> str:
@@ -95,6 +107,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        redact_tokens_in_logs()  # however the app is served: its server has configured logging by now
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         bench: Runner = runner if runner is not None else await asyncio.to_thread(
             BenchRunner.from_config, settings.config_path, sim_speed=settings.sim_speed
@@ -184,8 +197,9 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
         # jsonable: a NaN or an infinity the client sent comes back as null (strict JSON), never as a 500
-        errors = jsonable(jsonable_encoder(exc.errors(), custom_encoder={Exception: str}))
-        return JSONResponse({"detail": _one_line_validation_error(exc), "errors": errors}, status_code=422)
+        errors = _encodable(jsonable(jsonable_encoder(exc.errors(), custom_encoder={Exception: str})))
+        return JSONResponse({"detail": _encodable(_one_line_validation_error(exc)), "errors": errors},
+                            status_code=422)
 
     @app.exception_handler(RequestRejected)
     async def _rejected(request: Request, exc: RequestRejected) -> JSONResponse:

@@ -99,12 +99,36 @@ class ReadTokenMiddleware:
 _TOKEN_IN_QUERY = re.compile(r"(?i)([?&]token=)[^&\s]*")
 
 
+def _masked(value: object) -> object:
+    return _TOKEN_IN_QUERY.sub(r"\1***", value) if isinstance(value, str) else value
+
+
 class RedactTokenInAccessLog(logging.Filter):
-    """Masks ``?token=…`` in uvicorn's access log lines (the dashboard URL carries the token)."""
+    """Masks ``?token=…`` in log records: uvicorn's access lines, its WebSocket lines ('"WebSocket /ws/live?token=…"
+    [accepted]', on ``uvicorn.error``) and anything else a handler it sits on writes (the dashboard and WebSocket
+    URLs carry the token). The arguments keep their shape (uvicorn's access formatter reads them by position)."""
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if isinstance(record.msg, str):
+            record.msg = _masked(record.msg)
         if isinstance(record.args, tuple):
-            record.args = tuple(_TOKEN_IN_QUERY.sub(r"\1***", a) if isinstance(a, str) else a for a in record.args)
-        elif isinstance(record.msg, str):
-            record.msg = _TOKEN_IN_QUERY.sub(r"\1***", record.msg)
+            record.args = tuple(_masked(a) for a in record.args)
+        elif isinstance(record.args, dict):
+            record.args = {k: _masked(v) for k, v in record.args.items()}
         return True
+
+
+# the loggers a request's URL can reach: uvicorn's (access, WebSocket and error lines) and the websockets library's
+URL_LOGGERS = ("uvicorn", "uvicorn.error", "uvicorn.access", "websockets", "websockets.server",
+               "websockets.protocol", "tcms_daq")
+
+
+def redact_tokens_in_logs() -> None:
+    """Put :class:`RedactTokenInAccessLog` on every logger a URL can be logged to and on every handler of those
+    loggers and of the root logger (records propagated from other loggers pass the handlers). Idempotent; call it
+    again after logging was (re)configured (uvicorn configures it when its Config is made)."""
+    loggers = [logging.getLogger(name) for name in URL_LOGGERS] + [logging.getLogger()]
+    targets: list[logging.Filterer] = [*loggers, *(h for lg in loggers for h in lg.handlers)]
+    for target in targets:
+        if not any(isinstance(f, RedactTokenInAccessLog) for f in target.filters):
+            target.addFilter(RedactTokenInAccessLog())

@@ -16,6 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tcms_daq.config.models import CompensationChecks
 from tcms_daq.errors import TcmsError
 from tcms_daq.service.schemas import TestRequest
 
@@ -60,6 +61,8 @@ class Runner(Protocol):
     def compensator_toml(self) -> str: ...
 
     def set_compensator_toml(self, text: str) -> None: ...
+
+    def compensation_checks(self) -> CompensationChecks: ...
 
     def plan(self, request: TestRequest) -> TestPlan: ...
 
@@ -254,6 +257,7 @@ class BenchRunner:
         """The bounds ``POST /api/tests`` checks (``check_test_bounds`` and the torque limits), for forms."""
         section = self.config.bench
         return {
+            "min_torque_nm": section.min_test_torque_nm,
             "max_torque_nm": self.bench.max_torque_nm,
             "min_rate_nm_per_s": section.min_rate_nm_per_s,
             "max_rate_nm_per_s": section.rate_limit_nm_per_s,
@@ -296,12 +300,17 @@ class BenchRunner:
         except (TcmsError, RecursionError, TypeError, ValueError) as exc:
             raise RequestRejected(f"compensation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
                                   ) from None
-        problems = plausibility_problems(compensator)
+        problems = plausibility_problems(compensator, self.compensation_checks())
         if problems:
             more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
             raise RequestRejected(f"compensation not plausible: {problems[0]}{more}")
         self.bench.compensator = compensator  # one attribute swap: the next batch uses it
         self.bench.description["compensation"] = "uploaded (PUT /api/compensation)"
+
+    def compensation_checks(self) -> CompensationChecks:
+        """The bands an uploaded compensator must keep (the bench config's [compensation_checks])."""
+        checks: CompensationChecks = self.config.compensation_checks
+        return checks
 
     # -- tests -----------------------------------------------------------------------------------------------
     def plan(self, request: TestRequest) -> TestPlan:
@@ -312,6 +321,10 @@ class BenchRunner:
         if spec is None:
             raise RequestRejected(f"unknown reducer {request.reducer!r} (known: {', '.join(self.reducers)})")
         torque = request.max_torque_nm
+        smallest = self.config.bench.min_test_torque_nm
+        if torque < smallest:
+            raise RequestRejected(f"max_torque_nm {torque:g} N·m is below the bench's minimum test torque "
+                                  f"{smallest:g} N·m ([bench] min_test_torque_nm)")
         if torque > self.bench.max_torque_nm:
             raise RequestRejected(
                 f"max_torque_nm {torque:g} N·m exceeds the bench limit {self.bench.max_torque_nm:g} N·m"
@@ -401,7 +414,7 @@ class BenchRunner:
                     evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
                     run_id=run_id, profile_info={"reducer": payload.reducer.name},
                     # the store records every channel as it arrives: the run keeps in memory what it evaluates
-                    options=ProcedureOptions(kept_columns=()),
+                    options=ProcedureOptions(kept_columns=(), gaps=self.config.gaps),
                 )
                 result = run.run()
             except ProfileRejected as exc:

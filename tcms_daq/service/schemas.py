@@ -10,7 +10,45 @@ from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, positions_from, ra
 from tcms_daq.runstate import RunState
 
 
-class TestDocumentation(BaseModel):
+def _invalid_string(value: Any, where: str = "") -> str | None:
+    """Where in ``value`` (a parsed JSON body) a string is not valid Unicode text (a lone surrogate such as
+    ``"\\ud800"``, which no store or log can encode), or None."""
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return where or "a string"
+        return None
+    if isinstance(value, dict):
+        for key, item in value.items():
+            found = _invalid_string(key, where or "a key") or _invalid_string(item, f"{where}.{key}" if where else
+                                                                                str(key))
+            if found:
+                return found
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            found = _invalid_string(item, f"{where}[{i}]")
+            if found:
+                return found
+    return None
+
+
+class StrictBody(BaseModel):
+    """A request body: unknown keys, NaN/infinity, coerced types (``true`` or ``"500"`` for a number) and invalid
+    strings (lone surrogates) are a 422 naming the field."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _valid_strings(cls, data: Any) -> Any:
+        where = _invalid_string(data)
+        if where is not None:
+            raise ValueError(f"{where}: not valid Unicode text (a lone surrogate)")
+        return data
+
+
+class TestDocumentation(StrictBody):
     """What a test request states for the certificate beside the test itself: who it is for and the conditions.
     (Kept apart from the test's own fields; ``TestRequest`` inherits them.)"""
 
@@ -27,8 +65,6 @@ class TestRequest(TestDocumentation):
     Continuous profiles ramp at ``rate_nm_per_s``; stepped profiles go in ``step_nm`` steps with ``dwell_s``
     at each step (the torque moves between steps at ``rate_nm_per_s``).
     """
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     reducer: str = Field(min_length=1, max_length=64, description="reducer model from the catalogue, e.g. RV-110E")
     max_torque_nm: float = Field(gt=0, description="test torque T (the profile runs between −T and +T), N·m")
@@ -260,10 +296,8 @@ class Health(BaseModel):
     status: Literal["ok"]
 
 
-class DiscrepancyRequest(BaseModel):
+class DiscrepancyRequest(StrictBody):
     """``POST /api/discrepancy``: a stored run against the bench model re-simulated on its torque trace."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     run_id: str = Field(min_length=1, max_length=64, description="id of a stored test run")
     signal_period_arcsec: float = Field(
@@ -355,6 +389,7 @@ class ReducerView(BaseModel):
 class TestBounds(BaseModel):
     """The bounds ``POST /api/tests`` keeps (the bench config's ``[bench]``)."""
 
+    min_torque_nm: float | None = Field(None, description="the smallest test torque, N·m ([bench] min_test_torque_nm)")
     max_torque_nm: float
     min_rate_nm_per_s: float
     max_rate_nm_per_s: float
@@ -407,6 +442,15 @@ class CompensationVersion(BaseModel):
     rollback_of: int | None = None
 
 
+class CompensationDryRun(BaseModel):
+    """``PUT /api/compensation?dry_run=true``: what the upload would do; nothing is stored."""
+
+    reference: str = Field(description="the record the change is judged on: the last completed run or a synthetic loop")
+    rigidity_change_pct: float | None = Field(description="relative change of the reference's rigidity, % "
+                                              "(+: stiffer; null: the upload leaves no usable slope)")
+    refused: str | None = Field(description="why the upload would be refused without force=true (null: accepted)")
+
+
 class DiscrepancyListItem(BaseModel):
     id: str
     run_id: str
@@ -444,10 +488,8 @@ class DiscrepancyAnalysis(BaseModel):
     cv_rms_after_arcsec: float | None = None
 
 
-class ApplyRequest(BaseModel):
+class ApplyRequest(StrictBody):
     """``POST /api/discrepancy/{id}/apply``: add the analysis's named effects to the bench model."""
-
-    model_config = ConfigDict(extra="forbid")
 
     accept_provisional: bool = Field(
         False, description="add them even when the verdict left their names provisional (structure remained)")

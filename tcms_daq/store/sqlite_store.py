@@ -16,7 +16,8 @@ import json
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +111,8 @@ _RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profi
 _LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
 
 
+MAX_IDLE_CONNECTIONS = 4  # connections kept open between calls (more are opened while that many are busy)
+
 #: file name of the run store inside a data directory (``tcms serve --data-dir``)
 STORE_FILENAME = "tcms-runs.sqlite3"
 
@@ -121,8 +124,10 @@ def _loads(text: str | None) -> Any:
 class RunStore(VersionedDocuments, StoredSamples):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
-    Each thread gets its own connection (WAL lets readers run beside the one writer); writes are serialised
-    by a lock so batches of one run keep their order. Opened for a bench (``bench_id``, ``bench_name``), it
+    Connections come from a small pool (WAL lets readers run beside the one writer): a call takes an idle one
+    (or opens one) and gives it back; at most ``MAX_IDLE_CONNECTIONS`` stay open between calls, so the threads
+    that come and go (one recorder per test) leave no file descriptors behind. Writes are serialised by a lock
+    so batches of one run keep their order. Opened for a bench (``bench_id``, ``bench_name``), it
     records that bench on every run it creates and keeps that bench's versioned documents; without one it is a
     store of one bench as before fleets (every run and document is its own).
     """
@@ -139,8 +144,8 @@ class RunStore(VersionedDocuments, StoredSamples):
         self.bench_id = bench_id
         self.bench_name = bench_name
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._local = threading.local()
-        self._connections: list[sqlite3.Connection] = []
+        self._idle: list[sqlite3.Connection] = []  # open and not in use
+        self._open = 0  # connections open (idle or in use)
         self._conn_lock = threading.Lock()
         self._write_lock = threading.Lock()
         self._closed = False
@@ -151,8 +156,7 @@ class RunStore(VersionedDocuments, StoredSamples):
         return str(self.path.resolve())
 
     def _migrate(self) -> None:
-        conn = self._conn()
-        with self._write_lock:
+        with self._write_lock, self._connection() as conn:
             conn.executescript(_SCHEMA)
             for table, column, kind in _ADDED_COLUMNS:
                 if column not in {row[1] for row in conn.execute(f"PRAGMA table_info({table})")}:
@@ -168,29 +172,61 @@ class RunStore(VersionedDocuments, StoredSamples):
                 conn.execute(f"CREATE INDEX IF NOT EXISTS {index}")
 
     # -- connections -----------------------------------------------------------------------------------------
-    def _conn(self) -> sqlite3.Connection:
-        if self._closed:
-            raise StoreError(f"run store {self.path} is closed")
-        conn = getattr(self._local, "conn", None)
-        if conn is None:
-            conn = sqlite3.connect(self.path, timeout=30.0, check_same_thread=False, isolation_level=None)
-            conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute(f"PRAGMA synchronous={self.synchronous}")
-            conn.execute("PRAGMA foreign_keys=ON")
-            self._local.conn = conn
-            with self._conn_lock:
-                self._connections.append(conn)
+    def _new_connection(self) -> sqlite3.Connection:
+        conn = sqlite3.connect(self.path, timeout=30.0, check_same_thread=False, isolation_level=None)
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute(f"PRAGMA synchronous={self.synchronous}")
+        conn.execute("PRAGMA foreign_keys=ON")
         return conn
+
+    @contextmanager
+    def _connection(self) -> Iterator[sqlite3.Connection]:
+        """An idle pooled connection (or a new one) for one call; given back (or closed when enough are idle)."""
+        with self._conn_lock:
+            if self._closed:
+                raise StoreError(f"run store {self.path} is closed")
+            conn = self._idle.pop() if self._idle else None
+            if conn is None:
+                self._open += 1
+        if conn is None:
+            try:
+                conn = self._new_connection()
+            except BaseException:
+                with self._conn_lock:
+                    self._open -= 1
+                raise
+        try:
+            yield conn
+        finally:
+            with self._conn_lock:
+                keep = not self._closed and len(self._idle) < MAX_IDLE_CONNECTIONS
+                if keep:
+                    self._idle.append(conn)
+                else:
+                    self._open -= 1
+            if not keep:
+                conn.close()
+
+    @property
+    def open_connections(self) -> int:
+        """Connections open now (idle in the pool or in use)."""
+        return self._open
+
+    def _query(self, sql: str, params: Sequence[Any] = ()) -> list[Any]:
+        """All rows of a read."""
+        with self._connection() as conn:
+            return conn.execute(sql, params).fetchall()
 
     def close(self) -> None:
         with self._conn_lock:
-            for conn in self._connections:
-                try:
-                    conn.close()
-                except sqlite3.ProgrammingError:
-                    pass
-            self._connections.clear()
-        self._closed = True
+            self._closed = True
+            idle, self._idle = self._idle, []
+            self._open -= len(idle)
+        for conn in idle:  # a connection in use is closed when its call gives it back
+            try:
+                conn.close()
+            except sqlite3.ProgrammingError:
+                pass
 
     def __enter__(self) -> RunStore:
         return self
@@ -198,9 +234,11 @@ class RunStore(VersionedDocuments, StoredSamples):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _write(self, sql: str, params: Sequence[Any] = ()) -> sqlite3.Cursor:
-        with self._write_lock:
-            return self._conn().execute(sql, params)
+    def _write(self, sql: str, params: Sequence[Any] = ()) -> tuple[int, int | None]:
+        """(rowcount, lastrowid) of one write."""
+        with self._write_lock, self._connection() as conn:
+            cur = conn.execute(sql, params)
+            return cur.rowcount, cur.lastrowid
 
     def _own(self, column: str = "bench_id") -> tuple[str, tuple[Any, ...]]:
         """SQL condition (and parameters) selecting this bench's rows and those recorded before benches."""
@@ -211,8 +249,7 @@ class RunStore(VersionedDocuments, StoredSamples):
     # -- runs ------------------------------------------------------------------------------------------------
     def _mark_interrupted(self) -> list[str]:
         own, own_params = self._own()
-        with self._write_lock:
-            conn = self._conn()
+        with self._write_lock, self._connection() as conn:
             rows = conn.execute(
                 f"SELECT id FROM runs WHERE status IN (?, ?) AND {own} ORDER BY created_at",
                 (*ACTIVE_STATUSES, *own_params),
@@ -278,8 +315,8 @@ class RunStore(VersionedDocuments, StoredSamples):
         sets, params = status_update(status, error=error, results=results,
                                      encode_results=lambda r: dumps(dict(r)), placeholder="?")
         params.append(run_id)
-        cur = self._write(f"UPDATE runs SET {sets} WHERE id=?", params)
-        if cur.rowcount == 0:
+        rowcount, _ = self._write(f"UPDATE runs SET {sets} WHERE id=?", params)
+        if rowcount == 0:
             raise StoreError(f"unknown run {run_id!r}")
 
     # -- versioned TOML documents: compensations and bench models ------------------------------------------
@@ -288,52 +325,47 @@ class RunStore(VersionedDocuments, StoredSamples):
     def _add_version(self, table: str, toml: str, note: str, provenance: Sequence[Any]) -> tuple[int, float]:
         columns = ("created_at", "note", "sha256", "toml", "bench_id", *VERSIONED[table])
         created = time.time()
-        cur = self._write(f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})",
-                          (created, note, text_sha256(toml), toml, self.bench_id, *provenance))
-        assert cur.lastrowid is not None  # an INSERT into a rowid table always has one
-        return cur.lastrowid, created
+        _, rowid = self._write(f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})",
+                               (created, note, text_sha256(toml), toml, self.bench_id, *provenance))
+        assert rowid is not None  # an INSERT into a rowid table always has one
+        return rowid, created
 
     def _history(self, table: str, limit: int) -> list[tuple[Any, ...]]:
         columns = ("version", "created_at", "note", "sha256", *VERSIONED[table])
         own, own_params = self._own()
-        return self._conn().execute(
-            f"SELECT {', '.join(columns)} FROM {table} WHERE {own} ORDER BY version DESC LIMIT ?",
-            (*own_params, limit)).fetchall()
+        return self._query(f"SELECT {', '.join(columns)} FROM {table} WHERE {own} ORDER BY version DESC LIMIT ?",
+                           (*own_params, limit))
 
     def _version(self, table: str, version: int | None) -> tuple[Any, ...] | None:
         """The row (header columns…, toml) of ``version`` (default: the latest) of this bench."""
         own, own_params = self._own()
         sql = (f"SELECT {', '.join(('version', 'created_at', 'note', 'sha256', *VERSIONED[table]))}, toml "
                f"FROM {table} WHERE {own} ")
-        cur = (self._conn().execute(sql + "AND version=?", (*own_params, version)) if version is not None
-               else self._conn().execute(sql + "ORDER BY version DESC LIMIT 1", own_params))
-        return cur.fetchone()
+        rows = (self._query(sql + "AND version=?", (*own_params, version)) if version is not None
+                else self._query(sql + "ORDER BY version DESC LIMIT 1", own_params))
+        return rows[0] if rows else None
 
     # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:
-        row = self._conn().execute(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id=?", (run_id,)).fetchone()
-        return None if row is None else _record(row)
+        rows = self._query(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id=?", (run_id,))
+        return _record(rows[0]) if rows else None
 
     def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
         """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
         where, params = (query or RunQuery()).where("?", "LIKE")
-        rows = self._conn().execute(
-            f"SELECT {_LIST_COLUMNS} FROM runs {where} "
-            "ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
-            (*params, limit, offset),
-        ).fetchall()
+        rows = self._query(f"SELECT {_LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
+                           (*params, limit, offset))
         return [_record(r) for r in rows]
 
     def count_runs(self, query: RunQuery | None = None) -> int:
         where, params = (query or RunQuery()).where("?", "LIKE")
-        return int(self._conn().execute(f"SELECT COUNT(*) FROM runs {where}", params).fetchone()[0])
+        return int(self._query(f"SELECT COUNT(*) FROM runs {where}", params)[0][0])
 
     def count_by_status(self) -> dict[str, int]:
         """Runs of this bench (and those recorded before benches) by status."""
         counts = dict.fromkeys(RUN_STATUSES, 0)
         own, own_params = self._own()
-        for status, n in self._conn().execute(f"SELECT status, COUNT(*) FROM runs WHERE {own} GROUP BY status",
-                                              own_params):
+        for status, n in self._query(f"SELECT status, COUNT(*) FROM runs WHERE {own} GROUP BY status", own_params):
             counts[status] = n
         return counts
 
@@ -349,8 +381,7 @@ class RunStore(VersionedDocuments, StoredSamples):
         if not rows:
             return 0
         total = sum(n for n, _ in rows)
-        with self._write_lock:
-            conn = self._conn()
+        with self._write_lock, self._connection() as conn:
             conn.execute("BEGIN IMMEDIATE")
             try:
                 start = conn.execute(
@@ -368,15 +399,14 @@ class RunStore(VersionedDocuments, StoredSamples):
         return total
 
     def _channels(self, run_id: str) -> tuple[str, ...]:
-        row = self._conn().execute("SELECT channels FROM runs WHERE id=?", (run_id,)).fetchone()
-        if row is None:
+        rows = self._query("SELECT channels FROM runs WHERE id=?", (run_id,))
+        if not rows:
             raise StoreError(f"unknown run {run_id!r}")
-        return tuple(json.loads(row[0]))
+        return tuple(json.loads(rows[0][0]))
 
     def _batch_rows(self, run_id: str, from_index: int, limit: int) -> list[tuple[Any, ...]]:
-        return self._conn().execute(
-            "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id=? AND batch_index >= ? "
-            "ORDER BY batch_index LIMIT ?", (run_id, from_index, limit)).fetchall()
+        return self._query("SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id=? AND batch_index >= ? "
+                           "ORDER BY batch_index LIMIT ?", (run_id, from_index, limit))
 
 
 def _record(row: Sequence[Any]) -> StoredRun:

@@ -22,6 +22,7 @@ def test_transcript_setup_measure_tare():
     port = ScriptedSerial(SETUP + [
         (b"MSV?;", b"+0000617\r\n"),
         (b"TAR;", b"0\r\n"),
+        (b"TAV?;", b"+0000617\r\n"),  # the tare value, kept to restore the zero after a restart
         (b"MSV?;", b"-0001000\r\n"),
     ])
     aed = AED("socket://bench:4002", nominal_torque_nm=500.0, nominal_output=2000, opener=port.opener,
@@ -110,3 +111,18 @@ def test_reconnect_after_restart_reconfigures(serial_sims):
         serial_sims.stop_server("aed")
         with pytest.raises(Disconnected, match="AED"):
             aed.read()
+
+
+def test_a_restart_restores_the_zero_before_the_next_reading(serial_sims):
+    """A power-cycled amplifier comes up untared: the driver writes its last tare value back (TAV) before the
+    next MSV?, so the readings after the restart count from the same zero."""
+    serial_sims.aed.torque_nm = lambda: 123.4
+    with _driver(serial_sims) as aed:
+        aed.tare()
+        tared = serial_sims.aed.tare_nm
+        assert tared == pytest.approx(123.4, abs=0.01)
+        assert aed.read().value[0] == pytest.approx(0.0, abs=0.01)
+        serial_sims.restart("aed")
+        assert serial_sims.aed.tare_nm == 0.0  # power-on: no tare
+        assert aed.read().value[0] == pytest.approx(0.0, abs=0.01)
+        assert serial_sims.aed.tare_nm == pytest.approx(tared, abs=0.01)

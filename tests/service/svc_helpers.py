@@ -99,6 +99,11 @@ class ScriptedRunner:
             raise RequestRejected("compensation TOML needs a [compensator] table")
         self.compensation = text
 
+    def compensation_checks(self):
+        from tcms_daq.config.models import CompensationChecks
+
+        return CompensationChecks()
+
     def plan(self, request) -> TestPlan:
         if request.reducer != "RV-110E":
             raise RequestRejected(f"unknown reducer {request.reducer!r} (known: RV-110E)")

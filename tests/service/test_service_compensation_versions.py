@@ -78,7 +78,7 @@ def test_the_configured_compensation_is_a_version_and_a_changed_one_a_new_versio
     changed.compensation = "[compensator]\nterms = []\n# recalibrated\n"
     with serve(settings_factory(), runner=changed) as srv, srv.client() as c:
         assert [v for v, _ in history(c)] == [2, 1] and history(c)[0][1].startswith(FROM_CONFIG)
-        assert c.put("/api/compensation", content=b"[compensator]\nterms = []\n# upload\n").status_code == 200
+        assert c.put("/api/compensation", content=b"terms = []\n[compensator]\n# upload\n").status_code == 200
     again = ScriptedRunner(bench_id="line-9")
     with serve(settings_factory(), runner=again) as srv, srv.client() as c:
         assert [v for v, _ in history(c)] == [3, 2, 1]  # the upload stays in use over the configuration's file

@@ -88,7 +88,7 @@ def test_malformed_json_and_wrong_types_are_422(server):
     ('[[terms]]\ntype = "offset"\nvalue_arcsec = 1e308\n', "exceeds ±3600"),
     ('[[terms]]\ntype = "offset"\nvalue_arcsec = inf\n', "finite"),
     ('[[terms]]\ntype = "scale"\ncoefficient = "abc"\n', "must be a number"),
-    ('[[terms]]\ntype = "periodic"\nperiod_arcsec = 0.01\nsin_arcsec = 1.0\n', "below 1″"),
+    ('[[terms]]\ntype = "periodic"\nperiod_arcsec = 0.01\nsin_arcsec = 1.0\n', "outside 1″"),
     ("a = " + "[" * 5000 + "]" * 5000 + "\n", "compensation"),
     ("not toml at all ===", "compensation"),
 ])

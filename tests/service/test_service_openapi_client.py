@@ -87,7 +87,7 @@ def test_generated_client_reads_typed_results_and_uploads_a_compensation(setting
             assert isinstance(summary.request, models.TestRequest) and summary.request.customer == "ACME"
             assert summary.request.serial_number == "SN-GEN-1"
 
-            toml = b"[compensator]\nterms = []\n# from the generated client\n"
+            toml = b"terms = []\n[compensator]\n# from the generated client\n"
             answer = put_compensation.sync_detailed(client=api, body=types.File(payload=io.BytesIO(toml)),
                                                     note="generated client")
             assert answer.status_code == 200, answer.content

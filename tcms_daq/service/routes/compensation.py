@@ -3,16 +3,23 @@
 from __future__ import annotations
 
 import asyncio
+import math
 from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 from fastapi import Path as PathParam
-from fastapi.responses import PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
+from tcms_daq.compensation.plausibility import (
+    ReferenceLoop,
+    UploadJudgement,
+    judge_upload,
+    synthetic_reference,
+)
 from tcms_daq.service.deps import AUTH, Bench, Events, Manager, Store, errors
 from tcms_daq.service.runner import RequestRejected
-from tcms_daq.service.schemas import CompensationVersion
+from tcms_daq.service.schemas import CompensationDryRun, CompensationVersion
 from tcms_daq.service.testruns import Conflict, UnknownRun
 
 router = APIRouter(prefix="/api/compensation", tags=["compensation"])
@@ -48,17 +55,54 @@ async def _activate(bench: Bench, manager: Manager, store: Store, events: Events
 
 
 @router.put("", response_class=PlainTextResponse, dependencies=AUTH, openapi_extra=TOML_BODY,
-            responses={**TOML_ANSWER, **errors(401, 409, 413, 422)})
+            responses={**TOML_ANSWER, **errors(401, 409, 413, 422),
+                       202: {"description": "dry run: what the upload would do (nothing stored)",
+                             "model": CompensationDryRun}})
 async def put_compensation(request: Request, bench: Bench, manager: Manager, store: Store, events: Events,
-                           note: Annotated[str, Query(max_length=200)] = "") -> PlainTextResponse:
-    """Replace the compensator with the TOML in the body, kept as a new version with ``note`` (422 if it does
-    not parse or is not plausible; 409 during a test)."""
+                           note: Annotated[str, Query(max_length=200)] = "",
+                           dry_run: Annotated[bool, Query(description="judge the upload, store nothing")] = False,
+                           force: Annotated[bool, Query(description="accept a rigidity change beyond the band")]
+                           = False) -> Response:
+    """Replace the compensator with the TOML in the body, kept as a new version with ``note``. The body is held
+    to a closed schema and to the bench's bands per term type (422 naming the problem), and to the change it makes
+    to the rigidity of a reference record (the last completed run, else a synthetic loop): beyond the band it is
+    refused (422) unless ``force=true``. ``dry_run=true`` answers 202 with that change and stores nothing.
+    409 during a test."""
     raw = await request.body()
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise RequestRejected("compensation body is not UTF-8 TOML text") from None
+    judgement = await asyncio.to_thread(_judge, bench, store, text)
+    if judgement.problems:
+        raise RequestRejected(judgement.reason())
+    if dry_run:
+        change = judgement.rigidity_change
+        body = CompensationDryRun(
+            reference=judgement.reference, refused=judgement.refused or None,
+            rigidity_change_pct=None if change is None or not math.isfinite(change) else round(100.0 * change, 4))
+        return JSONResponse(body.model_dump(), status_code=202)
+    if judgement.refused and not force:
+        raise RequestRejected(judgement.refused)
     return await _activate(bench, manager, store, events, text, note)
+
+
+def _judge(bench: Bench, store: Store, text: str) -> UploadJudgement:
+    """The upload judged against the compensation in use on the last completed run of this bench (else a
+    synthetic loop up to the bench's max torque)."""
+    from tcms_daq.compensation.compensator import Compensator
+    from tcms_daq.store.base import RunQuery
+
+    checks = bench.compensation_checks()
+    current = Compensator.loads(bench.compensator_toml(), "the compensation in use")
+    reference = None
+    last = store.list_runs(limit=1, query=RunQuery(status="completed", bench=store.bench_id or None))
+    if last:
+        reference = ReferenceLoop.from_columns(store.read_columns(last[0].id), f"last completed run {last[0].id}")
+    if reference is None:
+        max_torque = float(bench.status().get("max_torque_nm") or 1000.0)
+        reference = synthetic_reference(current, max_torque, checks.synthetic_rigidity_nm_per_arcmin)
+    return judge_upload(text, current, reference, checks)
 
 
 @router.get("/history", response_model=list[CompensationVersion])

@@ -1,0 +1,106 @@
+"""Gaps in the data (issue 22): a stretch of a channel without readings is found, named (channel, time span,
+torque range), and the loop that holds it is left out of the evaluation; too few loops left is a reason not to
+complete. The records are made from a spring with a friction band (not from the code under test)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tcms_daq.acquisition.align import Aligner
+from tcms_daq.analysis import evaluate
+from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapSettings, exclude_gapped_loops, find_gaps
+from tcms_daq.samples import Samples
+
+RATE_HZ = 500.0
+T_MAX = 1000.0
+RIGIDITY = 300.0  # N·m/arcmin
+FRICTION_ARCSEC = 8.0
+LOOP_S = 8.0  # −T → +T → −T at 500 N·m/s
+
+
+def loops_record(n_loops: int) -> Samples:
+    """n_loops loops from −T (loop_index 1…n), preceded by the ramp from 0 to −T (loop_index −1)."""
+    t = np.arange(0.0, 2.0 + n_loops * LOOP_S, 1 / RATE_HZ)
+    lead = t < 2.0
+    phase = ((t - 2.0) % LOOP_S) / LOOP_S
+    torque = np.where(lead, -T_MAX * t / 2.0, T_MAX * (1 - 4 * np.abs(phase - 0.5)))
+    rising = np.where(lead, False, phase < 0.5)
+    angle = torque / RIGIDITY * 60.0 + np.where(rising, -FRICTION_ARCSEC, FRICTION_ARCSEC) / 2
+    loop = np.where(lead, -1.0, np.floor((t - 2.0) / LOOP_S) + 1)
+    return Samples(t, torque, angle, {"loop_index": loop, TORQUE_INTERVAL_COLUMN: np.zeros(t.size)})
+
+
+def without(samples: Samples, start_s: float, end_s: float) -> Samples:
+    return samples.select(~((samples.time_s > start_s) & (samples.time_s < end_s)))
+
+
+def test_an_angle_gap_is_named_and_its_loop_left_out():
+    record = without(loops_record(3), 12.0, 13.2)  # in loop 2, on the way up from 0 to 600 N·m
+    gaps = find_gaps(record.time_s, record.torque_nm, record.extra[TORQUE_INTERVAL_COLUMN])
+    assert len(gaps) == 1
+    gap = gaps[0]
+    assert gap.channel == "angle" and gap.start_s == pytest.approx(12.0) and gap.end_s == pytest.approx(13.2)
+    assert gap.torque_lo_nm == pytest.approx(0, abs=2) and gap.torque_hi_nm == pytest.approx(600, abs=2)
+    evaluated = record.select(record.extra["loop_index"] >= 1)
+    out = exclude_gapped_loops(evaluated)
+    assert out.reason is None and out.excluded == [(0, 2)]
+    assert len(out.warnings) == 1 and "loop 2 left out" in out.warnings[0]
+    assert "angle channel: no readings for 1.20 s" in out.warnings[0] and "torque 0 … 600 N·m" in out.warnings[0]
+    assert set(np.unique(out.samples.extra["loop_index"])) == {1.0, 3.0}
+    ev = evaluate(out.samples.time_s, out.samples.torque_nm, out.samples.angle_arcsec, rated_torque_nm=T_MAX)
+    clean = loops_record(3)
+    clean = clean.select(clean.extra["loop_index"] >= 1)
+    reference = evaluate(clean.time_s, clean.torque_nm, clean.angle_arcsec, rated_torque_nm=T_MAX)
+    assert ev.n_loops == 2  # the two loops joined at their turning point, no loop made across the cut
+    assert ev.rigidity_nm_per_arcmin == pytest.approx(reference.rigidity_nm_per_arcmin, rel=5e-3)
+    assert ev.lost_motion_arcsec == pytest.approx(reference.lost_motion_arcsec, abs=0.5)
+
+
+def test_a_torque_gap_is_seen_in_the_torque_interval():
+    record = loops_record(2)
+    interval = record.extra[TORQUE_INTERVAL_COLUMN]
+    hole = (record.time_s > 3.0) & (record.time_s < 4.5)  # no torque readings: interpolated over 1.5 s
+    interval[hole] = 1.5
+    gaps = find_gaps(record.time_s, record.torque_nm, interval)
+    assert [g.channel for g in gaps] == ["torque"]
+    assert gaps[0].start_s == pytest.approx(3.0) and gaps[0].end_s == pytest.approx(4.5)
+    out = exclude_gapped_loops(record.select(record.extra["loop_index"] >= 1))
+    assert out.excluded == [(0, 1)] and "torque channel" in out.warnings[0]
+
+
+def test_too_few_loops_left_is_a_reason_and_no_gap_changes_nothing():
+    record = loops_record(1)
+    evaluated = record.select(record.extra["loop_index"] >= 1)
+    assert exclude_gapped_loops(evaluated).samples is evaluated  # clean: the same record
+    out = exclude_gapped_loops(without(evaluated, 5.0, 6.0))
+    assert out.reason is not None and out.reason.startswith("0 of 1 loops left")
+    assert "angle channel: no readings for 1.00 s" in out.reason
+    # a configured limit above the gap lets it pass; a sampling jitter of a few periods is no gap
+    assert exclude_gapped_loops(without(evaluated, 5.0, 6.0), GapSettings(limit_s=2.0)).reason is None
+    jitter = without(evaluated, 5.0, 5.0 + 4 / RATE_HZ)
+    assert find_gaps(jitter.time_s, jitter.torque_nm) == []
+
+
+def test_a_gap_between_stages_names_the_stage():
+    record = loops_record(2)
+    stage = np.where(record.time_s < 10.0, 0.0, 1.0)
+    loop = np.where(record.time_s < 10.0, 1.0, 1.0)
+    staged = Samples(record.time_s, record.torque_nm, record.angle_arcsec,
+                     {"loop_index": loop, "stage_index": stage, TORQUE_INTERVAL_COLUMN: np.zeros(record.time_s.size)})
+    out = exclude_gapped_loops(without(staged, 14.0, 15.0))
+    assert out.excluded == [(1, 1)] and "stage 2" in out.warnings[0] and "stage 2" in (out.reason or "")
+
+
+def test_the_aligner_carries_the_torque_interval():
+    aligner = Aligner(max_wait_s=0.5)
+    torque_t = np.array([0.0, 0.01, 0.02, 1.5, 1.51])  # no torque readings from 0.02 to 1.5 s
+    angle_t = np.array([0.005, 0.01, 0.5, 1.0, 1.505])
+    t, _, _ = aligner.push(angle_t, angle_t * 0, torque_t, torque_t * 0, now_s=1.6)
+    interval = aligner.released_extra[TORQUE_INTERVAL_COLUMN]
+    assert t.tolist() == angle_t.tolist()
+    assert interval == pytest.approx([0.01, 0.0, 1.48, 1.48, 0.01])
+    stale = Aligner(max_wait_s=0.5)
+    stale.push(np.array([0.0]), np.zeros(1), np.array([0.0]), np.zeros(1), now_s=0.0)
+    stale.push(np.array([0.9]), np.zeros(1), np.empty(0), np.empty(0), now_s=1.5)  # torque stalled
+    assert stale.released_extra[TORQUE_INTERVAL_COLUMN] == pytest.approx([1.5])
