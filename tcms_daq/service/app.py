@@ -24,6 +24,7 @@ from fastapi_offline import FastAPIOffline
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from tcms_daq.analysis.evaluation import jsonable
+from tcms_daq.extras import MissingExtra
 from tcms_daq.service.auth import ReadTokenMiddleware, resolve_token
 from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
 from tcms_daq.service.events import EventHub
@@ -190,6 +191,10 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
     @app.exception_handler(Conflict)
     async def _conflict(request: Request, exc: Conflict) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=409)
+
+    @app.exception_handler(MissingExtra)
+    async def _missing_extra(request: Request, exc: MissingExtra) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=501)
 
     @app.exception_handler(UnknownRun)
     async def _unknown(request: Request, exc: UnknownRun) -> JSONResponse:

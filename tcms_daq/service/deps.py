@@ -59,6 +59,7 @@ _ERRORS: dict[int, dict[str, Any]] = {
     409: {"model": ErrorBody, "description": "a test is running (or another analysis)"},
     413: {"model": ErrorBody, "description": "request body above the service's limit"},
     422: {"model": ValidationErrorBody, "description": "invalid request: one line naming the field"},
+    501: {"model": ErrorBody, "description": "an optional part this installation lacks (names the extra to install)"},
 }
 
 

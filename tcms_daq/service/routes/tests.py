@@ -10,6 +10,7 @@ from fastapi import APIRouter, Depends, Query, Response
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
 from tcms_daq.analysis.evaluation import jsonable
+from tcms_daq.extras import require_extra
 from tcms_daq.service import exports
 from tcms_daq.service.deps import AUTH, Manager, Store, StoredRunDep, errors
 from tcms_daq.service.report import render_report
@@ -90,12 +91,14 @@ def abort_test(run_id: str, manager: Manager) -> TestAccepted:
 
 
 @router.get("/{run_id}/samples", response_class=StreamingResponse, responses={
-    **errors(404, 422), 200: {"description": "the run's samples as a file", "content": {
+    **errors(404, 422, 501), 200: {"description": "the run's samples as a file", "content": {
         media: {"schema": {"type": "string", "format": "binary"}} for media in MEDIA_TYPES.values()}}})
 def get_samples(run: StoredRunDep, store: Store, format: Annotated[
         exports.ExportFormat, Query(description="file format of the export")] = exports.ExportFormat.CSV
                 ) -> StreamingResponse:
     """Every recorded sample (canonical columns first), streamed from the store chunk by chunk."""
+    if format == exports.ExportFormat.MDF4:
+        require_extra("exports", "the MDF4 export")
     exporter, media_type, ext = exports.EXPORTERS[format]
     chunks = exports.ChunkSource(lambda: store.iter_columns(run.id))
     headers = {"Content-Disposition": f'attachment; filename="tcms-{run.id}.{ext}"'}
