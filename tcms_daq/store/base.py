@@ -47,6 +47,15 @@ class StoreError(TcmsError):
     """The run store cannot do what was asked (unknown run, bad channel set, closed store, unreachable database)."""
 
 
+class SamplesRetired(StoreError):
+    """The run's samples were dropped by the store's retention policy (its record and results remain): 410 Gone."""
+
+    @classmethod
+    def of(cls, run_id: str, retired_at: float) -> SamplesRetired:
+        return cls(f"the samples of run {run_id} were retired on {iso(retired_at)} by the store's retention "
+                   "policy (its results remain: GET /api/tests/{id})")
+
+
 @dataclass(frozen=True)
 class StoredRun:
     """One run as read from the store. Times are UNIX seconds (UTC)."""
@@ -68,6 +77,12 @@ class StoredRun:
     bench_id: str | None = None  # the bench that ran it ([bench] id of its config; None: before fleets)
     bench_name: str | None = None
     compensation_sha256: str | None = None  # of compensator_toml (kept when the listing leaves the TOML out)
+    samples_retired_at: float | None = None  # when a retention policy dropped its samples (None: they are kept)
+
+    def require_samples(self) -> None:
+        """SamplesRetired when a retention policy dropped this run's samples."""
+        if self.samples_retired_at is not None:
+            raise SamplesRetired.of(self.id, self.samples_retired_at)
 
     @property
     def verdict(self) -> str | None:

@@ -8,16 +8,25 @@ first one's test, and marks the runs this bench left active as ``interrupted`` (
 Samples go in bulk: one ``COPY … FROM STDIN (FORMAT BINARY)`` per commit of the recorder, one row per acquisition
 batch (a channel-major little-endian float64 ``bytea``), in the same transaction as the run's sample count. A
 committed batch survives a kill of the service (PostgreSQL's commit is durable: ``synchronous_commit`` on).
+
+A plant's years of samples: ``sample_batches`` is partitioned by the run's creation time, one partition per UTC
+month (``sample_batches_y2026m11``, made with the run that first needs it; ``sample_partitions`` lists them with
+their bounds), so a run's batches are in one partition and a query for one run touches one. The retention policy
+(:meth:`PostgresRunStore.retire_samples`, ``tcms store retire``) drops whole months older than a cutoff — a
+``DROP TABLE``, no row-by-row delete, no bloat — and stamps those runs' ``samples_retired_at``: their records and
+results stay, their samples answer 410 Gone.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import psycopg
+from psycopg import sql
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
@@ -28,6 +37,7 @@ from tcms_daq.store.base import (
     VERSIONED,
     RunColumns,
     RunQuery,
+    SamplesRetired,
     StoredRun,
     StoredSamples,
     StoreError,
@@ -98,13 +108,56 @@ MIGRATIONS: tuple[str, ...] = (
         PRIMARY KEY (run_id, batch_index)
     );
     """,
+    # 2: samples partitioned by month of the run's creation; runs whose samples a retention policy retired
+    """
+    ALTER TABLE runs ADD COLUMN samples_retired_at double precision;
+    CREATE TABLE sample_partitions (
+        name text PRIMARY KEY,
+        from_s double precision NOT NULL,
+        to_s double precision NOT NULL
+    );
+    ALTER TABLE sample_batches RENAME TO sample_batches_v1;
+    CREATE TABLE sample_batches (
+        run_id text NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+        run_created_at double precision NOT NULL,
+        batch_index integer NOT NULL,
+        n_samples integer NOT NULL,
+        data bytea NOT NULL,
+        PRIMARY KEY (run_id, run_created_at, batch_index)
+    ) PARTITION BY RANGE (run_created_at);
+    -- the month partition holding a run created at t (UNIX s, UTC), made when missing; returns its name
+    CREATE FUNCTION tcms_sample_partition(t double precision) RETURNS text LANGUAGE plpgsql AS $$
+    DECLARE
+        v_month timestamp := date_trunc('month', to_timestamp(t) AT TIME ZONE 'UTC');
+        v_name text := 'sample_batches_' || to_char(v_month, '"y"YYYY"m"MM');
+        v_from double precision := extract(epoch FROM v_month AT TIME ZONE 'UTC');
+        v_to double precision := extract(epoch FROM (v_month + interval '1 month') AT TIME ZONE 'UTC');
+    BEGIN
+        IF EXISTS (SELECT 1 FROM sample_partitions p WHERE p.name = v_name) THEN
+            RETURN v_name;
+        END IF;
+        PERFORM pg_advisory_xact_lock(2084896771);  -- one maker of partitions at a time
+        IF NOT EXISTS (SELECT 1 FROM sample_partitions p WHERE p.name = v_name) THEN
+            EXECUTE format('CREATE TABLE %I PARTITION OF sample_batches FOR VALUES FROM (%s) TO (%s)',
+                           v_name, v_from, v_to);
+            INSERT INTO sample_partitions (name, from_s, to_s) VALUES (v_name, v_from, v_to);
+        END IF;
+        RETURN v_name;
+    END $$;
+    SELECT tcms_sample_partition(created_at) FROM (SELECT DISTINCT created_at FROM runs
+        WHERE id IN (SELECT DISTINCT run_id FROM sample_batches_v1)) AS with_samples;
+    INSERT INTO sample_batches (run_id, run_created_at, batch_index, n_samples, data)
+        SELECT b.run_id, r.created_at, b.batch_index, b.n_samples, b.data
+        FROM sample_batches_v1 b JOIN runs r ON r.id = b.run_id;
+    DROP TABLE sample_batches_v1;
+    """,
 )
 
 _MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)
 _BENCH_LOCK_CLASS = 0x7C45_0002
 _RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profile, results, error, "
                 "config_snapshot, compensator_toml, channels, sample_count, compensation_version, bench_id, "
-                "bench_name")
+                "bench_name, samples_retired_at")
 _LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
 
 
@@ -221,16 +274,18 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                    status: str = "queued") -> StoredRun:
         check_new_run(run_id, channels, status)
         cols = RunColumns.of(request)
+        created = time.time()
         try:
             with self._connection() as conn:
                 conn.execute(
                     "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
                     "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator) "
                     "VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s)",
-                    (run_id, time.time(), status, _jsonb(request), _jsonb(profile), _jsonb(config_snapshot),
+                    (run_id, created, status, _jsonb(request), _jsonb(profile), _jsonb(config_snapshot),
                      compensator_toml, Jsonb(list(channels)), compensation_version, self.bench_id,
                      self.bench_name, cols.reducer, cols.serial_number, cols.operator),
                 )
+                conn.execute("SELECT tcms_sample_partition(%s)", (created,))  # its month's, before any sample
         except psycopg.errors.UniqueViolation:
             raise StoreError(f"run {run_id} already exists") from None
         return self.get_run(run_id)  # type: ignore[return-value]
@@ -305,43 +360,101 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                 row = conn.execute(sql + "ORDER BY version DESC LIMIT 1", own_params).fetchone()
         return None if row is None else tuple(row)
 
-    # -- samples ---------------------------------------------------------------------------------------------
-    def _channels(self, run_id: str, conn: Any = None) -> tuple[str, ...]:
-        if conn is None:
-            with self._connection() as own:
-                return self._channels(run_id, own)
-        row = conn.execute("SELECT channels FROM runs WHERE id = %s", (run_id,)).fetchone()
+    # -- samples ----------------------------------------------------------------------------------------------
+    def _sample_key(self, run_id: str, conn: Any) -> tuple[tuple[str, ...], float]:
+        """(channels, created_at) of a run: its channel names and its samples' partition key. StoreError for an
+        unknown run, SamplesRetired for a run whose samples a retention policy dropped."""
+        row = conn.execute("SELECT channels, created_at, samples_retired_at FROM runs WHERE id = %s",
+                           (run_id,)).fetchone()
         if row is None:
             raise StoreError(f"unknown run {run_id!r}")
-        return tuple(row[0])
+        if row[2] is not None:
+            raise SamplesRetired.of(run_id, row[2])
+        return tuple(row[0]), float(row[1])
+
+    def _channels(self, run_id: str) -> tuple[str, ...]:
+        with self._connection() as conn:
+            return self._sample_key(run_id, conn)[0]
 
     def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int:
         """Append column batches in one transaction: one binary COPY, a row per batch. Returns samples written."""
         if not batches:
             return 0
         with self._connection() as conn:
-            rows = pack_batches(run_id, self._channels(run_id, conn), batches)
+            channels, created = self._sample_key(run_id, conn)
+            rows = pack_batches(run_id, channels, batches)
             if not rows:
                 return 0
             total = sum(n for n, _ in rows)
             # the run's row lock orders concurrent appends to one run; other runs are not held up
             conn.execute("SELECT 1 FROM runs WHERE id = %s FOR UPDATE", (run_id,))
-            start_row = conn.execute("SELECT COALESCE(max(batch_index) + 1, 0) FROM sample_batches WHERE run_id = %s",
-                                     (run_id,)).fetchone()
+            start_row = conn.execute(
+                "SELECT COALESCE(max(batch_index) + 1, 0) FROM sample_batches WHERE run_id = %s AND run_created_at = %s",
+                (run_id, created)).fetchone()
             start = int(start_row[0]) if start_row else 0
-            with conn.cursor() as cur, cur.copy(
-                    "COPY sample_batches (run_id, batch_index, n_samples, data) FROM STDIN (FORMAT BINARY)") as copy:
-                copy.set_types(["text", "int4", "int4", "bytea"])
+            with conn.cursor() as cur, cur.copy("COPY sample_batches (run_id, run_created_at, batch_index, n_samples, "
+                                                "data) FROM STDIN (FORMAT BINARY)") as copy:
+                copy.set_types(["text", "float8", "int4", "int4", "bytea"])
                 for i, (n, blob) in enumerate(rows):
-                    copy.write_row((run_id, start + i, n, blob))
+                    copy.write_row((run_id, created, start + i, n, blob))
             conn.execute("UPDATE runs SET sample_count = sample_count + %s WHERE id = %s", (total, run_id))
         return total
 
     def _batch_rows(self, run_id: str, from_index: int, limit: int) -> list[tuple[Any, ...]]:
         with self._connection() as conn:
+            # the run's creation time names its partition: the planner reads one month, not every month
             return conn.execute(
-                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND batch_index >= %s "
-                "ORDER BY batch_index LIMIT %s", (run_id, from_index, limit)).fetchall()
+                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND run_created_at = "
+                "(SELECT created_at FROM runs WHERE id = %s) AND batch_index >= %s ORDER BY batch_index LIMIT %s",
+                (run_id, run_id, from_index, limit)).fetchall()
+
+    # -- retention: whole months of samples ----------------------------------------------------------------------
+    def sample_partitions(self) -> list[SamplePartition]:
+        """The month partitions of the samples, oldest first, with their size and how many runs have samples in
+        each (every bench's)."""
+        with self._connection() as conn:
+            rows = conn.execute(
+                "SELECT p.name, p.from_s, p.to_s, pg_total_relation_size(p.name::regclass), "
+                "(SELECT count(*) FROM runs r WHERE r.created_at >= p.from_s AND r.created_at < p.to_s "
+                "AND r.sample_count > 0) FROM sample_partitions p ORDER BY p.from_s").fetchall()
+        return [SamplePartition(name, from_s, to_s, int(size), int(runs)) for name, from_s, to_s, size, runs in rows]
+
+    def retire_samples(self, before_s: float, *, dry_run: bool = False) -> list[SamplePartition]:
+        """The retention policy: drop every month partition that ends at or before ``before_s`` (UNIX s) and stamp
+        its runs' ``samples_retired_at`` (records and results stay). A month holding an active run is kept.
+        Returns the partitions dropped (or, with ``dry_run``, those that would be)."""
+        retired: list[SamplePartition] = []
+        for part in self.sample_partitions():
+            if part.to_s > before_s:
+                break
+            with self._connection() as conn:
+                active = conn.execute(
+                    "SELECT count(*) FROM runs WHERE created_at >= %s AND created_at < %s AND status = ANY(%s)",
+                    (part.from_s, part.to_s, list(ACTIVE_STATUSES))).fetchone()
+                if active and active[0]:
+                    continue
+                if dry_run:
+                    retired.append(part)
+                    continue
+                conn.execute(
+                    "UPDATE runs SET samples_retired_at = %s WHERE created_at >= %s AND created_at < %s "
+                    "AND samples_retired_at IS NULL AND sample_count > 0", (time.time(), part.from_s, part.to_s))
+                conn.execute(sql.SQL("DROP TABLE {}").format(sql.Identifier(part.name)))
+                conn.execute("DELETE FROM sample_partitions WHERE name = %s", (part.name,))
+            retired.append(part)
+        return retired
+
+
+@dataclass(frozen=True)
+class SamplePartition:
+    """One month of samples: the partition's name, its bounds (UNIX s, UTC, [from, to)), its size on disk
+    (bytes, with its index and TOAST) and the runs with samples in it."""
+
+    name: str
+    from_s: float
+    to_s: float
+    size_bytes: int
+    runs: int
 
 
 def _reason(exc: BaseException) -> str:
@@ -354,5 +467,5 @@ def _record(row: Sequence[Any]) -> StoredRun:
         id=row[0], created_at=row[1], started_at=row[2], finished_at=row[3], status=row[4],
         request=row[5] or {}, profile=row[6], results=row[7], error=row[8], config_snapshot=row[9],
         compensator_toml=row[10], channels=tuple(row[11]), sample_count=int(row[12]),
-        compensation_version=row[13], bench_id=row[14], bench_name=row[15],
+        compensation_version=row[13], bench_id=row[14], bench_name=row[15], samples_retired_at=row[16],
     )
