@@ -363,6 +363,44 @@ class StoredSamples:
         return samples_from_columns(self.read_columns(run_id))
 
 
+@dataclass(frozen=True)
+class HeadlinePoint:
+    """One run's value of one headline result (a point of an SPC series), with what places it: the run's id,
+    creation time (UNIX s), bench, request and profile (its test method and serial number)."""
+
+    id: str
+    created_at: float
+    bench_id: str | None
+    request: dict[str, Any]
+    profile: dict[str, Any] | None
+    value: float
+
+
+def finite_number(value: Any) -> float | None:
+    """``value`` as a float when it is a finite JSON number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+class HeadlineSeries:
+    """A headline result across runs (SPC), over ``list_runs``; a backend with the headline results in columns
+    (PostgreSQL) answers without reading the runs' whole results."""
+
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
+        raise NotImplementedError
+
+    def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
+        """Of the newest ``limit`` runs matching ``query``, those with a finite ``quantity`` (a key of
+        :data:`tcms_daq.identity.HEADLINES`), oldest first."""
+        points = []
+        for run in reversed(self.list_runs(limit, 0, query)):
+            value = finite_number((run.results or {}).get(quantity))
+            if value is not None:
+                points.append(HeadlinePoint(run.id, run.created_at, run.bench_id, run.request, run.profile, value))
+        return points
+
+
 class VersionedDocuments:
     """The versioned TOML documents of a bench — compensations and bench models — over a backend's three
     primitives: ``_add_version(table, toml, note, provenance) -> (version, created_at)``, ``_history(table,
@@ -443,6 +481,8 @@ class Store(Protocol):
     def count_by_status(self) -> dict[str, int]:
         """This bench's runs by status (the service's metrics)."""
         ...
+
+    def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]: ...
 
     # samples
     def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int: ...

@@ -30,11 +30,14 @@ from psycopg import sql
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
+from tcms_daq.identity import HEADLINES
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
+    HeadlinePoint,
+    HeadlineSeries,
     RunColumns,
     RunQuery,
     SamplesRetired,
@@ -44,6 +47,7 @@ from tcms_daq.store.base import (
     VersionedDocuments,
     check_new_run,
     dumps,
+    finite_number,
     pack_batches,
     status_update,
     text_sha256,
@@ -108,9 +112,24 @@ MIGRATIONS: tuple[str, ...] = (
         PRIMARY KEY (run_id, batch_index)
     );
     """,
-    # 2: samples partitioned by month of the run's creation; runs whose samples a retention policy retired
+    # 2: a plant's years: samples partitioned by month of the run's creation; runs whose samples a retention policy
+    # retired; the headline results in columns (SPC reads them without the whole results); the fleet list's indexes
     """
-    ALTER TABLE runs ADD COLUMN samples_retired_at double precision;
+    ALTER TABLE runs ADD COLUMN samples_retired_at double precision,
+        ADD COLUMN rigidity_nm_per_arcmin double precision,
+        ADD COLUMN lost_motion_arcsec double precision,
+        ADD COLUMN backlash_arcsec double precision;
+    UPDATE runs SET
+        rigidity_nm_per_arcmin = CASE WHEN jsonb_typeof(results->'rigidity_nm_per_arcmin') = 'number'
+                                      THEN (results->>'rigidity_nm_per_arcmin')::double precision END,
+        lost_motion_arcsec = CASE WHEN jsonb_typeof(results->'lost_motion_arcsec') = 'number'
+                                  THEN (results->>'lost_motion_arcsec')::double precision END,
+        backlash_arcsec = CASE WHEN jsonb_typeof(results->'backlash_arcsec') = 'number'
+                               THEN (results->>'backlash_arcsec')::double precision END
+        WHERE results IS NOT NULL;
+    DROP INDEX runs_reducer;
+    CREATE INDEX runs_reducer ON runs (lower(reducer), created_at DESC);
+    CREATE INDEX runs_bench_name ON runs (lower(bench_name), created_at);
     CREATE TABLE sample_partitions (
         name text PRIMARY KEY,
         from_s double precision NOT NULL,
@@ -169,7 +188,7 @@ def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
     return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
 
 
-class PostgresRunStore(VersionedDocuments, StoredSamples):
+class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
     """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
     pool)."""
 
@@ -294,6 +313,9 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                    results: Mapping[str, Any] | None = None) -> None:
         """Move a run to ``status`` (:func:`~tcms_daq.store.base.status_update`)."""
         sets, params = status_update(status, error=error, results=results, encode_results=_jsonb, placeholder="%s")
+        if results is not None:  # the headline results also in their columns (SPC)
+            sets += "".join(f", {h.key} = %s" for h in HEADLINES)
+            params += [finite_number(results.get(h.key)) for h in HEADLINES]
         params.append(run_id)
         with self._connection() as conn:
             cur = conn.execute(f"UPDATE runs SET {sets} WHERE id = %s", params)
@@ -319,6 +341,18 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
         with self._connection() as conn:
             row = conn.execute(f"SELECT count(*) FROM runs {where}", params).fetchone()
         return int(row[0]) if row else 0
+
+    def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
+        """:meth:`HeadlineSeries.headline_points` from the headline columns: the runs' whole results are not read."""
+        if quantity not in {h.key for h in HEADLINES}:
+            raise StoreError(f"unknown headline result {quantity!r}")
+        where, params = query.where("%s", "ILIKE")
+        with self._connection() as conn:
+            rows = conn.execute(
+                f"SELECT * FROM (SELECT id, created_at, bench_id, request, profile, {quantity} FROM runs {where} "
+                "ORDER BY created_at DESC, id DESC LIMIT %s) AS newest "
+                f"WHERE {quantity} IS NOT NULL ORDER BY created_at, id", (*params, limit)).fetchall()
+        return [HeadlinePoint(r[0], r[1], r[2], r[3] or {}, r[4], float(r[5])) for r in rows]
 
     def count_by_status(self) -> dict[str, int]:
         """Runs of this bench by status (every bench's for a store without one)."""

@@ -31,6 +31,7 @@ from tcms_daq.store.base import (
     VERSIONED,
     BenchModelVersion,
     CompensationVersion,
+    HeadlineSeries,
     RunColumns,
     RunQuery,
     StoredRun,
@@ -118,7 +119,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-class RunStore(VersionedDocuments, StoredSamples):
+class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Each thread gets its own connection (WAL lets readers run beside the one writer); writes are serialised

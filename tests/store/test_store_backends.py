@@ -173,3 +173,18 @@ def test_postgres_unreachable_is_one_line(tmp_path):
     assert "secret" not in str(info.value) and "\n" not in str(info.value)
     with pytest.raises(StoreError, match="unknown scheme"):
         open_store("mysql://x/y", tmp_path)
+
+
+def test_headline_points_are_the_same_on_both_backends(opener: Opener):
+    """SPC's series: of the newest runs matching a query, those with a finite value, oldest first (PostgreSQL
+    reads the headline columns it keeps beside the results, SQLite the results)."""
+    store = opener()
+    for i, value in enumerate([290.0, None, 291.5, 289.0]):
+        store.create_run(f"h{i}", {"reducer": "RV-110E" if i != 3 else "RV-40E"}, CHANNELS)
+        results = {"lost_motion_arcsec": 25.0} if value is None else {"rigidity_nm_per_arcmin": value}
+        store.set_status(f"h{i}", "completed", results=results)
+    points = store.headline_points("rigidity_nm_per_arcmin", RunQuery(reducer="rv-110e", status="completed"), 100)
+    assert [(p.id, p.value, p.request["reducer"]) for p in points] == [("h0", 290.0, "RV-110E"),
+                                                                       ("h2", 291.5, "RV-110E")]
+    newest_two = store.headline_points("rigidity_nm_per_arcmin", RunQuery(reducer="RV-110E"), 2)
+    assert [p.id for p in newest_two] == ["h2"]  # h1, the other of the newest two, has no rigidity
