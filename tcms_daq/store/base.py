@@ -28,7 +28,7 @@ import numpy as np
 
 from tcms_daq.analysis.evaluation import DECISIONS
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import decision, headline_results, run_identity
+from tcms_daq.identity import HEADLINES, decision, headline_results, run_identity, test_method
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples, samples_from_columns
 
@@ -119,6 +119,22 @@ class StoredRun:
                             compensation_version=self.compensation_version,
                             compensation_sha256=summary["compensation_sha256"],
                             config_snapshot=self.config_snapshot)
+
+
+#: what the brief view of a run's results keeps: its headline results, their uncertainty entries and the verdict
+BRIEF_KEYS: tuple[str, ...] = tuple(h.key for h in HEADLINES)
+
+
+def brief_results(results: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """A run's results reduced to what a list shows: the headline results (value, their ``uncertainty`` entries),
+    the verdict and ``passed``; None for none."""
+    if results is None:
+        return None
+    out = {k: results[k] for k in (*BRIEF_KEYS, "verdict", "passed") if k in results}
+    table = results.get("uncertainty")
+    if isinstance(table, Mapping):
+        out["uncertainty"] = {k: table[k] for k in BRIEF_KEYS if k in table}
+    return out
 
 
 def text_sha256(text: str) -> str:
@@ -366,13 +382,14 @@ class StoredSamples:
 @dataclass(frozen=True)
 class HeadlinePoint:
     """One run's value of one headline result (a point of an SPC series), with what places it: the run's id,
-    creation time (UNIX s), bench, request and profile (its test method and serial number)."""
+    creation time (UNIX s), bench, the unit's serial number and the series of its test method
+    (:func:`tcms_daq.identity.test_method`)."""
 
     id: str
     created_at: float
     bench_id: str | None
-    request: dict[str, Any]
-    profile: dict[str, Any] | None
+    serial_number: str | None
+    series: str
     value: float
 
 
@@ -387,7 +404,8 @@ class HeadlineSeries:
     """A headline result across runs (SPC), over ``list_runs``; a backend with the headline results in columns
     (PostgreSQL) answers without reading the runs' whole results."""
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
         raise NotImplementedError
 
     def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
@@ -397,8 +415,14 @@ class HeadlineSeries:
         for run in reversed(self.list_runs(limit, 0, query)):
             value = finite_number((run.results or {}).get(quantity))
             if value is not None:
-                points.append(HeadlinePoint(run.id, run.created_at, run.bench_id, run.request, run.profile, value))
+                points.append(HeadlinePoint(run.id, run.created_at, run.bench_id, RunColumns.of(run.request).serial_number,
+                                            test_series(run.request, run.profile), value))
         return points
+
+
+def test_series(request: Mapping[str, Any], profile: Mapping[str, Any] | None) -> str:
+    """The SPC series of a run's test method (``single``, ``positions-4`` …)."""
+    return str(test_method(request, profile)["series"])
 
 
 class VersionedDocuments:
@@ -474,7 +498,11 @@ class Store(Protocol):
 
     def get_run(self, run_id: str) -> StoredRun | None: ...
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]: ...
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        """Runs matching ``query``, newest first, without their config snapshot and TOML; ``brief``: their results
+        reduced to :func:`brief_results` (PostgreSQL reduces them in the database)."""
+        ...
 
     def count_runs(self, query: RunQuery | None = None) -> int: ...
 

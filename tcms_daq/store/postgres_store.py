@@ -33,6 +33,7 @@ from psycopg_pool import ConnectionPool, PoolTimeout
 from tcms_daq.identity import HEADLINES
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
+    BRIEF_KEYS,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
@@ -50,6 +51,7 @@ from tcms_daq.store.base import (
     finite_number,
     pack_batches,
     status_update,
+    test_series,
     text_sha256,
 )
 from tcms_daq.store.opening import redact_url
@@ -118,7 +120,8 @@ MIGRATIONS: tuple[str, ...] = (
     ALTER TABLE runs ADD COLUMN samples_retired_at double precision,
         ADD COLUMN rigidity_nm_per_arcmin double precision,
         ADD COLUMN lost_motion_arcsec double precision,
-        ADD COLUMN backlash_arcsec double precision;
+        ADD COLUMN backlash_arcsec double precision,
+        ADD COLUMN test_series text;
     UPDATE runs SET
         rigidity_nm_per_arcmin = CASE WHEN jsonb_typeof(results->'rigidity_nm_per_arcmin') = 'number'
                                       THEN (results->>'rigidity_nm_per_arcmin')::double precision END,
@@ -128,8 +131,8 @@ MIGRATIONS: tuple[str, ...] = (
                                THEN (results->>'backlash_arcsec')::double precision END
         WHERE results IS NOT NULL;
     DROP INDEX runs_reducer;
-    CREATE INDEX runs_reducer ON runs (lower(reducer), created_at DESC);
-    CREATE INDEX runs_bench_name ON runs (lower(bench_name), created_at);
+    CREATE INDEX runs_reducer ON runs (lower(reducer), created_at DESC, id DESC);
+    CREATE INDEX runs_bench_name ON runs (lower(bench_name), created_at DESC, id DESC);
     CREATE TABLE sample_partitions (
         name text PRIMARY KEY,
         from_s double precision NOT NULL,
@@ -178,6 +181,15 @@ _RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profi
                 "config_snapshot, compensator_toml, channels, sample_count, compensation_version, bench_id, "
                 "bench_name, samples_retired_at")
 _LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
+# the brief list: results reduced in the database (base.brief_results), so a page of runs moves and parses kilobytes
+_BRIEF_KEYS_SQL = ", ".join(f"'{k}'" for k in BRIEF_KEYS)
+_BRIEF_RESULTS = (
+    "CASE WHEN results IS NULL THEN NULL ELSE "
+    f"COALESCE((SELECT jsonb_object_agg(key, value) FROM jsonb_each(results) WHERE key IN ({_BRIEF_KEYS_SQL}, "
+    "'verdict', 'passed')), '{}') || CASE WHEN jsonb_typeof(results->'uncertainty') = 'object' THEN "
+    "jsonb_build_object('uncertainty', COALESCE((SELECT jsonb_object_agg(key, value) FROM "
+    f"jsonb_each(results->'uncertainty') WHERE key IN ({_BRIEF_KEYS_SQL})), '{{}}')) ELSE '{{}}' END END")
+_BRIEF_COLUMNS = _LIST_COLUMNS.replace("results", _BRIEF_RESULTS, 1)
 
 
 def _json_text(obj: Any) -> str:
@@ -231,6 +243,8 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
                                  f"program's {len(MIGRATIONS)}: update TCMS-DAQ")
             for version in range(current + 1, len(MIGRATIONS) + 1):
                 conn.execute(MIGRATIONS[version - 1])  # our own SQL, no parameters
+                if version == 2:
+                    _fill_test_series(conn)
                 conn.execute("INSERT INTO schema_version (version) VALUES (%s)", (version,))
 
     @property
@@ -298,11 +312,11 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
             with self._connection() as conn:
                 conn.execute(
                     "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
-                    "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator) "
-                    "VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s)",
+                    "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator, "
+                    "test_series) VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s)",
                     (run_id, created, status, _jsonb(request), _jsonb(profile), _jsonb(config_snapshot),
                      compensator_toml, Jsonb(list(channels)), compensation_version, self.bench_id,
-                     self.bench_name, cols.reducer, cols.serial_number, cols.operator),
+                     self.bench_name, cols.reducer, cols.serial_number, cols.operator, test_series(request, profile)),
                 )
                 conn.execute("SELECT tcms_sample_partition(%s)", (created,))  # its month's, before any sample
         except psycopg.errors.UniqueViolation:
@@ -327,12 +341,14 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
             row = conn.execute(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id = %s", (run_id,)).fetchone()
         return None if row is None else _record(row)
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
-        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML; ``brief``:
+        results reduced to :func:`~tcms_daq.store.base.brief_results` in the database)."""
         where, params = (query or RunQuery()).where("%s", "ILIKE")
         with self._connection() as conn:
             rows = conn.execute(
-                f"SELECT {_LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC "
+                f"SELECT {_BRIEF_COLUMNS if brief else _LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC "
                 "LIMIT %s OFFSET %s", (*params, limit, offset)).fetchall()
         return [_record(r) for r in rows]
 
@@ -349,10 +365,10 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
         where, params = query.where("%s", "ILIKE")
         with self._connection() as conn:
             rows = conn.execute(
-                f"SELECT * FROM (SELECT id, created_at, bench_id, request, profile, {quantity} FROM runs {where} "
-                "ORDER BY created_at DESC, id DESC LIMIT %s) AS newest "
+                f"SELECT * FROM (SELECT id, created_at, bench_id, serial_number, test_series, {quantity} FROM runs "
+                f"{where} ORDER BY created_at DESC, id DESC LIMIT %s) AS newest "
                 f"WHERE {quantity} IS NOT NULL ORDER BY created_at, id", (*params, limit)).fetchall()
-        return [HeadlinePoint(r[0], r[1], r[2], r[3] or {}, r[4], float(r[5])) for r in rows]
+        return [HeadlinePoint(r[0], r[1], r[2], r[3], r[4] or "single", float(r[5])) for r in rows]
 
     def count_by_status(self) -> dict[str, int]:
         """Runs of this bench by status (every bench's for a store without one)."""
@@ -489,6 +505,14 @@ class SamplePartition:
     to_s: float
     size_bytes: int
     runs: int
+
+
+def _fill_test_series(conn: Any) -> None:
+    """Migration 2's Python part: the test-method series of the runs stored before it (from request and profile)."""
+    rows = conn.execute("SELECT id, request, profile FROM runs WHERE test_series IS NULL").fetchall()
+    with conn.cursor() as cur:
+        cur.executemany("UPDATE runs SET test_series = %s WHERE id = %s",
+                        [(test_series(request or {}, profile), run_id) for run_id, request, profile in rows])
 
 
 def _reason(exc: BaseException) -> str:

@@ -17,6 +17,7 @@ import sqlite3
 import threading
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,7 @@ from tcms_daq.store.base import (
     StoredSamples,
     StoreError,
     VersionedDocuments,
+    brief_results,
     check_new_run,
     dumps,
     new_run_id,
@@ -315,15 +317,18 @@ class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
         row = self._conn().execute(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id=?", (run_id,)).fetchone()
         return None if row is None else _record(row)
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
-        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML; ``brief``:
+        results reduced to :func:`~tcms_daq.store.base.brief_results`)."""
         where, params = (query or RunQuery()).where("?", "LIKE")
         rows = self._conn().execute(
             f"SELECT {_LIST_COLUMNS} FROM runs {where} "
             "ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
             (*params, limit, offset),
         ).fetchall()
-        return [_record(r) for r in rows]
+        records = [_record(r) for r in rows]
+        return [replace(r, results=brief_results(r.results)) for r in records] if brief else records
 
     def count_runs(self, query: RunQuery | None = None) -> int:
         where, params = (query or RunQuery()).where("?", "LIKE")

@@ -15,6 +15,7 @@ import pytest
 
 from tcms_daq.cli import main
 from tcms_daq.cli.store import cutoff_s
+from tcms_daq.store import RunQuery
 from tcms_daq.store.base import SamplesRetired
 from tcms_daq.store.postgres_store import MIGRATIONS, PostgresRunStore
 
@@ -90,13 +91,17 @@ def test_migration_moves_version_1_samples_into_month_partitions(postgres_url):
         conn.execute("CREATE TABLE schema_version (version integer NOT NULL)")
         conn.execute(MIGRATIONS[0])
         conn.execute("INSERT INTO schema_version VALUES (1)")
-        conn.execute("INSERT INTO runs (id, created_at, status, request, channels, sample_count) VALUES "
-                     "('v1', %s, 'completed', '{}', '[\"time_s\", \"torque_nm\"]', 6)", (created,))
+        conn.execute("INSERT INTO runs (id, created_at, status, request, channels, sample_count, results) VALUES "
+                     "('v1', %s, 'completed', '{\"positions\": 4}', '[\"time_s\", \"torque_nm\"]', 6, "
+                     "'{\"rigidity_nm_per_arcmin\": 291.5, \"backlash_arcsec\": \"n/a\"}')", (created,))
         conn.execute("INSERT INTO sample_batches VALUES ('v1', 0, 3, %s), ('v1', 1, 3, %s)", (blob, blob))
     with PostgresRunStore(postgres_url, recover=False) as store:
         assert store.schema_version == len(MIGRATIONS)
         assert [p.name for p in store.sample_partitions()] == ["sample_batches_y2025m05"]
         np.testing.assert_array_equal(store.read_columns("v1")["time_s"], [0, 1, 2, 0, 1, 2])
+        points = store.headline_points("rigidity_nm_per_arcmin", RunQuery(), 10)
+        assert [(p.id, p.series, p.value) for p in points] == [("v1", "positions-4", 291.5)]
+        assert store.headline_points("backlash_arcsec", RunQuery(), 10) == []  # not a number: not a point
 
 
 def test_cli_lists_months_and_retires_them(postgres_url, monkeypatch, capsys):

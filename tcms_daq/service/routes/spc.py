@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
 
-from tcms_daq.identity import HEADLINES, test_method
+from tcms_daq.identity import HEADLINES
 from tcms_daq.service.deps import Store, errors
 from tcms_daq.service.routes.tests import unix_seconds
 from tcms_daq.service.runner import RequestRejected
@@ -38,7 +38,7 @@ def _completed(store: Store, reducer: str, bench: str | None, quantity: str) -> 
     """Completed runs of ``reducer`` (on ``bench``) with a finite ``quantity``, oldest first, each with the series
     of its test method (of the newest MAX_RUNS runs)."""
     points = store.headline_points(quantity, RunQuery(reducer=reducer, bench=bench, status="completed"), MAX_RUNS)
-    return [(p, str(test_method(p.request, p.profile)["series"])) for p in points]
+    return [(p, p.series) for p in points]
 
 
 def _methods(points: list[tuple[HeadlinePoint, str]]) -> dict[str, int]:
@@ -72,7 +72,7 @@ def control_chart(store: Store, reducer: _Name, quantity: Quantity = "rigidity_n
         n = min(baseline_runs or RECOMMENDED_BASELINE, len(points))
     where = f" on bench {bench}" if bench else ""
     runs = [{"id": r.id, "created_at": iso(r.created_at), "bench_id": r.bench_id,
-             "serial_number": r.request.get("serial_number"), "value": v} for r, v in points]
+             "serial_number": r.serial_number, "value": v} for r, v in points]
     view: dict[str, Any] = {"quantity": quantity, "unit": UNITS[quantity], "reducer": reducer, "bench": bench,
                             "method": method, "methods": _methods(everything), "runs": runs, "baseline_n": n}
     if len(points) < MIN_BASELINE or n < MIN_BASELINE:
@@ -97,9 +97,9 @@ def bias(store: Store, reducer: _Name, quantity: Quantity = "rigidity_nm_per_arc
     """Each bench's bias on one result, from the reference units (same serial number) of a reducer model tested
     by one method on several benches, with its standard and expanded uncertainty (Student's t, 95 %)."""
     points = [(p, p.value) for p, series in _completed(store, reducer, None, quantity)
-              if series == method and p.bench_id and isinstance(p.request.get("serial_number"), str)]
+              if series == method and p.bench_id and p.serial_number is not None]
     try:
-        est = bench_bias([r.request["serial_number"] for r, _ in points], [str(r.bench_id) for r, _ in points],
+        est = bench_bias([str(r.serial_number) for r, _ in points], [str(r.bench_id) for r, _ in points],
                          [v for _, v in points], reference=reference)
     except ValueError as exc:
         raise RequestRejected(f"{reducer}, {quantity}, {method} tests: {exc}") from None

@@ -61,13 +61,18 @@ def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, 
                                                        "schema": {"type": "integer"}}}}})
 def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depends(run_query)],
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-               offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[TestSummary]:
+               offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
+               brief: Annotated[bool, Query(description=(
+                   "each test's results reduced to its headline results (with their uncertainty) and verdict, as "
+                   "the fleet page lists them: a page of a plant's runs without their whole results"))] = False,
+               ) -> list[TestSummary]:
     """Stored tests of every bench sharing the store, newest first, one page at a time (``limit``, ``offset``;
     the header ``X-Total-Count`` counts all pages). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
     (exact, any case), ``status``, ``verdict`` (pass / fail / undecided), ``q`` (a substring of the id, serial
-    number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601)."""
+    number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601). ``brief``: results reduced
+    to the headline results and the verdict."""
     response.headers["X-Total-Count"] = str(store.count_runs(query))
-    return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query)]
+    return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query, brief=brief)]
 
 
 @router.get("/{run_id}", response_model=TestSummary, responses=errors(404))
