@@ -12,9 +12,10 @@ COPY pyproject.toml README.md ./
 COPY tcms_daq ./tcms_daq
 COPY drivers ./drivers
 COPY sim ./sim
-COPY benchmarks ./benchmarks
+COPY config ./config
 # the default configs are package data (config/, installed as tcms_daq.defaults): `--config bench-compose.toml` finds them by name
-RUN pip install --no-compile . \
+# [plant]: the compose plant's benches share PostgreSQL (and may serve OPC UA)
+RUN pip install --no-compile '.[plant]' \
     && useradd --create-home --uid 1000 tcms \
     && mkdir -p /data \
     && chown tcms /data

@@ -1,8 +1,11 @@
-"""Build a wheel, check that it installs one top-level package (``tcms_daq``), install it into a fresh virtual environment outside the source tree, and run the product from
-another directory: ``tcms run`` (the in-process simulated bench), ``tcms serve`` with one test through the REST
-API, and ``tcms sim serve`` + ``tcms run --config bench-loopback.toml --set …`` over the real protocols.
+"""Build a wheel, install it (without extras: the runtime dependencies only) into a fresh virtual environment
+outside the source tree, check that it added exactly one top-level package (``tcms_daq``) plus the console script
+``tcms``, and run the product from another directory: ``tcms run`` (the in-process simulated bench), ``tcms serve``
+with one test through the REST API, ``tcms sim serve --free-ports --urls-file`` + ``tcms run --sim-urls`` and
+``tcms serve --sim-urls`` over the real protocols, and the README's quick tour as written (scripts/quick_tour.py,
+the venv's ``bin`` first on PATH, in an empty directory).
 
-    .venv/bin/python scripts/wheel_smoke.py [--keep DIR]
+    .venv/bin/python scripts/wheel_smoke.py [--keep DIR] [--no-tour]
 
 Exits non-zero with the failing step's output. Used by .ci/run; needs the package index pip is configured for.
 """
@@ -25,6 +28,9 @@ from pathlib import Path
 from tcms_daq.sim.instruments.child import start_simulators, stop_process
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "scripts"))
+from quick_tour import TourFailed, run_tour  # noqa: E402
+
 TOKEN = "wheel-smoke-token"
 
 
@@ -64,11 +70,11 @@ def wait_for(condition, timeout_s: float, what: str):
     sys.exit(f"wheel-smoke: FAILED: {what} within {timeout_s:.0f} s (last error: {last_error})")
 
 
-def serve_one_test(tcms: Path, cwd: Path, env: dict) -> None:
+def serve_one_test(tcms: Path, cwd: Path, env: dict, *extra: str, certificate: bool = True) -> None:
     """`tcms serve` from another directory; one short test through the API completes with an evaluation."""
     port = free_port()
     proc = subprocess.Popen([str(tcms), "serve", "--port", str(port), "--data-dir", str(cwd / "data"),
-                             "--sim-speed", "50"], cwd=cwd, env=env, stdout=subprocess.PIPE,
+                             "--sim-speed", "50", *extra], cwd=cwd, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     base = f"http://127.0.0.1:{port}"
     try:
@@ -79,7 +85,9 @@ def serve_one_test(tcms: Path, cwd: Path, env: dict) -> None:
                         in ("completed", "failed", "aborted") and r, 120, "the test to end")
         if done["status"] != "completed":
             sys.exit(f"wheel-smoke: FAILED: the served test ended {done['status']}: {json.dumps(done)[:2000]}")
-        print(f"wheel-smoke: tcms serve: test {run['id']} completed", flush=True)
+        print(f"wheel-smoke: tcms serve {' '.join(extra)}: test {run['id']} completed", flush=True)
+        if not certificate:
+            return
         # the certificate's Typst template is package data: the installed wheel typesets it
         with urllib.request.urlopen(f"{base}/api/tests/{run['id']}/certificate.pdf", timeout=120) as answer:
             pdf = answer.read()
@@ -98,9 +106,12 @@ def serve_one_test(tcms: Path, cwd: Path, env: dict) -> None:
 
 
 def loopback_run(tcms: Path, cwd: Path, env: dict) -> None:
-    """`tcms sim serve` on free ports and `tcms run` against it with port overrides, no edited TOML copy."""
+    """`tcms sim serve --free-ports --urls-file` and, reading that file, `tcms run` (with port overrides too: no
+    edited TOML copy) and `tcms serve` over the real protocols."""
+    urls_file = cwd / "sim.json"
     try:
-        sim, info = start_simulators(command=[str(tcms)], cwd=cwd, env=env)
+        sim, info = start_simulators("--free-ports", "--urls-file", str(urls_file), command=[str(tcms)], cwd=cwd,
+                                     env=env)
     except RuntimeError as exc:
         sys.exit(f"wheel-smoke: FAILED: {exc}")
     try:
@@ -112,13 +123,44 @@ def loopback_run(tcms: Path, cwd: Path, env: dict) -> None:
             "--set", f"instruments.loader.url={urls['loader_canopen']}"], cwd, timeout_s=300, env=env)
         result = json.loads(out)
         print(f"wheel-smoke: loopback run rigidity {result['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
+        out = step("tcms run --config bench-loopback-modbus.toml --sim-urls sim.json (real protocols)", [
+            str(tcms), "run", "--config", "bench-loopback-modbus.toml", "--sim-urls", urls_file.name,
+            "--max-torque", "200", "--cycles", "1", "--conditioning", "1", "--rate", "400", "--json"], cwd,
+            timeout_s=300, env=env)
+        print(f"wheel-smoke: --sim-urls run rigidity {json.loads(out)['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
+        serve_one_test(tcms, cwd, env, "--config", "bench-loopback.toml", "--sim-urls", urls_file.name,
+                       certificate=False)
     finally:
         stop_process(sim)
+
+
+def check_installed_files(vpy: Path, cwd: Path, env: dict) -> None:
+    """The installed distribution's files (its RECORD) are the package ``tcms_daq``, its dist-info and the console
+    script ``tcms``: nothing else lands in site-packages or bin."""
+    listing = step("list the installed distribution's files", [str(vpy), "-c", (
+        "import json, importlib.metadata as m; d = m.distribution('tcms-daq'); "
+        "print(json.dumps([(str(f), str(f.locate())) for f in d.files]))")], cwd, env=env)
+    bin_dir = vpy.parent.resolve()
+    tops: set[str] = set()
+    for relative, located in json.loads(listing):
+        path = Path(located).resolve()
+        if path.parent == bin_dir:
+            tops.add(f"bin/{path.name}")
+        elif relative.startswith(".."):
+            tops.add(relative)  # outside site-packages and not a script: reported below
+        else:
+            tops.add(relative.split("/")[0])
+    dist_info = {t for t in tops if t.endswith(".dist-info")}
+    if len(dist_info) != 1 or tops - dist_info != {"tcms_daq", "bin/tcms"}:
+        sys.exit(f"wheel-smoke: FAILED: the wheel installed {sorted(tops)}, not tcms_daq + its dist-info + bin/tcms")
+    print("wheel-smoke: the installation added one top-level package, tcms_daq, and the console script tcms",
+          flush=True)
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--keep", metavar="DIR", help="work in DIR and keep it (default: a temporary directory)")
+    parser.add_argument("--no-tour", action="store_true", help="skip the README's quick tour (the longest step)")
     args = parser.parse_args()
     work = Path(args.keep or tempfile.mkdtemp(prefix="tcms-wheel-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -133,11 +175,13 @@ def main() -> int:
         print("wheel-smoke: the wheel installs one top-level package, tcms_daq", flush=True)
         step("create a fresh venv", [sys.executable, "-m", "venv", str(work / "venv")], work)
         vpy = work / "venv" / "bin" / "python"
-        step("install the wheel (with its dependencies)", [str(vpy), "-m", "pip", "install", "-q", str(wheel)], work)
+        step("install the wheel (with its runtime dependencies, no extras)",
+             [str(vpy), "-m", "pip", "install", "-q", str(wheel)], work)
         elsewhere = work / "elsewhere"
         elsewhere.mkdir(exist_ok=True)
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
         env["TCMS_API_TOKEN"] = TOKEN
+        check_installed_files(vpy, elsewhere, env)
         where = step("the installed package is used", [str(vpy), "-c", "import tcms_daq; print(tcms_daq.__file__)"],
                      elsewhere, env=env)
         if str(REPO) in where:
@@ -155,6 +199,14 @@ def main() -> int:
         print("wheel-smoke: discrepancy trials named the hidden drift and did not explain the slip")
         serve_one_test(tcms, elsewhere, env)
         loopback_run(tcms, elsewhere, env)
+        if not args.no_tour:
+            tour_dir = work / "tour"
+            tour_dir.mkdir(exist_ok=True)
+            print("wheel-smoke: the README's quick tour, as written, in an empty directory", flush=True)
+            try:
+                run_tour(vpy.parent, tour_dir)
+            except TourFailed as exc:
+                sys.exit(f"wheel-smoke: FAILED: the quick tour: {exc}")
         print("wheel-smoke: ok", flush=True)
         return 0
     finally:

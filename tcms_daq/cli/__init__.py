@@ -15,6 +15,7 @@ import importlib
 import pkgutil
 import sys
 
+from tcms_daq.cli.options import apply_sim_urls
 from tcms_daq.errors import TcmsError
 
 
@@ -40,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        apply_sim_urls(args)
         return int(args.func(args) or 0)
     except TcmsError as exc:
         print(f"tcms: error: {exc}", file=sys.stderr)

@@ -21,9 +21,10 @@ import asyncio
 import json
 import signal
 import threading
+from pathlib import Path
 from typing import Any
 
-from tcms_daq.cli.options import add_bench_config_options
+from tcms_daq.cli.options import add_bench_config_options, write_sim_urls
 from tcms_daq.errors import ConfigError, TcmsError
 from tcms_daq.sim.instruments.tcp import TcpServer
 
@@ -36,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run the ND 287, AED, Modbus and CANopen (socketcand) simulators on one shared physics",
         description=__doc__.split("\n\n")[1],
     )
-    add_bench_config_options(serve)
+    add_bench_config_options(serve, sim_urls=False)
     serve.add_argument("--host", default=None, help="address to bind (default 127.0.0.1)")
     serve.add_argument("--speed", type=float, default=1.0, help="simulated seconds per real second (default 1)")
     serve.add_argument("--nd287-port", type=int, help="ND 287 TCP port (default 4001; 0 = any free port)")
@@ -50,6 +51,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--control-port", type=int,
                        help="loopback control channel for fault injection (0 = any free port; default off)")
     serve.add_argument("--duration", type=float, help="exit after this many (real) seconds")
+    serve.add_argument("--free-ports", action="store_true",
+                       help="every server on a free port (ports given on the command line still win)")
+    serve.add_argument("--urls-file", metavar="FILE",
+                       help="also write the JSON line (ports, URLs by driver) to FILE once listening, removed at exit; "
+                       "tcms run/check/serve --sim-urls FILE read it")
     serve.set_defaults(func=_serve)
     sim.set_defaults(func=lambda args: (sim.print_help(), 2)[1])
 
@@ -59,6 +65,8 @@ def _options(args: argparse.Namespace, cfg: Any):
 
     table = dict((getattr(cfg, "model_extra", None) or {}).get("simulators", {}) or {})
     ports = dict(table.pop("ports", {}) or {})
+    if args.free_ports:
+        ports.update(dict.fromkeys(("nd287", "aed", "modbus", "socketcand"), 0))
     for key, value in (("nd287", args.nd287_port), ("aed", args.aed_port), ("modbus", args.modbus_port),
                        ("socketcand", args.socketcand_port), ("modbus_rtu", args.modbus_rtu_port)):
         if value is not None:
@@ -91,6 +99,10 @@ def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
     return urls
 
 
+#: the driver (a bench config's instruments.*.driver) each simulator URL serves (tcms … --sim-urls)
+DRIVER_URLS = {"nd287": "angle", "aed": "torque", "cia402-canopen": "loader_canopen", "cia402-modbus": "loader_modbus"}
+
+
 def _serve(args: argparse.Namespace) -> int:
     from tcms_daq.config import load_bench_config
     from tcms_daq.sim.bench import SimulatedBench
@@ -116,12 +128,17 @@ def _serve(args: argparse.Namespace) -> int:
             ports["control"] = sims.running_loop.run(control.start())
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.set())
-        print(json.dumps({
-            "host": opts.host, "ports": ports, "can_channel": opts.can_channel, "node_id": opts.node_id,
-            "speed": args.speed, "urls": _urls(opts, ports),
-        }), flush=True)
+        urls = _urls(opts, ports)
+        info = {"host": opts.host, "ports": ports, "can_channel": opts.can_channel, "node_id": opts.node_id,
+                "speed": args.speed, "urls": urls,
+                "drivers": {driver: urls[key] for driver, key in DRIVER_URLS.items() if key in urls}}
+        if args.urls_file:
+            write_sim_urls(Path(args.urls_file), info)
+        print(json.dumps(info), flush=True)
         stop.wait(args.duration)
     finally:
+        if args.urls_file:
+            Path(args.urls_file).unlink(missing_ok=True)
         if control is not None:
             sims.running_loop.run(control.stop())
         physics.stop()

@@ -24,6 +24,7 @@ from fastapi_offline import FastAPIOffline
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from tcms_daq.analysis.evaluation import jsonable
+from tcms_daq.extras import MissingExtra
 from tcms_daq.service.auth import ReadTokenMiddleware, redact_tokens_in_logs, resolve_token
 from tcms_daq.service.discrepancy_runs import DiscrepancyRuns
 from tcms_daq.service.events import EventHub
@@ -36,6 +37,7 @@ from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
 from tcms_daq.service.settings import ServiceSettings
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
 from tcms_daq.store import Store, open_store
+from tcms_daq.store.base import SamplesRetired
 from tcms_daq.store.discrepancy import ANALYSES_DIRNAME
 
 __all__ = ["ServiceSettings", "create_app"]
@@ -208,6 +210,14 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
     @app.exception_handler(Conflict)
     async def _conflict(request: Request, exc: Conflict) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=409)
+
+    @app.exception_handler(SamplesRetired)
+    async def _retired(request: Request, exc: SamplesRetired) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=410)
+
+    @app.exception_handler(MissingExtra)
+    async def _missing_extra(request: Request, exc: MissingExtra) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=501)
 
     @app.exception_handler(UnknownRun)
     async def _unknown(request: Request, exc: UnknownRun) -> JSONResponse:

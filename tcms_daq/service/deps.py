@@ -2,6 +2,7 @@
 
 ``Store``, ``Bench``, ``Manager``, ``Live``, ``Events``, ``Analyses`` and ``Settings`` are ``Annotated`` types,
 so a handler states its collaborators in its signature; ``StoredRunDep`` resolves ``{run_id}`` (404 unknown);
+``RunWithSamplesDep`` also answers 410 when a retention policy retired its samples;
 ``AUTH`` is the bearer-token check of mutating operations. ``errors(...)`` documents a route's error answers.
 """
 
@@ -51,14 +52,24 @@ def _stored_run(run_id: str, store: Store) -> StoredRun:
 
 
 StoredRunDep = Annotated[StoredRun, Depends(_stored_run)]
+
+
+def _run_with_samples(run: StoredRunDep) -> StoredRun:
+    run.require_samples()  # SamplesRetired: 410 Gone, before a streamed answer has begun
+    return run
+
+
+RunWithSamplesDep = Annotated[StoredRun, Depends(_run_with_samples)]
 AUTH = [Depends(require_token)]
 
 _ERRORS: dict[int, dict[str, Any]] = {
     401: {"model": ErrorBody, "description": "missing or invalid bearer token"},
     404: {"model": ErrorBody, "description": "no such test, version or analysis"},
     409: {"model": ErrorBody, "description": "a test is running (or another analysis)"},
+    410: {"model": ErrorBody, "description": "the run's samples were retired by the store's retention policy"},
     413: {"model": ErrorBody, "description": "request body above the service's limit"},
     422: {"model": ValidationErrorBody, "description": "invalid request: one line naming the field"},
+    501: {"model": ErrorBody, "description": "an optional part this installation lacks (names the extra to install)"},
 }
 
 

@@ -53,6 +53,7 @@ import numpy as np
 from tcms_daq import __version__
 from tcms_daq.config.models import OpcUaSection
 from tcms_daq.errors import TcmsError
+from tcms_daq.extras import missing_extra_message
 from tcms_daq.identity import HEADLINES
 from tcms_daq.service import opcua_model as model
 from tcms_daq.service.passwords import verify_password
@@ -68,8 +69,7 @@ CERT_DAYS = 5 * 365
 #: the result variables under LatestResult: (results key, browse name)
 QUANTITIES = (("rigidity_nm_per_arcmin", "TorsionalRigidity"), ("lost_motion_arcsec", "LostMotion"),
               ("backlash_arcsec", "Backlash"))
-MISSING_ASYNCUA = ("the OPC UA server needs the asyncua package, which is not installed "
-                   "(pip install 'asyncua==2.1.0', or tcms-daq with its plant extra)")
+MISSING_ASYNCUA = missing_extra_message("plant", "the OPC UA server")
 
 
 _ua = model._ua

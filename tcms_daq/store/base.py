@@ -28,7 +28,7 @@ import numpy as np
 
 from tcms_daq.analysis.evaluation import DECISIONS
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import decision, headline_results, run_identity
+from tcms_daq.identity import HEADLINES, decision, headline_results, run_identity, test_method
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples, samples_from_columns
 
@@ -45,6 +45,15 @@ BENCH_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 
 class StoreError(TcmsError):
     """The run store cannot do what was asked (unknown run, bad channel set, closed store, unreachable database)."""
+
+
+class SamplesRetired(StoreError):
+    """The run's samples were dropped by the store's retention policy (its record and results remain): 410 Gone."""
+
+    @classmethod
+    def of(cls, run_id: str, retired_at: float) -> SamplesRetired:
+        return cls(f"the samples of run {run_id} were retired on {iso(retired_at)} by the store's retention "
+                   "policy (its results remain: GET /api/tests/{id})")
 
 
 @dataclass(frozen=True)
@@ -68,6 +77,12 @@ class StoredRun:
     bench_id: str | None = None  # the bench that ran it ([bench] id of its config; None: before fleets)
     bench_name: str | None = None
     compensation_sha256: str | None = None  # of compensator_toml (kept when the listing leaves the TOML out)
+    samples_retired_at: float | None = None  # when a retention policy dropped its samples (None: they are kept)
+
+    def require_samples(self) -> None:
+        """SamplesRetired when a retention policy dropped this run's samples."""
+        if self.samples_retired_at is not None:
+            raise SamplesRetired.of(self.id, self.samples_retired_at)
 
     @property
     def verdict(self) -> str | None:
@@ -104,6 +119,22 @@ class StoredRun:
                             compensation_version=self.compensation_version,
                             compensation_sha256=summary["compensation_sha256"],
                             config_snapshot=self.config_snapshot)
+
+
+#: what the brief view of a run's results keeps: its headline results, their uncertainty entries and the verdict
+BRIEF_KEYS: tuple[str, ...] = tuple(h.key for h in HEADLINES)
+
+
+def brief_results(results: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """A run's results reduced to what a list shows: the headline results (value, their ``uncertainty`` entries),
+    the verdict and ``passed``; None for none."""
+    if results is None:
+        return None
+    out = {k: results[k] for k in (*BRIEF_KEYS, "verdict", "passed") if k in results}
+    table = results.get("uncertainty")
+    if isinstance(table, Mapping):
+        out["uncertainty"] = {k: table[k] for k in BRIEF_KEYS if k in table}
+    return out
 
 
 def text_sha256(text: str) -> str:
@@ -348,6 +379,52 @@ class StoredSamples:
         return samples_from_columns(self.read_columns(run_id))
 
 
+@dataclass(frozen=True)
+class HeadlinePoint:
+    """One run's value of one headline result (a point of an SPC series), with what places it: the run's id,
+    creation time (UNIX s), bench, the unit's serial number and the series of its test method
+    (:func:`tcms_daq.identity.test_method`)."""
+
+    id: str
+    created_at: float
+    bench_id: str | None
+    serial_number: str | None
+    series: str
+    value: float
+
+
+def finite_number(value: Any) -> float | None:
+    """``value`` as a float when it is a finite JSON number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+class HeadlineSeries:
+    """A headline result across runs (SPC), over ``list_runs``; a backend with the headline results in columns
+    (PostgreSQL) answers without reading the runs' whole results."""
+
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        raise NotImplementedError
+
+    def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
+        """Of the newest ``limit`` runs matching ``query``, those with a finite ``quantity`` (a key of
+        :data:`tcms_daq.identity.HEADLINES`), oldest first."""
+        points = []
+        for run in reversed(self.list_runs(limit, 0, query)):
+            value = finite_number((run.results or {}).get(quantity))
+            if value is not None:
+                points.append(HeadlinePoint(run.id, run.created_at, run.bench_id, RunColumns.of(run.request).serial_number,
+                                            test_series(run.request, run.profile), value))
+        return points
+
+
+def test_series(request: Mapping[str, Any], profile: Mapping[str, Any] | None) -> str:
+    """The SPC series of a run's test method (``single``, ``positions-4`` …)."""
+    return str(test_method(request, profile)["series"])
+
+
 class VersionedDocuments:
     """The versioned TOML documents of a bench — compensations and bench models — over a backend's three
     primitives: ``_add_version(table, toml, note, provenance) -> (version, created_at)``, ``_history(table,
@@ -421,13 +498,19 @@ class Store(Protocol):
 
     def get_run(self, run_id: str) -> StoredRun | None: ...
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]: ...
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        """Runs matching ``query``, newest first, without their config snapshot and TOML; ``brief``: their results
+        reduced to :func:`brief_results` (PostgreSQL reduces them in the database)."""
+        ...
 
     def count_runs(self, query: RunQuery | None = None) -> int: ...
 
     def count_by_status(self) -> dict[str, int]:
         """This bench's runs by status (the service's metrics)."""
         ...
+
+    def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]: ...
 
     # samples
     def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int: ...

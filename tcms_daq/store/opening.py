@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from urllib.parse import urlsplit, urlunsplit
 
+from tcms_daq.extras import require_extra
 from tcms_daq.store.base import Store, StoreError
 
 POSTGRES_SCHEMES = ("postgresql", "postgres")
@@ -52,6 +53,7 @@ def open_store(url: str | None, data_dir: Path, *, bench_id: str | None = None, 
     """Open the run store ``url`` names (None: SQLite in ``data_dir``) for a bench. ``recover`` marks the runs
     this bench left active as ``interrupted`` (a service starting); readers beside a service pass False."""
     if store_kind(url) == "postgresql":
+        require_extra("plant", "the PostgreSQL run store", ("psycopg", "psycopg_pool"))
         from tcms_daq.store.postgres_store import PostgresRunStore
 
         assert url is not None

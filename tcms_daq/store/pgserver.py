@@ -33,11 +33,13 @@ def _free_port() -> int:
 class ThrowawayPostgres:
     """A PostgreSQL server of its own in a temporary directory (trust auth, superuser ``postgres``)."""
 
-    def __init__(self, bin_dir: Path, durable: bool = False):
+    def __init__(self, bin_dir: Path, durable: bool = False, settings: dict[str, str] | None = None):
         """``durable``: fsync and full-page writes on (a benchmark's realistic server); off by default (tests kill
-        the service, never the database server, so they need no crash safety of the server's own files)."""
+        the service, never the database server, so they need no crash safety of the server's own files).
+        ``settings``: more server settings (``{"shared_buffers": "256MB"}``)."""
         self.bin_dir = bin_dir
         self.durable = durable
+        self.settings = {"shared_buffers": "32MB", **(settings or {})}
         self.root = Path(tempfile.mkdtemp(prefix="tcms-pg-"))
         self.data = self.root / "data"
         self.log = self.root / "server.log"
@@ -59,8 +61,9 @@ class ThrowawayPostgres:
         for attempt in range(3):
             self.port = _free_port()
             safety = "" if self.durable else " -c fsync=off -c full_page_writes=off"
+            extra = "".join(f" -c {key}={value}" for key, value in self.settings.items())
             options = (f"-c listen_addresses=127.0.0.1 -c port={self.port} -c unix_socket_directories={self.root} "
-                       f"-c max_connections=200 -c shared_buffers=32MB{safety}")
+                       f"-c max_connections=200{extra}{safety}")
             try:
                 self._run(str(self.bin_dir / "pg_ctl"), "-D", str(self.data), "-l", str(self.log), "-o", options,
                           "-w", "-t", "60", "start")
@@ -79,8 +82,6 @@ class ThrowawayPostgres:
         except (RuntimeError, subprocess.TimeoutExpired):
             pass
         shutil.rmtree(self.root, ignore_errors=True)
-
-
 
     def server_pids(self) -> list[int]:
         """The postmaster and its children (backends, background workers), for CPU accounting."""

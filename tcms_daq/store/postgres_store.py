@@ -8,34 +8,50 @@ first one's test, and marks the runs this bench left active as ``interrupted`` (
 Samples go in bulk: one ``COPY … FROM STDIN (FORMAT BINARY)`` per commit of the recorder, one row per acquisition
 batch (a channel-major little-endian float64 ``bytea``), in the same transaction as the run's sample count. A
 committed batch survives a kill of the service (PostgreSQL's commit is durable: ``synchronous_commit`` on).
+
+A plant's years of samples: ``sample_batches`` is partitioned by the run's creation time, one partition per UTC
+month (``sample_batches_y2026m11``, made with the run that first needs it; ``sample_partitions`` lists them with
+their bounds), so a run's batches are in one partition and a query for one run touches one. The retention policy
+(:meth:`PostgresRunStore.retire_samples`, ``tcms store retire``) drops whole months older than a cutoff — a
+``DROP TABLE``, no row-by-row delete, no bloat — and stamps those runs' ``samples_retired_at``: their records and
+results stay, their samples answer 410 Gone.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import psycopg
+from psycopg import sql
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
+from tcms_daq.identity import HEADLINES
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
+    BRIEF_KEYS,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
+    HeadlinePoint,
+    HeadlineSeries,
     RunColumns,
     RunQuery,
+    SamplesRetired,
     StoredRun,
     StoredSamples,
     StoreError,
     VersionedDocuments,
     check_new_run,
     dumps,
+    finite_number,
     pack_batches,
     status_update,
+    test_series,
     text_sha256,
 )
 from tcms_daq.store.opening import redact_url
@@ -98,14 +114,82 @@ MIGRATIONS: tuple[str, ...] = (
         PRIMARY KEY (run_id, batch_index)
     );
     """,
+    # 2: a plant's years: samples partitioned by month of the run's creation; runs whose samples a retention policy
+    # retired; the headline results in columns (SPC reads them without the whole results); the fleet list's indexes
+    """
+    ALTER TABLE runs ADD COLUMN samples_retired_at double precision,
+        ADD COLUMN rigidity_nm_per_arcmin double precision,
+        ADD COLUMN lost_motion_arcsec double precision,
+        ADD COLUMN backlash_arcsec double precision,
+        ADD COLUMN test_series text;
+    UPDATE runs SET
+        rigidity_nm_per_arcmin = CASE WHEN jsonb_typeof(results->'rigidity_nm_per_arcmin') = 'number'
+                                      THEN (results->>'rigidity_nm_per_arcmin')::double precision END,
+        lost_motion_arcsec = CASE WHEN jsonb_typeof(results->'lost_motion_arcsec') = 'number'
+                                  THEN (results->>'lost_motion_arcsec')::double precision END,
+        backlash_arcsec = CASE WHEN jsonb_typeof(results->'backlash_arcsec') = 'number'
+                               THEN (results->>'backlash_arcsec')::double precision END
+        WHERE results IS NOT NULL;
+    DROP INDEX runs_reducer;
+    CREATE INDEX runs_reducer ON runs (lower(reducer), created_at DESC, id DESC);
+    CREATE INDEX runs_bench_name ON runs (lower(bench_name), created_at DESC, id DESC);
+    CREATE TABLE sample_partitions (
+        name text PRIMARY KEY,
+        from_s double precision NOT NULL,
+        to_s double precision NOT NULL
+    );
+    ALTER TABLE sample_batches RENAME TO sample_batches_v1;
+    CREATE TABLE sample_batches (
+        run_id text NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+        run_created_at double precision NOT NULL,
+        batch_index integer NOT NULL,
+        n_samples integer NOT NULL,
+        data bytea NOT NULL,
+        PRIMARY KEY (run_id, run_created_at, batch_index)
+    ) PARTITION BY RANGE (run_created_at);
+    -- the month partition holding a run created at t (UNIX s, UTC), made when missing; returns its name
+    CREATE FUNCTION tcms_sample_partition(t double precision) RETURNS text LANGUAGE plpgsql AS $$
+    DECLARE
+        v_month timestamp := date_trunc('month', to_timestamp(t) AT TIME ZONE 'UTC');
+        v_name text := 'sample_batches_' || to_char(v_month, '"y"YYYY"m"MM');
+        v_from double precision := extract(epoch FROM v_month AT TIME ZONE 'UTC');
+        v_to double precision := extract(epoch FROM (v_month + interval '1 month') AT TIME ZONE 'UTC');
+    BEGIN
+        IF EXISTS (SELECT 1 FROM sample_partitions p WHERE p.name = v_name) THEN
+            RETURN v_name;
+        END IF;
+        PERFORM pg_advisory_xact_lock(2084896771);  -- one maker of partitions at a time
+        IF NOT EXISTS (SELECT 1 FROM sample_partitions p WHERE p.name = v_name) THEN
+            EXECUTE format('CREATE TABLE %I PARTITION OF sample_batches FOR VALUES FROM (%s) TO (%s)',
+                           v_name, v_from, v_to);
+            INSERT INTO sample_partitions (name, from_s, to_s) VALUES (v_name, v_from, v_to);
+        END IF;
+        RETURN v_name;
+    END $$;
+    SELECT tcms_sample_partition(created_at) FROM (SELECT DISTINCT created_at FROM runs
+        WHERE id IN (SELECT DISTINCT run_id FROM sample_batches_v1)) AS with_samples;
+    INSERT INTO sample_batches (run_id, run_created_at, batch_index, n_samples, data)
+        SELECT b.run_id, r.created_at, b.batch_index, b.n_samples, b.data
+        FROM sample_batches_v1 b JOIN runs r ON r.id = b.run_id;
+    DROP TABLE sample_batches_v1;
+    """,
 )
 
 _MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)
 _BENCH_LOCK_CLASS = 0x7C45_0002
 _RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profile, results, error, "
                 "config_snapshot, compensator_toml, channels, sample_count, compensation_version, bench_id, "
-                "bench_name")
+                "bench_name, samples_retired_at")
 _LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
+# the brief list: results reduced in the database (base.brief_results), so a page of runs moves and parses kilobytes
+_BRIEF_KEYS_SQL = ", ".join(f"'{k}'" for k in BRIEF_KEYS)
+_BRIEF_RESULTS = (
+    "CASE WHEN results IS NULL THEN NULL ELSE "
+    f"COALESCE((SELECT jsonb_object_agg(key, value) FROM jsonb_each(results) WHERE key IN ({_BRIEF_KEYS_SQL}, "
+    "'verdict', 'passed')), '{}') || CASE WHEN jsonb_typeof(results->'uncertainty') = 'object' THEN "
+    "jsonb_build_object('uncertainty', COALESCE((SELECT jsonb_object_agg(key, value) FROM "
+    f"jsonb_each(results->'uncertainty') WHERE key IN ({_BRIEF_KEYS_SQL})), '{{}}')) ELSE '{{}}' END END")
+_BRIEF_COLUMNS = _LIST_COLUMNS.replace("results", _BRIEF_RESULTS, 1)
 
 
 def _json_text(obj: Any) -> str:
@@ -116,7 +200,7 @@ def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
     return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
 
 
-class PostgresRunStore(VersionedDocuments, StoredSamples):
+class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
     """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
     pool)."""
 
@@ -159,6 +243,8 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                                  f"program's {len(MIGRATIONS)}: update TCMS-DAQ")
             for version in range(current + 1, len(MIGRATIONS) + 1):
                 conn.execute(MIGRATIONS[version - 1])  # our own SQL, no parameters
+                if version == 2:
+                    _fill_test_series(conn)
                 conn.execute("INSERT INTO schema_version (version) VALUES (%s)", (version,))
 
     @property
@@ -221,16 +307,18 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                    status: str = "queued") -> StoredRun:
         check_new_run(run_id, channels, status)
         cols = RunColumns.of(request)
+        created = time.time()
         try:
             with self._connection() as conn:
                 conn.execute(
                     "INSERT INTO runs (id, created_at, status, request, profile, config_snapshot, compensator_toml, "
-                    "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator) "
-                    "VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s)",
-                    (run_id, time.time(), status, _jsonb(request), _jsonb(profile), _jsonb(config_snapshot),
+                    "channels, compensation_version, bench_id, bench_name, reducer, serial_number, operator, "
+                    "test_series) VALUES (%s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s, %s)",
+                    (run_id, created, status, _jsonb(request), _jsonb(profile), _jsonb(config_snapshot),
                      compensator_toml, Jsonb(list(channels)), compensation_version, self.bench_id,
-                     self.bench_name, cols.reducer, cols.serial_number, cols.operator),
+                     self.bench_name, cols.reducer, cols.serial_number, cols.operator, test_series(request, profile)),
                 )
+                conn.execute("SELECT tcms_sample_partition(%s)", (created,))  # its month's, before any sample
         except psycopg.errors.UniqueViolation:
             raise StoreError(f"run {run_id} already exists") from None
         return self.get_run(run_id)  # type: ignore[return-value]
@@ -239,6 +327,9 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                    results: Mapping[str, Any] | None = None) -> None:
         """Move a run to ``status`` (:func:`~tcms_daq.store.base.status_update`)."""
         sets, params = status_update(status, error=error, results=results, encode_results=_jsonb, placeholder="%s")
+        if results is not None:  # the headline results also in their columns (SPC)
+            sets += "".join(f", {h.key} = %s" for h in HEADLINES)
+            params += [finite_number(results.get(h.key)) for h in HEADLINES]
         params.append(run_id)
         with self._connection() as conn:
             cur = conn.execute(f"UPDATE runs SET {sets} WHERE id = %s", params)
@@ -250,12 +341,14 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
             row = conn.execute(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id = %s", (run_id,)).fetchone()
         return None if row is None else _record(row)
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
-        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML; ``brief``:
+        results reduced to :func:`~tcms_daq.store.base.brief_results` in the database)."""
         where, params = (query or RunQuery()).where("%s", "ILIKE")
         with self._connection() as conn:
             rows = conn.execute(
-                f"SELECT {_LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC "
+                f"SELECT {_BRIEF_COLUMNS if brief else _LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC "
                 "LIMIT %s OFFSET %s", (*params, limit, offset)).fetchall()
         return [_record(r) for r in rows]
 
@@ -264,6 +357,18 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
         with self._connection() as conn:
             row = conn.execute(f"SELECT count(*) FROM runs {where}", params).fetchone()
         return int(row[0]) if row else 0
+
+    def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
+        """:meth:`HeadlineSeries.headline_points` from the headline columns: the runs' whole results are not read."""
+        if quantity not in {h.key for h in HEADLINES}:
+            raise StoreError(f"unknown headline result {quantity!r}")
+        where, params = query.where("%s", "ILIKE")
+        with self._connection() as conn:
+            rows = conn.execute(
+                f"SELECT * FROM (SELECT id, created_at, bench_id, serial_number, test_series, {quantity} FROM runs "
+                f"{where} ORDER BY created_at DESC, id DESC LIMIT %s) AS newest "
+                f"WHERE {quantity} IS NOT NULL ORDER BY created_at, id", (*params, limit)).fetchall()
+        return [HeadlinePoint(r[0], r[1], r[2], r[3], r[4] or "single", float(r[5])) for r in rows]
 
     def count_by_status(self) -> dict[str, int]:
         """Runs of this bench by status (every bench's for a store without one)."""
@@ -305,43 +410,109 @@ class PostgresRunStore(VersionedDocuments, StoredSamples):
                 row = conn.execute(sql + "ORDER BY version DESC LIMIT 1", own_params).fetchone()
         return None if row is None else tuple(row)
 
-    # -- samples ---------------------------------------------------------------------------------------------
-    def _channels(self, run_id: str, conn: Any = None) -> tuple[str, ...]:
-        if conn is None:
-            with self._connection() as own:
-                return self._channels(run_id, own)
-        row = conn.execute("SELECT channels FROM runs WHERE id = %s", (run_id,)).fetchone()
+    # -- samples ----------------------------------------------------------------------------------------------
+    def _sample_key(self, run_id: str, conn: Any) -> tuple[tuple[str, ...], float]:
+        """(channels, created_at) of a run: its channel names and its samples' partition key. StoreError for an
+        unknown run, SamplesRetired for a run whose samples a retention policy dropped."""
+        row = conn.execute("SELECT channels, created_at, samples_retired_at FROM runs WHERE id = %s",
+                           (run_id,)).fetchone()
         if row is None:
             raise StoreError(f"unknown run {run_id!r}")
-        return tuple(row[0])
+        if row[2] is not None:
+            raise SamplesRetired.of(run_id, row[2])
+        return tuple(row[0]), float(row[1])
+
+    def _channels(self, run_id: str) -> tuple[str, ...]:
+        with self._connection() as conn:
+            return self._sample_key(run_id, conn)[0]
 
     def append_samples(self, run_id: str, batches: Sequence[Mapping[str, np.ndarray]]) -> int:
         """Append column batches in one transaction: one binary COPY, a row per batch. Returns samples written."""
         if not batches:
             return 0
         with self._connection() as conn:
-            rows = pack_batches(run_id, self._channels(run_id, conn), batches)
+            channels, created = self._sample_key(run_id, conn)
+            rows = pack_batches(run_id, channels, batches)
             if not rows:
                 return 0
             total = sum(n for n, _ in rows)
             # the run's row lock orders concurrent appends to one run; other runs are not held up
             conn.execute("SELECT 1 FROM runs WHERE id = %s FOR UPDATE", (run_id,))
-            start_row = conn.execute("SELECT COALESCE(max(batch_index) + 1, 0) FROM sample_batches WHERE run_id = %s",
-                                     (run_id,)).fetchone()
+            start_row = conn.execute(
+                "SELECT COALESCE(max(batch_index) + 1, 0) FROM sample_batches WHERE run_id = %s AND run_created_at = %s",
+                (run_id, created)).fetchone()
             start = int(start_row[0]) if start_row else 0
-            with conn.cursor() as cur, cur.copy(
-                    "COPY sample_batches (run_id, batch_index, n_samples, data) FROM STDIN (FORMAT BINARY)") as copy:
-                copy.set_types(["text", "int4", "int4", "bytea"])
+            with conn.cursor() as cur, cur.copy("COPY sample_batches (run_id, run_created_at, batch_index, n_samples, "
+                                                "data) FROM STDIN (FORMAT BINARY)") as copy:
+                copy.set_types(["text", "float8", "int4", "int4", "bytea"])
                 for i, (n, blob) in enumerate(rows):
-                    copy.write_row((run_id, start + i, n, blob))
+                    copy.write_row((run_id, created, start + i, n, blob))
             conn.execute("UPDATE runs SET sample_count = sample_count + %s WHERE id = %s", (total, run_id))
         return total
 
     def _batch_rows(self, run_id: str, from_index: int, limit: int) -> list[tuple[Any, ...]]:
         with self._connection() as conn:
+            # the run's creation time names its partition: the planner reads one month, not every month
             return conn.execute(
-                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND batch_index >= %s "
-                "ORDER BY batch_index LIMIT %s", (run_id, from_index, limit)).fetchall()
+                "SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s AND run_created_at = "
+                "(SELECT created_at FROM runs WHERE id = %s) AND batch_index >= %s ORDER BY batch_index LIMIT %s",
+                (run_id, run_id, from_index, limit)).fetchall()
+
+    # -- retention: whole months of samples ----------------------------------------------------------------------
+    def sample_partitions(self) -> list[SamplePartition]:
+        """The month partitions of the samples, oldest first, with their size and how many runs have samples in
+        each (every bench's)."""
+        with self._connection() as conn:
+            rows = conn.execute(
+                "SELECT p.name, p.from_s, p.to_s, pg_total_relation_size(p.name::regclass), "
+                "(SELECT count(*) FROM runs r WHERE r.created_at >= p.from_s AND r.created_at < p.to_s "
+                "AND r.sample_count > 0) FROM sample_partitions p ORDER BY p.from_s").fetchall()
+        return [SamplePartition(name, from_s, to_s, int(size), int(runs)) for name, from_s, to_s, size, runs in rows]
+
+    def retire_samples(self, before_s: float, *, dry_run: bool = False) -> list[SamplePartition]:
+        """The retention policy: drop every month partition that ends at or before ``before_s`` (UNIX s) and stamp
+        its runs' ``samples_retired_at`` (records and results stay). A month holding an active run is kept.
+        Returns the partitions dropped (or, with ``dry_run``, those that would be)."""
+        retired: list[SamplePartition] = []
+        for part in self.sample_partitions():
+            if part.to_s > before_s:
+                break
+            with self._connection() as conn:
+                active = conn.execute(
+                    "SELECT count(*) FROM runs WHERE created_at >= %s AND created_at < %s AND status = ANY(%s)",
+                    (part.from_s, part.to_s, list(ACTIVE_STATUSES))).fetchone()
+                if active and active[0]:
+                    continue
+                if dry_run:
+                    retired.append(part)
+                    continue
+                conn.execute(
+                    "UPDATE runs SET samples_retired_at = %s WHERE created_at >= %s AND created_at < %s "
+                    "AND samples_retired_at IS NULL AND sample_count > 0", (time.time(), part.from_s, part.to_s))
+                conn.execute(sql.SQL("DROP TABLE {}").format(sql.Identifier(part.name)))
+                conn.execute("DELETE FROM sample_partitions WHERE name = %s", (part.name,))
+            retired.append(part)
+        return retired
+
+
+@dataclass(frozen=True)
+class SamplePartition:
+    """One month of samples: the partition's name, its bounds (UNIX s, UTC, [from, to)), its size on disk
+    (bytes, with its index and TOAST) and the runs with samples in it."""
+
+    name: str
+    from_s: float
+    to_s: float
+    size_bytes: int
+    runs: int
+
+
+def _fill_test_series(conn: Any) -> None:
+    """Migration 2's Python part: the test-method series of the runs stored before it (from request and profile)."""
+    rows = conn.execute("SELECT id, request, profile FROM runs WHERE test_series IS NULL").fetchall()
+    with conn.cursor() as cur:
+        cur.executemany("UPDATE runs SET test_series = %s WHERE id = %s",
+                        [(test_series(request or {}, profile), run_id) for run_id, request, profile in rows])
 
 
 def _reason(exc: BaseException) -> str:
@@ -354,5 +525,5 @@ def _record(row: Sequence[Any]) -> StoredRun:
         id=row[0], created_at=row[1], started_at=row[2], finished_at=row[3], status=row[4],
         request=row[5] or {}, profile=row[6], results=row[7], error=row[8], config_snapshot=row[9],
         compensator_toml=row[10], channels=tuple(row[11]), sample_count=int(row[12]),
-        compensation_version=row[13], bench_id=row[14], bench_name=row[15],
+        compensation_version=row[13], bench_id=row[14], bench_name=row[15], samples_retired_at=row[16],
     )

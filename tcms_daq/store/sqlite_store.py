@@ -18,6 +18,7 @@ import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,12 +33,14 @@ from tcms_daq.store.base import (
     VERSIONED,
     BenchModelVersion,
     CompensationVersion,
+    HeadlineSeries,
     RunColumns,
     RunQuery,
     StoredRun,
     StoredSamples,
     StoreError,
     VersionedDocuments,
+    brief_results,
     check_new_run,
     dumps,
     new_run_id,
@@ -121,7 +124,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-class RunStore(VersionedDocuments, StoredSamples):
+class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Connections come from a small pool (WAL lets readers run beside the one writer): a call takes an idle one
@@ -350,12 +353,15 @@ class RunStore(VersionedDocuments, StoredSamples):
         rows = self._query(f"SELECT {_RUN_COLUMNS} FROM runs WHERE id=?", (run_id,))
         return _record(rows[0]) if rows else None
 
-    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None) -> list[StoredRun]:
-        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML)."""
+    def list_runs(self, limit: int = 100, offset: int = 0, query: RunQuery | None = None, *,
+                  brief: bool = False) -> list[StoredRun]:
+        """Runs of every bench matching ``query``, newest first (without their config snapshot and TOML; ``brief``:
+        results reduced to :func:`~tcms_daq.store.base.brief_results`)."""
         where, params = (query or RunQuery()).where("?", "LIKE")
         rows = self._query(f"SELECT {_LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC LIMIT ? OFFSET ?",
                            (*params, limit, offset))
-        return [_record(r) for r in rows]
+        records = [_record(r) for r in rows]
+        return [replace(r, results=brief_results(r.results)) for r in records] if brief else records
 
     def count_runs(self, query: RunQuery | None = None) -> int:
         where, params = (query or RunQuery()).where("?", "LIKE")

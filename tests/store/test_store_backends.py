@@ -173,3 +173,40 @@ def test_postgres_unreachable_is_one_line(tmp_path):
     assert "secret" not in str(info.value) and "\n" not in str(info.value)
     with pytest.raises(StoreError, match="unknown scheme"):
         open_store("mysql://x/y", tmp_path)
+
+
+def test_headline_points_are_the_same_on_both_backends(opener: Opener):
+    """SPC's series: of the newest runs matching a query, those with a finite value, oldest first (PostgreSQL
+    reads the headline columns it keeps beside the results, SQLite the results)."""
+    store = opener()
+    for i, value in enumerate([290.0, None, 291.5, 289.0]):
+        store.create_run(f"h{i}", {"reducer": "RV-110E" if i != 3 else "RV-40E", "serial_number": f"SN-{i}",
+                                   **({"positions": 4} if i == 2 else {})}, CHANNELS)
+        results = {"lost_motion_arcsec": 25.0} if value is None else {"rigidity_nm_per_arcmin": value}
+        store.set_status(f"h{i}", "completed", results=results)
+    points = store.headline_points("rigidity_nm_per_arcmin", RunQuery(reducer="rv-110e", status="completed"), 100)
+    assert [(p.id, p.value, p.series, p.serial_number) for p in points] == [("h0", 290.0, "single", "SN-0"),
+                                                                            ("h2", 291.5, "positions-4", "SN-2")]
+    newest_two = store.headline_points("rigidity_nm_per_arcmin", RunQuery(reducer="RV-110E"), 2)
+    assert [p.id for p in newest_two] == ["h2"]  # h1, the other of the newest two, has no rigidity
+
+
+def test_a_brief_list_carries_the_headline_results_their_uncertainty_and_the_verdict(opener: Opener):
+    from tcms_daq.store.base import brief_results
+
+    store = opener()
+    results = {"rigidity_nm_per_arcmin": 290.5, "lost_motion_arcsec": None, "stages": [{"big": list(range(50))}],
+               "uncertainty": {"rigidity_nm_per_arcmin": {"U": 2.0, "k": 2.0, "u": 1.0, "note": None},
+                               "hysteresis_area": {"U": 1.0}},
+               "verdict": {"passed": True, "decision": "pass", "reasons": None}}
+    store.create_run("b1", {"reducer": "RV-110E"}, CHANNELS)
+    store.set_status("b1", "completed", results=results)
+    store.create_run("b2", {"reducer": "RV-110E"}, CHANNELS)
+    store.set_status("b2", "completed", results={"backlash_arcsec": 20.0, "uncertainty": []})
+    store.create_run("b3", {"reducer": "RV-110E"}, CHANNELS)
+    brief = {r.id: r.results for r in store.list_runs(10, brief=True)}
+    assert brief == {"b1": brief_results(results), "b2": {"backlash_arcsec": 20.0}, "b3": None}
+    assert brief["b1"] == {"rigidity_nm_per_arcmin": 290.5, "lost_motion_arcsec": None,
+                           "uncertainty": {"rigidity_nm_per_arcmin": {"U": 2.0, "k": 2.0, "u": 1.0, "note": None}},
+                           "verdict": {"passed": True, "decision": "pass", "reasons": None}}
+    assert {r.id: r.results for r in store.list_runs(10)}["b1"] == results

@@ -12,13 +12,14 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
 
-from tcms_daq.identity import HEADLINES, test_method
+from tcms_daq.identity import HEADLINES
 from tcms_daq.service.deps import Store, errors
 from tcms_daq.service.routes.tests import unix_seconds
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import BenchBiasView, SpcChartView
 from tcms_daq.spc import MIN_BASELINE, RECOMMENDED_BASELINE, bench_bias, individuals_chart
-from tcms_daq.store import RunQuery, StoredRun
+from tcms_daq.store import RunQuery
+from tcms_daq.store.base import HeadlinePoint, iso
 
 router = APIRouter(prefix="/api/spc", tags=["spc"])
 
@@ -33,22 +34,16 @@ _Method = Annotated[str, Query(pattern=r"^(single|positions-[0-9]{1,2}|rates-[0-
     "'rates-N' (worst of N loading rates)"))]
 
 
-def _completed(store: Store, reducer: str, bench: str | None, quantity: str
-               ) -> list[tuple[StoredRun, float, str]]:
+def _completed(store: Store, reducer: str, bench: str | None, quantity: str) -> list[tuple[HeadlinePoint, str]]:
     """Completed runs of ``reducer`` (on ``bench``) with a finite ``quantity``, oldest first, each with the series
-    of its test method."""
-    runs = store.list_runs(MAX_RUNS, 0, RunQuery(reducer=reducer, bench=bench, status="completed"))
-    out = []
-    for run in reversed(runs):
-        value = (run.results or {}).get(quantity)
-        if isinstance(value, int | float) and not isinstance(value, bool) and value == value and abs(value) != float("inf"):
-            out.append((run, float(value), str(test_method(run.request, run.profile)["series"])))
-    return out
+    of its test method (of the newest MAX_RUNS runs)."""
+    points = store.headline_points(quantity, RunQuery(reducer=reducer, bench=bench, status="completed"), MAX_RUNS)
+    return [(p, p.series) for p in points]
 
 
-def _methods(points: list[tuple[StoredRun, float, str]]) -> dict[str, int]:
+def _methods(points: list[tuple[HeadlinePoint, str]]) -> dict[str, int]:
     counts: dict[str, int] = {}
-    for _, _, series in points:
+    for _, series in points:
         counts[series] = counts.get(series, 0) + 1
     return dict(sorted(counts.items()))
 
@@ -69,15 +64,15 @@ def control_chart(store: Store, reducer: _Name, quantity: Quantity = "rigidity_n
     if baseline_runs is not None and baseline_until is not None:
         raise RequestRejected("give baseline_runs or baseline_until, not both")
     everything = _completed(store, reducer, bench, quantity)
-    points = [(r, v) for r, v, series in everything if series == method]
+    points = [(p, p.value) for p, series in everything if series == method]
     if baseline_until is not None:
         until = unix_seconds(baseline_until)
         n = sum(1 for run, _ in points if until is not None and run.created_at <= until + 0.001)
     else:
         n = min(baseline_runs or RECOMMENDED_BASELINE, len(points))
     where = f" on bench {bench}" if bench else ""
-    runs = [{"id": r.id, "created_at": r.summary()["created_at"], "bench_id": r.bench_id,
-             "serial_number": r.request.get("serial_number"), "value": v} for r, v in points]
+    runs = [{"id": r.id, "created_at": iso(r.created_at), "bench_id": r.bench_id,
+             "serial_number": r.serial_number, "value": v} for r, v in points]
     view: dict[str, Any] = {"quantity": quantity, "unit": UNITS[quantity], "reducer": reducer, "bench": bench,
                             "method": method, "methods": _methods(everything), "runs": runs, "baseline_n": n}
     if len(points) < MIN_BASELINE or n < MIN_BASELINE:
@@ -101,10 +96,10 @@ def bias(store: Store, reducer: _Name, quantity: Quantity = "rigidity_nm_per_arc
          ) -> dict[str, Any]:
     """Each bench's bias on one result, from the reference units (same serial number) of a reducer model tested
     by one method on several benches, with its standard and expanded uncertainty (Student's t, 95 %)."""
-    points = [(r, v) for r, v, series in _completed(store, reducer, None, quantity)
-              if series == method and r.bench_id and isinstance(r.request.get("serial_number"), str)]
+    points = [(p, p.value) for p, series in _completed(store, reducer, None, quantity)
+              if series == method and p.bench_id and p.serial_number is not None]
     try:
-        est = bench_bias([r.request["serial_number"] for r, _ in points], [str(r.bench_id) for r, _ in points],
+        est = bench_bias([str(r.serial_number) for r, _ in points], [str(r.bench_id) for r, _ in points],
                          [v for _, v in points], reference=reference)
     except ValueError as exc:
         raise RequestRejected(f"{reducer}, {quantity}, {method} tests: {exc}") from None

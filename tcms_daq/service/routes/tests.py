@@ -10,8 +10,9 @@ from fastapi import APIRouter, Depends, Query, Response
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
 from tcms_daq.analysis.evaluation import jsonable
+from tcms_daq.extras import require_extra
 from tcms_daq.service import exports
-from tcms_daq.service.deps import AUTH, Manager, Store, StoredRunDep, errors
+from tcms_daq.service.deps import AUTH, Manager, RunWithSamplesDep, Store, StoredRunDep, errors
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary, summary_view
@@ -60,13 +61,18 @@ def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, 
                                                        "schema": {"type": "integer"}}}}})
 def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depends(run_query)],
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-               offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[TestSummary]:
+               offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
+               brief: Annotated[bool, Query(description=(
+                   "each test's results reduced to its headline results (with their uncertainty) and verdict, as "
+                   "the fleet page lists them: a page of a plant's runs without their whole results"))] = False,
+               ) -> list[TestSummary]:
     """Stored tests of every bench sharing the store, newest first, one page at a time (``limit``, ``offset``;
     the header ``X-Total-Count`` counts all pages). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
     (exact, any case), ``status``, ``verdict`` (pass / fail / undecided), ``q`` (a substring of the id, serial
-    number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601)."""
+    number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601). ``brief``: results reduced
+    to the headline results and the verdict."""
     response.headers["X-Total-Count"] = str(store.count_runs(query))
-    return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query)]
+    return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query, brief=brief)]
 
 
 @router.get("/{run_id}", response_model=TestSummary, responses=errors(404))
@@ -90,12 +96,14 @@ def abort_test(run_id: str, manager: Manager) -> TestAccepted:
 
 
 @router.get("/{run_id}/samples", response_class=StreamingResponse, responses={
-    **errors(404, 422), 200: {"description": "the run's samples as a file", "content": {
+    **errors(404, 410, 422, 501), 200: {"description": "the run's samples as a file", "content": {
         media: {"schema": {"type": "string", "format": "binary"}} for media in MEDIA_TYPES.values()}}})
-def get_samples(run: StoredRunDep, store: Store, format: Annotated[
+def get_samples(run: RunWithSamplesDep, store: Store, format: Annotated[
         exports.ExportFormat, Query(description="file format of the export")] = exports.ExportFormat.CSV
                 ) -> StreamingResponse:
     """Every recorded sample (canonical columns first), streamed from the store chunk by chunk."""
+    if format == exports.ExportFormat.MDF4:
+        require_extra("exports", "the MDF4 export")
     exporter, media_type, ext = exports.EXPORTERS[format]
     chunks = exports.ChunkSource(lambda: store.iter_columns(run.id))
     headers = {"Content-Disposition": f'attachment; filename="tcms-{run.id}.{ext}"'}
@@ -105,8 +113,8 @@ def get_samples(run: StoredRunDep, store: Store, format: Annotated[
                              media_type=media_type, headers=headers)
 
 
-@router.get("/{run_id}/metadata", response_model=dict[str, Any], responses=errors(404))
-def get_metadata(run: StoredRunDep, store: Store) -> JSONResponse:
+@router.get("/{run_id}/metadata", response_model=dict[str, Any], responses=errors(404, 410))
+def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
     """The sample CSV's sidecar (``tcms-<id>.json``): the test's identity (reducer, serial number, bench,
     operator, parameters, compensation version, results ± U, verdict), its start time and full results; the
     same as the Parquet schema metadata and the MDF4 header carry."""
@@ -115,9 +123,9 @@ def get_metadata(run: StoredRunDep, store: Store) -> JSONResponse:
 
 
 @router.get("/{run_id}/certificate.pdf", response_class=Response, responses={
-    **errors(404), 200: {"description": "the test certificate", "content": {"application/pdf": {
+    **errors(404, 410), 200: {"description": "the test certificate", "content": {"application/pdf": {
         "schema": {"type": "string", "format": "binary"}}}}})
-def get_certificate(run: StoredRunDep, store: Store) -> Response:
+def get_certificate(run: RunWithSamplesDep, store: Store) -> Response:
     """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
     the instruments with their calibration and the compensation version (``tcms certificate`` writes the same)."""
     from tcms_daq.service.certificate import render_certificate
@@ -127,14 +135,14 @@ def get_certificate(run: StoredRunDep, store: Store) -> Response:
                     headers={"Content-Disposition": f'inline; filename="tcms-certificate-{run.id}.pdf"'})
 
 
-@router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404))
-def get_report(run: StoredRunDep, store: Store) -> HTMLResponse:
+@router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404, 410))
+def get_report(run: RunWithSamplesDep, store: Store) -> HTMLResponse:
     """A self-contained HTML report: the loop, the results and the verdict."""
     return HTMLResponse(render_report(run, store.read_columns(run.id)))
 
 
-@router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 422))
-def get_loop(run: StoredRunDep, store: Store,
+@router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 410, 422))
+def get_loop(run: RunWithSamplesDep, store: Store,
              max_points: Annotated[int, Query(ge=100, le=100_000)] = 4000) -> dict[str, Any]:
     """The run's hysteresis loop (torque and compensated angle) for plotting, at most ``max_points`` measured
     pairs: per bucket the samples holding the extremes of torque and angle, in time order."""

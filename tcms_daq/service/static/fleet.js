@@ -25,7 +25,7 @@
     set("q", $("q").value.trim()); set("bench", $("f-bench").value.trim()); set("reducer", $("f-reducer").value.trim());
     set("serial", $("f-serial").value.trim()); set("status", $("f-status").value); set("verdict", $("f-verdict").value);
     set("since", utc($("f-since").value)); set("until", utc($("f-until").value));
-    q.set("limit", $("f-limit").value); q.set("offset", state.offset);
+    q.set("limit", $("f-limit").value); q.set("offset", state.offset); q.set("brief", "true");
     return q;
   }
 
