@@ -235,6 +235,11 @@ def test_link_mute_under_torque_the_drive_stops_by_itself(protocol_bench, loader
     assert stopped["drive"]["state"] == "FAULT" and stopped["drive"]["error_code"] == 0x8130
     assert stop_s <= STOP_BOUND_S, stop_s
     assert bench.client is not None
+    client = bench.client
+    # while the link is mute the service never shows its last loader reading as live: the link is down or stale
+    muted = wait_for(lambda: (v := client.get("/api/bench").json()["instruments"]["loader"])["link"] != "up" and v,
+                     timeout_s=60)
+    assert muted["status"]["live"] is False and muted["age_s"] > 0.1, muted
     runs = bench.client.get("/api/tests").json()
     run = _finished(bench, runs[0]["id"], ceiling_s=120)
     assert run["status"] == "aborted" and "loader" in run["error"], run["error"]

@@ -52,3 +52,28 @@ def test_bench_status_carries_the_safe_start_and_each_readings_age(settings_fact
             assert view["link"] == "up" and 0 <= view["age_s"] < 5.0, (kind, view)
         assert status["instruments"]["loader"]["status"]["live"] is True
         assert 0 <= status["instruments"]["loader"]["status"]["age_s"] < 5.0
+
+
+def test_the_runner_accepts_tests_once_a_fresh_status_shows_the_bench_safe():
+    """BenchRunner: a bench its safe start left unsafe refuses tests with the reason, and the status poll's
+    disable (``disable_pending``) making it safe is seen from the next fresh loader status."""
+    from types import SimpleNamespace
+
+    from tcms_daq.drivers.base import LoaderStatus
+
+    from tcms_daq.acquisition.bench import SafeStart
+    from tcms_daq.service.runner import BenchRunner
+
+    report = SafeStart("OPERATION ENABLED", 650.0, 0, ["failed: link lost"], False,
+                       "safe start: drive found OPERATION ENABLED at 650.0 N·m: NOT safe", 20.0)
+    link = {"link": "down"}
+    acq = SimpleNamespace(last_status=LoaderStatus("OPERATION ENABLED", 650.0, False),
+                          channel_stats=lambda: {"loader": link})
+    runner = BenchRunner(config=None, config_path=None, bench=SimpleNamespace(safe_start=report), reducers={})
+    runner.acq = acq
+    assert "not safe yet" in runner.not_ready_reason() and "650.0" in runner.not_ready_reason()
+    acq.last_status = LoaderStatus("SWITCH ON DISABLED", 0.4, False)
+    assert runner.not_ready_reason() is not None  # its link is down: an old reading proves nothing
+    link["link"] = "up"
+    assert runner.not_ready_reason() is None
+    assert report.safe and "safe since (SWITCH ON DISABLED" in report.message

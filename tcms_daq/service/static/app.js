@@ -458,6 +458,7 @@
         setTestState(run.id, run.status);
       }
       $("live-rate").textContent = Math.round(bench.live.acquisition_rate_samples_per_second);
+      if (bench.not_ready) message(bench.not_ready, true);  // the safe start left the bench unsafe: no test yet
     } catch (e) { message("bench status: " + e.message, true); }
   }
   // The form's limits are the service's own (GET /api/bench → test_bounds), so the browser refuses what the
