@@ -85,7 +85,7 @@ def serve_one_test(tcms: Path, cwd: Path, env: dict, *extra: str, certificate: b
                         in ("completed", "failed", "aborted") and r, 120, "the test to end")
         if done["status"] != "completed":
             sys.exit(f"wheel-smoke: FAILED: the served test ended {done['status']}: {json.dumps(done)[:2000]}")
-        print(f"wheel-smoke: tcms serve {' '.join(extra)}: test {run['id']} completed", flush=True)
+        print(f"wheel-smoke: tcms serve{''.join(' ' + a for a in extra)}: test {run['id']} completed", flush=True)
         if not certificate:
             return
         # the certificate's Typst template is package data: the installed wheel typesets it
@@ -128,8 +128,9 @@ def loopback_run(tcms: Path, cwd: Path, env: dict) -> None:
             "--max-torque", "200", "--cycles", "1", "--conditioning", "1", "--rate", "400", "--json"], cwd,
             timeout_s=300, env=env)
         print(f"wheel-smoke: --sim-urls run rigidity {json.loads(out)['rigidity_nm_per_arcmin']:.1f} N·m/arcmin")
+        # the service's clock is the simulators' (started at speed 1), not the in-process bench's --sim-speed 50
         serve_one_test(tcms, cwd, env, "--config", "bench-loopback.toml", "--sim-urls", urls_file.name,
-                       certificate=False)
+                       "--sim-speed", "1", certificate=False)
     finally:
         stop_process(sim)
 

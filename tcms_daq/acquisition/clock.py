@@ -93,6 +93,14 @@ class SimulatedClock:
             return None
         return self._real_start - self._sim_start / self.speed
 
+    def resync(self) -> None:
+        """Pace from now on, dropping the real time that passed while nobody advanced this clock (a test's
+        evaluation, the service's start-up) instead of running through it unpaced: otherwise the next sleeps
+        return at once until the simulation has caught up, a burst of unpaced steps that takes the CPU from
+        whatever runs beside them."""
+        self._real_start = time.monotonic()
+        self._sim_start = self.source.now_s()
+
     def sleep(self, duration_s: float) -> None:
         if duration_s <= 0:
             return

@@ -156,6 +156,7 @@ class BenchRunner:
         self._live_sub = self.acq.fanout.subscribe_callback(self._to_live, name="live", maxsize=64)
         self.acq.start()
         if self.acq.clock.stepped:
+            self._resync_clock()  # the start-up's real time is not made up in an unpaced burst
             self._spawn(self._pump_idle_clock, "tcms-idle-clock")
 
     def _spawn(self, target: Callable[[], None], name: str) -> None:
@@ -173,6 +174,14 @@ class BenchRunner:
         if self.acq is not None:
             self.acq.close()
         self.bench.close()
+
+    def _resync_clock(self) -> None:
+        """Hand the simulated clock over without a catch-up: the time it stood still (a test's evaluation, which
+        holds the clock; the start-up) is dropped, so the idle pump goes on paced instead of stepping unpaced
+        until the simulation has made it up, and a test starts on a clock that keeps pace."""
+        resync = getattr(self.bench.clock, "resync", None)
+        if resync is not None:
+            resync()
 
     def _to_live(self, msg: Any) -> None:
         if msg.kind == "data" and self._live is not None:
@@ -269,7 +278,8 @@ class BenchRunner:
     def _monotonic_at_clock_zero(self) -> float | None:
         """``time.monotonic()`` (system-wide on Linux) at which the sample clock read 0, so a client can turn
         sample time stamps into its own monotonic time: ``t_mono = this + time_s / speed``. Real instruments
-        stamp with ``time.monotonic`` itself (0); a paced simulated clock has a fixed offset; None when unpaced."""
+        stamp with ``time.monotonic`` itself (0); a paced simulated clock has an offset that holds from one test's end
+        to the next's (each test's end re-anchors it: :meth:`_resync_clock`); None when unpaced."""
         return self.bench.clock.monotonic_at_zero_s()
 
     def config_snapshot(self) -> dict[str, Any]:
@@ -422,6 +432,7 @@ class BenchRunner:
             finally:
                 # before the idle clock resumes: nothing after the run reaches the store
                 sub.close(join_timeout_s=30.0)
+                self._resync_clock()
         lost = [e for e in self.acq.fanout.callback_errors if e.startswith(f"{sub.name}: ")]
         if lost:  # a sample batch or phase did not reach the store
             return RunOutcome("failed", error=f"recording failed: {lost[0]}", results=result.evaluation)

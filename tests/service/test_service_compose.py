@@ -86,9 +86,9 @@ def test_dockerfile_installs_the_package_and_runs_the_service():
     text = (REPO / "Dockerfile").read_text(encoding="utf-8")
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("#")]
     assert lines[0].startswith("FROM python:3.11")
-    for src in ("tcms_daq", "drivers", "sim", "pyproject.toml"):
+    for src in ("tcms_daq", "drivers", "sim", "config", "pyproject.toml"):  # config/: tcms_daq.defaults
         assert any(ln.startswith("COPY") and src in ln for ln in lines), src
-    assert any("pip install" in ln for ln in lines)
+    assert any("pip install" in ln and "[plant]" in ln for ln in lines), "the plant's store needs the [plant] extra"
     assert "TCMS_DATA_DIR=/data" in text
     assert any(ln.startswith("EXPOSE 8000") for ln in lines)
     assert lines[-1].startswith('CMD ["tcms", "serve"')
