@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
@@ -12,22 +13,39 @@ from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.extras import require_extra
 from tcms_daq.service import exports
-from tcms_daq.service.deps import AUTH, Manager, RunWithSamplesDep, Store, StoredRunDep, errors
+from tcms_daq.service.auth import AUTOMATION, Principal, require
+from tcms_daq.service.deps import Manager, RunWithSamplesDep, Store, StoredRunDep, errors
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary, summary_view
+from tcms_daq.service.users import audit
 from tcms_daq.store import RunQuery, StoreError
+from tcms_daq.store.base import text_sha256
+from tcms_daq.store.people import SavedPlan
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
 
 MEDIA_TYPES = {fmt: media for fmt, (_, media, _) in exports.EXPORTERS.items()}
 
 
-@router.post("", status_code=202, response_model=TestAccepted, dependencies=AUTH,
-             responses=errors(401, 409, 413, 422))
-def create_test(body: TestRequest, manager: Manager) -> TestAccepted:
-    """Queue a test; 422 when it leaves the bench's or the reducer's bounds, 409 while another test runs."""
-    record = manager.submit(body)
+@router.post("", status_code=202, response_model=TestAccepted, responses=errors(401, 403, 409, 413, 422))
+def create_test(body: TestRequest, manager: Manager, store: Store,
+                who: Annotated[Principal, Depends(require("test.start"))]) -> TestAccepted:
+    """Queue a test (an engineer's right; an operator starts saved plans: ``POST /api/tests/from-plan``); 422
+    when it leaves the bench's or the reducer's bounds, 409 while another test runs."""
+    return start_test(manager, store, who, body)
+
+
+def start_test(manager: Manager, store: Store, who: Principal, request: TestRequest,
+               plan: SavedPlan | None = None) -> TestAccepted:
+    """The one way a test starts (a free request or a saved plan's): queued by the manager with its user and
+    plan, audited."""
+    plan_ref = None if plan is None else {"id": plan.id, "name": plan.name, "version": plan.version}
+    record = manager.submit(request, user=who.name, plan_ref=plan_ref)
+    audit(store, who, "test.start", target=record.id,
+          after=f"plan {plan.name} v{plan.version}" if plan is not None else
+          f"request sha256 {text_sha256(json.dumps(record.request, sort_keys=True))[:16]}",
+          detail=f"{request.reducer}, serial {request.serial_number or '—'}")
     return TestAccepted(id=record.id, status=record.status)
 
 
@@ -87,11 +105,13 @@ def get_profile(run: StoredRunDep) -> dict[str, Any]:
     return run.profile or {}
 
 
-@router.post("/{run_id}/abort", status_code=202, response_model=TestAccepted, dependencies=AUTH,
-             responses=errors(401, 404, 409))
-def abort_test(run_id: str, manager: Manager) -> TestAccepted:
+@router.post("/{run_id}/abort", status_code=202, response_model=TestAccepted, responses=errors(401, 403, 404, 409))
+def abort_test(run_id: str, manager: Manager, store: Store,
+               who: Annotated[Principal, Depends(require("test.abort"))]) -> TestAccepted:
     """Ramp down from the measured torque and disable the drive (within the bench's stop bound)."""
-    record = manager.abort(run_id)
+    record = manager.abort(run_id, reason="aborted by the operator" + (
+        f" ({who.name})" if who.role != AUTOMATION else ""))
+    audit(store, who, "test.abort", target=run_id, before=record.status, after="aborting")
     return TestAccepted(id=record.id, status="aborting")
 
 
