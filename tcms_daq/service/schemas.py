@@ -431,6 +431,7 @@ class BenchStatus(BaseModel):
     """``GET /api/bench``."""
 
     name: str
+    id: str | None = Field(None, description="the bench's id ([bench] id): its runs are GET /api/tests?bench=<id>")
     config: str | None = None
     max_torque_nm: float
     clock: Literal["simulated", "monotonic"] | None = None
