@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Query, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
 from tcms_daq.analysis.evaluation import jsonable
@@ -15,6 +15,7 @@ from tcms_daq.extras import require_extra
 from tcms_daq.service import exports
 from tcms_daq.service.auth import AUTOMATION, Principal, require
 from tcms_daq.service.deps import Manager, RunWithSamplesDep, Store, StoredRunDep, errors
+from tcms_daq.service.messages import language
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary, summary_view
@@ -25,6 +26,7 @@ from tcms_daq.store.people import SavedPlan
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
 
+Lang = Annotated[Literal["en", "zh", "zh-CN"] | None, Query(description="language of the words: en, zh")]
 MEDIA_TYPES = {fmt: media for fmt, (_, media, _) in exports.EXPORTERS.items()}
 
 
@@ -145,20 +147,24 @@ def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
 @router.get("/{run_id}/certificate.pdf", response_class=Response, responses={
     **errors(404, 410), 200: {"description": "the test certificate", "content": {"application/pdf": {
         "schema": {"type": "string", "format": "binary"}}}}})
-def get_certificate(run: RunWithSamplesDep, store: Store) -> Response:
+def get_certificate(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> Response:
     """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
-    the instruments with their calibration and the compensation version (``tcms certificate`` writes the same)."""
+    the instruments with their calibration and the compensation version (``tcms certificate`` writes the same).
+    ``lang``: en or zh (default: the browser's Accept-Language, else English)."""
     from tcms_daq.service.certificate import render_certificate
 
-    pdf = render_certificate(run, store.read_columns(run.id))
+    pdf = render_certificate(run, store.read_columns(run.id),
+                             lang=language(lang, request.headers.get("accept-language")))
     return Response(pdf, media_type="application/pdf",
                     headers={"Content-Disposition": f'inline; filename="tcms-certificate-{run.id}.pdf"'})
 
 
 @router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404, 410))
-def get_report(run: RunWithSamplesDep, store: Store) -> HTMLResponse:
-    """A self-contained HTML report: the loop, the results and the verdict."""
-    return HTMLResponse(render_report(run, store.read_columns(run.id)))
+def get_report(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> HTMLResponse:
+    """A self-contained HTML report: the loop, the results and the verdict. ``lang``: en or zh (default: the
+    browser's Accept-Language, else English)."""
+    return HTMLResponse(render_report(run, store.read_columns(run.id),
+                                      lang=language(lang, request.headers.get("accept-language"))))
 
 
 @router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 410, 422))
