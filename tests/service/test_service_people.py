@@ -15,7 +15,7 @@ from tcms_daq.service.users import hash_password, new_api_token
 from tcms_daq.store import StoreError, open_store
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 500, "cycles": 2, "profile": "continuous", "rate_nm_per_s": 2000}
-COMPENSATION = "[compensator]\nname = 'engineer upload'\n"
+COMPENSATION = "[compensator]\ndescription = 'engineer upload'\n"
 
 
 def _people(data_dir) -> dict[str, str]:
