@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -362,6 +363,15 @@ def _progress_text(event: dict[str, Any]) -> str:
     return " · ".join(parts)
 
 
+def real_eta_s(eta_clock_s: float, elapsed_clock_s: float, elapsed_real_s: float) -> float | None:
+    """The ETA in real seconds from the test clock's (a simulated clock runs faster or slower than the wall
+    clock): the clock's seconds left times the real seconds each clock second has taken so far; None before
+    a clock second has passed (no pace to scale by yet)."""
+    if elapsed_clock_s <= 0.5 or elapsed_real_s <= 0:
+        return None
+    return eta_clock_s * elapsed_real_s / elapsed_clock_s
+
+
 def run(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.parent.is_dir():  # fail before the test, not after it
         raise TcmsError(f"{args.out}: cannot write (no directory {args.out.parent})")
@@ -376,14 +386,21 @@ def run(args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
         total_s = plan.duration_s()
-        bar = tqdm(total=round(total_s, 1), unit="s", desc=f"{reducer.name} (clock time)", file=sys.stderr,
+        # the bar counts the test's own (clock) seconds; the ETA beside it is in real seconds
+        bar = tqdm(total=round(total_s, 1), unit="s", desc=f"{reducer.name} (test time)", file=sys.stderr,
                    leave=False, bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s {postfix}")
+        origin: list[float] = []  # (real, clock) time of the first event: the pace is measured from there
 
         def progress(event: dict[str, Any]) -> None:
             done_s = float(event.get("elapsed_s", 0.0))
-            bar.total = round(done_s + float(event.get("eta_s", 0.0)), 1) or bar.total
+            eta_s = float(event.get("eta_s", 0.0))
+            bar.total = round(done_s + eta_s, 1) or bar.total
             bar.n = round(min(done_s, bar.total), 1)
-            bar.set_postfix_str(f"{_progress_text(event)}, ETA {float(event.get('eta_s', 0.0)):.0f} s", refresh=False)
+            if not origin:
+                origin.extend((time.monotonic(), done_s))
+            left = real_eta_s(eta_s, done_s - origin[1], time.monotonic() - origin[0])
+            shown = "–" if left is None else f"{left:.0f}"
+            bar.set_postfix_str(f"{_progress_text(event)}, ETA {shown} s (real time)", refresh=False)
             bar.refresh()
 
     try:

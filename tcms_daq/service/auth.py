@@ -1,6 +1,11 @@
-"""Bearer-token auth for mutating endpoints (DESIGN §7).
+"""Who may do what (DESIGN §7): users with roles, their API tokens and dashboard sessions, and the service token.
 
-The token comes from config, else ``TCMS_API_TOKEN``; with neither, a random one is generated at start and
+A request names its principal by ``Authorization: Bearer <token>`` — the configured service token (the role
+``automation``: everything but user administration) or a user's API token — or by the dashboard's session cookie
+(after ``POST /api/login``). Each changing route requires one right of :data:`RIGHTS`; a role without it gets 403
+naming the role needed. Roles are cumulative: operator < engineer < admin.
+
+The service token comes from config, else ``TCMS_API_TOKEN``; with neither, a random one is generated at start and
 printed with the dashboard URL (as Jupyter does). Read endpoints are open on loopback; a service reachable from
 other machines puts them behind the token too (:class:`ReadTokenMiddleware`, ``tcms serve --read-token``).
 """
@@ -10,6 +15,9 @@ from __future__ import annotations
 import logging
 import re
 import secrets
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 from urllib.parse import parse_qs
 
 from fastapi import Depends, HTTPException, Request, status
@@ -17,6 +25,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from tcms_daq.settings import read_settings
+from tcms_daq.store.people import ROLES
 
 
 def resolve_token(configured: str | None) -> tuple[str, str]:
@@ -41,19 +50,104 @@ def bearer_of(header: str) -> str | None:
     return given if scheme.lower() == "bearer" else None
 
 
-_bearer = HTTPBearer(auto_error=False, description="the service token (printed by `tcms serve`)")
+_bearer = HTTPBearer(auto_error=False, description="the service token (printed by `tcms serve`) or a user's API "
+                     "token (`tcms users token NAME`); the dashboard signs in with a session cookie instead")
+
+SESSION_COOKIE = "tcms_session"
+#: the configured service token's role: automation may do everything a person may but administer users
+AUTOMATION = "automation"
+SERVICE_USER = "service"
+#: right -> the least role of ROLES that has it (each role has the rights of those before it)
+RIGHTS: dict[str, str] = {
+    "test.start_plan": "operator",  # start a test from a saved plan
+    "test.abort": "operator",
+    "audit.read": "operator",
+    "test.start": "engineer",  # start a test from a free request (not a saved plan)
+    "plan.edit": "engineer",
+    "compensation.edit": "engineer",
+    "bench_model.apply": "engineer",
+    "discrepancy.run": "engineer",
+    "users.admin": "admin",
+    "settings.edit": "admin",
+}
+AUTOMATION_RIGHTS = frozenset(r for r, role in RIGHTS.items() if role != "admin")
+
+
+@dataclass(frozen=True)
+class Principal:
+    """Who makes a request: a user (``via`` 'token' or 'session') or the service token's automation."""
+
+    name: str
+    role: str
+    via: str
+
+    def may(self, right: str) -> bool:
+        if self.role == AUTOMATION:
+            return right in AUTOMATION_RIGHTS
+        return self.role in ROLES and ROLES.index(self.role) >= ROLES.index(RIGHTS[right])
+
+
+def principal_of(state: Any, bearer: str | None, session_id: str | None) -> Principal | None:
+    """The principal a bearer token (the service token or a user's API token) or a session cookie names; None
+    when neither is valid. ``state``: the app's state (its service token and run store)."""
+    if bearer:
+        if token_matches(bearer, state.api_token):
+            return Principal(SERVICE_USER, AUTOMATION, "token")
+        store = getattr(state, "store", None)
+        user = store.user_of_token(bearer.strip()) if store is not None else None
+        return None if user is None else Principal(user.name, user.role, "token")
+    if session_id:
+        store = getattr(state, "store", None)
+        user = store.user_of_session(session_id) if store is not None else None
+        return None if user is None else Principal(user.name, user.role, "session")
+    return None
+
+
+def _unsafe(method: str) -> bool:
+    return method.upper() not in ("GET", "HEAD", "OPTIONS")
+
+
+def authenticate(request: Request) -> Principal:
+    """The request's principal; 401 without a valid credential. A session cookie on a changing request also
+    needs the header ``X-Requested-By: tcms`` (a page of another site cannot send it: no cross-site forgery)."""
+    bearer = bearer_of(request.headers.get("authorization", ""))
+    session_id = None if bearer else request.cookies.get(SESSION_COOKIE)
+    found = principal_of(request.app.state, bearer, session_id)
+    if found is None:
+        raise HTTPException(
+            status_code=status.HTTP_401_UNAUTHORIZED,
+            detail="missing or invalid bearer token or session (Authorization: Bearer <token>, or sign in)",
+            headers={"WWW-Authenticate": "Bearer"},
+        )
+    if found.via == "session" and _unsafe(request.method) and request.headers.get("x-requested-by") != "tcms":
+        raise HTTPException(status_code=status.HTTP_403_FORBIDDEN,
+                            detail="a signed-in change needs the header X-Requested-By: tcms")
+    return found
+
+
+def require(right: str) -> Callable[..., Principal]:
+    """A FastAPI dependency: the principal when it has ``right``; 401 without credentials, 403 naming the role
+    needed otherwise. Declared through HTTPBearer, so the OpenAPI document names the security scheme."""
+    if right not in RIGHTS:
+        raise ValueError(f"unknown right {right!r}")
+    needed = RIGHTS[right]
+
+    def check(request: Request, _credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> Principal:
+        principal = authenticate(request)
+        if not principal.may(right):
+            raise HTTPException(status_code=status.HTTP_403_FORBIDDEN,
+                                detail=f"{right} needs the role {needed} (or above); {principal.name} is "
+                                       f"{principal.role}")
+        request.state.principal = principal
+        return principal
+
+    check.__name__ = f"require_{right.replace('.', '_')}"
+    return check
 
 
 def require_token(request: Request, _credentials: HTTPAuthorizationCredentials | None = Depends(_bearer)) -> None:
-    """FastAPI dependency: 401 unless ``Authorization: Bearer <token>`` matches the service token. Declared
-    through HTTPBearer, so the OpenAPI document names the security scheme of each protected operation."""
-    expected: str = request.app.state.api_token
-    if not token_matches(bearer_of(request.headers.get("authorization", "")), expected):
-        raise HTTPException(
-            status_code=status.HTTP_401_UNAUTHORIZED,
-            detail="missing or invalid bearer token (Authorization: Bearer <token>)",
-            headers={"WWW-Authenticate": "Bearer"},
-        )
+    """FastAPI dependency of a change with no finer right: an engineer's (or the automation's) credential."""
+    require("compensation.edit")(request, _credentials)
 
 
 # reads that stay open when reads need the token: liveness, the dashboard's files, the API description
@@ -67,7 +161,7 @@ class ReadTokenMiddleware:
 
     def __init__(self, app: ASGIApp, token: str):
         self.app = app
-        self.token = token
+        self.token = token  # the service token (kept for callers); users' tokens and sessions come from the store
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket") or not self._protected(scope["path"]):
@@ -77,7 +171,12 @@ class ReadTokenMiddleware:
         given = bearer_of(headers.get("authorization", ""))
         if given is None:  # a browser's WebSocket or link cannot set headers
             given = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [None])[0]
-        if token_matches(given, self.token):
+        session_id = None
+        for part in headers.get("cookie", "").split(";"):
+            key, _, value = part.strip().partition("=")
+            if key == SESSION_COOKIE:
+                session_id = value
+        if token_matches(given, self.token) or principal_of(scope["app"].state, given, session_id) is not None:
             await self.app(scope, receive, send)
             return
         if scope["type"] == "websocket":

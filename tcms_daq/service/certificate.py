@@ -22,7 +22,7 @@ import re
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from importlib import resources
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -33,6 +33,7 @@ from tcms_daq.config.models import CertificateSection
 from tcms_daq.errors import TcmsError
 from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision
 from tcms_daq.service.certificate_text import catalogue
+from tcms_daq.service.fonts import cjk_fonts, figure_families
 from tcms_daq.service.loop_figure import loop_figure_svg
 from tcms_daq.store import StoredRun
 
@@ -304,16 +305,30 @@ def render_certificate(record: StoredRun, columns: Mapping[str, np.ndarray],
     import typst
 
     doc = certificate_document(record, issued_at, lang)
+    font_paths: list[str] = []
+    families = ["DejaVu Sans"]
+    if lang != "en":  # Typst's embedded fonts have no CJK glyphs: an installed CJK font after the Latin one
+        cjk = cjk_fonts()
+        if not cjk:
+            raise CertificateError(f"certificate of run {record.id} in {lang!r}: no CJK font installed "
+                                   "(Debian: apt-get install fonts-noto-cjk)")
+        doc["fonts"] = [cjk[0][0]]
+        doc["lang"] = lang
+        font_paths.append(str(cjk[0][1].parent))
+        families = figure_families()
     inputs = {"data": json.dumps(doc, allow_nan=False)}
     t = doc["t"]
-    figure = loop_figure_svg(columns, record.results, lambda key, **f: t[key].format(**f) if f else t[key])
+    import matplotlib
+
+    with matplotlib.rc_context({"font.family": families}):
+        figure = loop_figure_svg(columns, record.results, lambda key, **f: t[key].format(**f) if f else t[key])
     if figure is not None:
         inputs["loop"] = figure
     template = resources.files("tcms_daq.service").joinpath(TEMPLATE).read_bytes()
     issued = (issued_at or datetime.now(UTC)).astimezone(UTC).replace(microsecond=0)
     try:
         pdf = typst.compile(template, format="pdf", sys_inputs=inputs, ignore_system_fonts=True,
-                            timestamp=issued)
+                            font_paths=cast(Any, font_paths), timestamp=issued)  # paths beside a bytes template
     except RuntimeError as exc:  # typst.TypstError
         raise CertificateError(f"certificate of run {record.id}: {str(exc).splitlines()[0]}") from None
     assert isinstance(pdf, bytes)

@@ -64,6 +64,7 @@ AUTH = [Depends(require_token)]
 
 _ERRORS: dict[int, dict[str, Any]] = {
     401: {"model": ErrorBody, "description": "missing or invalid bearer token"},
+    403: {"model": ErrorBody, "description": "the role lacks the right: names the role needed"},
     404: {"model": ErrorBody, "description": "no such test, version or analysis"},
     409: {"model": ErrorBody, "description": "a test is running (or another analysis)"},
     410: {"model": ErrorBody, "description": "the run's samples were retired by the store's retention policy"},

@@ -1,4 +1,5 @@
-"""The HTML report of one run: request, outcome, the hysteresis plot (inline SVG) and the results table."""
+"""The HTML report of one run: request, outcome, the hysteresis plot (inline SVG) and the results table, in the
+language asked for (``?lang=``): every word from the message catalogue (:mod:`tcms_daq.service.messages`)."""
 
 from __future__ import annotations
 
@@ -12,18 +13,29 @@ import numpy as np
 from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import NOT_STATED, with_uncertainty
 from tcms_daq.service.loop_figure import evaluated_mask
+from tcms_daq.service.messages import text
 from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
 MAX_PLOT_POINTS = 20_000
 
 
-def hysteresis_svg(columns: Mapping[str, np.ndarray]) -> str:
+def hysteresis_svg(columns: Mapping[str, np.ndarray], lang: str = "en") -> str:
     """Angle (arcmin) against torque (N·m), compensated and raw; decimated to at most MAX_PLOT_POINTS."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     from matplotlib.figure import Figure
+
+    from tcms_daq.service.fonts import figure_families
+
+    with matplotlib.rc_context({"font.family": figure_families() if lang != "en" else ["DejaVu Sans"]}):
+        return _hysteresis_svg(columns, lang, Figure)
+
+
+def _hysteresis_svg(columns: Mapping[str, np.ndarray], lang: str, Figure: Any) -> str:
+    def t(key: str) -> str:
+        return text(key, lang)
 
     torque = np.asarray(columns.get("torque_nm", np.empty(0)))
     step = max(1, len(torque) // MAX_PLOT_POINTS)
@@ -31,19 +43,19 @@ def hysteresis_svg(columns: Mapping[str, np.ndarray]) -> str:
     ax = fig.add_subplot()
     if "encoder_arcsec" in columns:
         ax.plot(torque[::step], np.asarray(columns["encoder_arcsec"])[::step] / ARCSEC_PER_ARCMIN,
-                lw=0.8, color="#bbbbbb", label="raw encoder")
+                lw=0.8, color="#bbbbbb", label=t("report.raw_encoder"))
     if "angle_arcsec" in columns:
         ax.plot(torque[::step], np.asarray(columns["angle_arcsec"])[::step] / ARCSEC_PER_ARCMIN,
-                lw=1.0, color="#1f5fa8", label="compensated")
-    ax.set_xlabel("torque / N·m")
-    ax.set_ylabel("twist angle / arcmin")
+                lw=1.0, color="#1f5fa8", label=t("report.compensated"))
+    ax.set_xlabel(t("report.axis_torque"))
+    ax.set_ylabel(t("report.axis_angle"))
     ax.axhline(0, color="#888", lw=0.5)
     ax.axvline(0, color="#888", lw=0.5)
     ax.grid(alpha=0.3)
     if len(torque):
         ax.legend(loc="upper left")
     else:
-        ax.text(0.5, 0.5, "no samples recorded", ha="center", va="center", transform=ax.transAxes)
+        ax.text(0.5, 0.5, t("report.no_samples"), ha="center", va="center", transform=ax.transAxes)
     fig.tight_layout()
     buf = io.StringIO()
     fig.savefig(buf, format="svg")
@@ -51,9 +63,9 @@ def hysteresis_svg(columns: Mapping[str, np.ndarray]) -> str:
     return svg[svg.find("<svg"):]
 
 
-def _fmt(value: Any) -> str:
+def _fmt(value: Any, lang: str = "en") -> str:
     if isinstance(value, bool):
-        return "pass" if value else "FAIL"
+        return text("verdict.pass", lang) if value else text("res.fail", lang)
     if isinstance(value, float):
         return f"{value:.6g}"
     return html.escape(str(value))
@@ -99,44 +111,53 @@ def loops_per_stage(columns: Mapping[str, np.ndarray], results: Mapping[str, Any
     return out
 
 
-def render_report(record: StoredRun, columns: Mapping[str, np.ndarray]) -> str:
+def render_report(record: StoredRun, columns: Mapping[str, np.ndarray], lang: str = "en") -> str:
+    """The report in ``lang`` (``en``, ``zh``; English for another)."""
+    def t(key: str, **fields: Any) -> str:
+        return text(key, lang, **fields)
+
     req = record.request
+    plan = req.get("plan") if isinstance(req.get("plan"), Mapping) else None
     meta_rows = [
-        ("run", record.id),
-        ("status", record.status),
-        ("reducer", req.get("reducer")),
-        ("serial number", req.get("serial_number", "—")),
-        ("operator", req.get("operator", "—")),
-        ("profile", req.get("profile")),
-        ("test torque / N·m", req.get("max_torque_nm")),
-        ("cycles", req.get("cycles")),
-        ("torque rate / N·m/s", req.get("rate_nm_per_s", "—")),
-        *([("positions", req["positions"])] if req.get("positions") is not None else []),
-        *([("loading rates / N·m/s", req["rates"])] if req.get("rates") is not None else []),
-        ("samples", record.sample_count),
-        ("created", record.summary()["created_at"]),
-        ("finished", record.summary()["finished_at"] or "—"),
+        (t("report.run"), record.id),
+        (t("report.status"), t(f"state.{record.status}")),
+        (t("report.reducer"), req.get("reducer")),
+        (t("report.serial"), req.get("serial_number", "—")),
+        (t("report.operator"), req.get("operator", "—")),
+        *([(t("report.user"), req["user"])] if req.get("user") else []),
+        *([(t("report.plan"), f"{plan.get('name')} v{plan.get('version')}")] if plan else []),
+        (t("report.profile"), t(f"dash.{req['profile']}") if req.get("profile") in ("continuous", "stepped")
+         else req.get("profile")),
+        (t("report.torque"), req.get("max_torque_nm")),
+        (t("report.cycles"), req.get("cycles")),
+        (t("report.rate"), req.get("rate_nm_per_s", "—")),
+        *([(t("report.positions"), req["positions"])] if req.get("positions") is not None else []),
+        *([(t("report.rates"), req["rates"])] if req.get("rates") is not None else []),
+        (t("report.samples"), record.sample_count),
+        (t("report.created"), record.summary()["created_at"]),
+        (t("report.finished"), record.summary()["finished_at"] or "—"),
     ]
     if record.error:
-        meta_rows.append(("error", record.error))
-    meta = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in meta_rows)
-    results = _results_html(record.results) if record.results else (
-        "<p>No results (the run did not complete an evaluation).</p>")
+        meta_rows.append((t("report.error"), record.error))
+    meta = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{_fmt(v, lang)}</td></tr>" for k, v in meta_rows)
+    results = _results_html(record.results, lang) if record.results else f"<p>{html.escape(t('report.no_results'))}</p>"
+    html_lang = "zh-CN" if lang == "zh" else "en"
     return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>TCMS report {html.escape(record.id)}</title>
+<html lang="{html_lang}"><head><meta charset="utf-8"><title>{html.escape(t("report.title", id=record.id))}</title>
 <style>
-body {{ font-family: system-ui, sans-serif; margin: 2em; color: #222; }}
+body {{ font-family: system-ui, "Noto Sans CJK SC", "Microsoft YaHei", sans-serif; margin: 2em; color: #222; }}
+th {{ white-space: nowrap; }}
 table {{ border-collapse: collapse; margin-bottom: 1.5em; }}
 th, td {{ text-align: left; padding: 2px 12px 2px 0; border-bottom: 1px solid #eee; font-weight: normal; }}
 th {{ color: #555; }} .loops th, .loops td {{ padding-right: 18px; }}
 tr.pass td {{ color: #157a2e; font-weight: bold; }} tr.fail td {{ color: #b3261e; font-weight: bold; }}
 tr.undecided td {{ color: #a15c00; font-weight: bold; }} .muted {{ color: #777; }}
 </style></head><body>
-<h1>Torsional characteristic test {html.escape(record.id)}</h1>
+<h1>{html.escape(t("report.title", id=record.id))}</h1>
 <table class="meta">{meta}</table>
-<h2>Hysteresis curve</h2>
-<figure>{hysteresis_svg(loops_per_stage(columns, record.results))}</figure>
-<h2>Results</h2>
+<h2>{html.escape(t("report.curve"))}</h2>
+<figure>{hysteresis_svg(loops_per_stage(columns, record.results), lang)}</figure>
+<h2>{html.escape(t("report.results"))}</h2>
 {results}
 </body></html>
 """
@@ -144,17 +165,21 @@ tr.undecided td {{ color: #a15c00; font-weight: bold; }} .muted {{ color: #777; 
 
 UNCERTAIN = ("rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec", "k1_nm_per_rad", "k2_nm_per_rad",
              "k3_nm_per_rad")
-HEADLINE: tuple[tuple[str, str], ...] = (
-    ("rigidity_nm_per_arcmin", "torsional rigidity / N·m/arcmin"),
-    ("lost_motion_arcsec", "lost motion / arcsec"),
-    ("backlash_arcsec", "backlash / arcsec"),
-    ("loading_rate_nm_per_s", "loading rate / N·m/s"),
-    ("test_torque_nm", "test torque / N·m"),
-    ("n_loops", "evaluated loops"),
+HEADLINE: tuple[tuple[str, str], ...] = (  # (result key, catalogue key of its label or the label itself)
+    ("rigidity_nm_per_arcmin", "report.rigidity"),
+    ("lost_motion_arcsec", "report.lost_motion"),
+    ("backlash_arcsec", "report.backlash"),
+    ("loading_rate_nm_per_s", "report.loading_rate"),
+    ("test_torque_nm", "report.test_torque"),
+    ("n_loops", "report.n_loops"),
     ("k1_nm_per_rad", "K1 / N·m/rad"),
     ("k2_nm_per_rad", "K2 / N·m/rad"),
     ("k3_nm_per_rad", "K3 / N·m/rad"),
 )
+
+
+def _label(key: str, lang: str) -> str:
+    return text(key, lang) if key.startswith("report.") else key
 
 
 def _decision(entry: Mapping[str, Any]) -> str:
@@ -162,8 +187,8 @@ def _decision(entry: Mapping[str, Any]) -> str:
     return decision_of(entry) or "fail"
 
 
-STAGE_COLUMNS = (("rigidity_nm_per_arcmin", "rigidity / N·m/arcmin"), ("lost_motion_arcsec", "lost motion / ″"),
-                 ("backlash_arcsec", "backlash / ″"))
+STAGE_COLUMNS = (("rigidity_nm_per_arcmin", "res.rigidity_short"), ("lost_motion_arcsec", "res.lost_motion_short"),
+                 ("backlash_arcsec", "res.backlash_short"))
 
 
 def _with_uncertainty(entry: Mapping[str, Any], key: str) -> str:
@@ -174,33 +199,37 @@ def _with_uncertainty(entry: Mapping[str, Any], key: str) -> str:
     return html.escape(with_uncertainty(float(value), (entry.get("uncertainty") or {}).get(key), unit=""))
 
 
-def _stages_html(results: Mapping[str, Any]) -> str:
+def _stages_html(results: Mapping[str, Any], lang: str = "en") -> str:
     """The per-position or per-rate table of a test of several stages, its summary (max, min, spread; GB/T 40731)
     and, for rates, the rate sensitivity; '' for a single test."""
     entries = results.get("positions") or results.get("rates")
     if not isinstance(entries, list) or not entries:
         return ""
     positional = "positions" in results
-    first = "position / °" if positional else "loading rate / N·m/s"
-    head = f"<tr><th>{first}</th>" + "".join(f"<th>{label}</th>" for _, label in STAGE_COLUMNS) + "</tr>"
+    first = text("report.position" if positional else "report.loading_rate", lang)
+    head = f"<tr><th>{html.escape(first)}</th>" + "".join(f"<th>{html.escape(text(label, lang))}</th>"
+                                                         for _, label in STAGE_COLUMNS) + "</tr>"
     body = "".join(
         f"<tr><td>{_fmt(e.get('position_deg' if positional else 'rate_nm_per_s'))}</td>"
         + "".join(f"<td>{_with_uncertainty(e, key)}</td>" for key, _ in STAGE_COLUMNS) + "</tr>"
         for e in entries if isinstance(e, Mapping))
     for stat in ("max", "min", "spread"):
-        body += f"<tr><th>{stat}</th>" + "".join(f"<td>{_fmt(results.get(f'{key}_{stat}'))}</td>"
+        body += f"<tr><th>{html.escape(text(f'res.{stat}', lang))}</th>" + "".join(f"<td>{_fmt(results.get(f'{key}_{stat}'))}</td>"
                                                  for key, _ in STAGE_COLUMNS) + "</tr>"
     sensitivity = results.get("rate_sensitivity")
     if isinstance(sensitivity, Mapping):
-        body += "<tr><th>per tenfold rate</th>" + "".join(
+        body += f"<tr><th>{html.escape(text('report.per_decade', lang))}</th>" + "".join(
             f"<td>{_fmt(sensitivity.get(f'{key}_per_decade'))}</td>" for key, _ in STAGE_COLUMNS) + "</tr>"
-    title = "Positions (GB/T 40731)" if positional else "Loading rates"
+    title = html.escape(text("report.positions_title" if positional else "report.rates_title", lang))
     return f"<h3>{title}</h3><table class='stages'>{head}{body}</table>"
 
 
-def _results_html(results: Mapping[str, Any]) -> str:
+def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
     """Headline values (value ± U with the dominant contributor, and the std over loops), the verdict checks
     with their ISO 14253-1 decision, the per-loop table, the warnings, then every value."""
+    def t(key: str, **fields: Any) -> str:
+        return text(key, lang, **fields)
+
     parts = []
     std = results.get("std") or {}
     uncertainty = results.get("uncertainty") or {}
@@ -212,51 +241,55 @@ def _results_html(results: Mapping[str, Any]) -> str:
             spread = std.get(key) if isinstance(std, Mapping) else None
             if key in UNCERTAIN:
                 shown = with_uncertainty(float(value), entry, "")
-                dominant = f"dominant: {entry.get('dominant')}" if isinstance(entry, Mapping) else ""
+                if not isinstance(entry, Mapping):
+                    shown = shown.replace(NOT_STATED, t("res.u_not_stated"))
+                dominant = t("report.dominant", name=entry.get("dominant")) if isinstance(entry, Mapping) else ""
             else:
                 shown, dominant = _fmt(float(value)), ""
-            scatter = f"std over loops {float(spread):.2g}" if isinstance(spread, int | float) else ""
-            rows.append(f"<tr><th>{html.escape(label)}</th><td>{html.escape(shown)}</td>"
+            scatter = t("report.std", value=f"{float(spread):.2g}") if isinstance(spread, int | float) else ""
+            rows.append(f"<tr><th>{html.escape(_label(label, lang))}</th><td>{html.escape(shown)}</td>"
                         f"<td class='muted'>{html.escape(dominant)}</td><td class='muted'>{scatter}</td></tr>")
     if rows:
         basis = results.get("uncertainty_basis")
         parts.append("<table class='results'>" + "".join(rows) + "</table>")
-        parts.append(f"<p class='muted'>U: expanded uncertainty for 95 % coverage (k from the Welch–Satterthwaite "
-                     f"degrees of freedom); basis: {html.escape(str(basis or NOT_STATED))}.</p>")
+        parts.append(f"<p class='muted'>{html.escape(t('report.u_note', basis=str(basis or NOT_STATED)))}</p>")
     verdict = results.get("verdict")
     if isinstance(verdict, Mapping):
         rows = []
         for check in (verdict.get("checks") or {}).values():
             decision = _decision(check)
             guard = check.get("guard_band")
-            guard_text = f" (guard band {_fmt(float(guard))})" if isinstance(guard, int | float) and guard else ""
+            guard_text = (" " + t("report.guard_band", value=_fmt(float(guard)))
+                          if isinstance(guard, int | float) and guard else "")
             rows.append(
                 f"<tr class='{decision}'><th>{html.escape(str(check.get('label') or check))}</th>"
-                f"<td>{_fmt(check.get('value'))}{guard_text}</td><td>{decision}</td></tr>"
+                f"<td>{_fmt(check.get('value'), lang)}{html.escape(guard_text)}</td>"
+                f"<td>{html.escape(t(f'verdict.{decision}'))}</td></tr>"
             )
         decision = _decision(verdict)
         rule = verdict.get("rule")
-        rule_text = f"ISO 14253-1, {rule} rule" if rule else ""
-        rows.append(f"<tr class='{decision}'><th>decision</th><td>{html.escape(rule_text)}</td>"
-                    f"<td>{decision.upper()}</td></tr>")
-        parts.append("<h3>Acceptance</h3><table class='verdict'>" + "".join(rows) + "</table>")
-    parts.append(_stages_html(results))
+        rule_text = t("report.rule", rule=rule) if rule else ""
+        rows.append(f"<tr class='{decision}'><th>{html.escape(t('report.decision'))}</th><td>{html.escape(rule_text)}"
+                    f"</td><td>{html.escape(t(f'res.{decision}'))}</td></tr>")
+        parts.append(f"<h3>{html.escape(t('report.acceptance'))}</h3><table class='verdict'>" + "".join(rows) + "</table>")
+    parts.append(_stages_html(results, lang))
     loops = results.get("loops")
     if isinstance(loops, list) and loops and all(isinstance(lp, Mapping) for lp in loops):
         cols = ("index", "evaluated", "order", "rigidity_nm_per_arcmin", "backlash_arcsec", "lost_motion_arcsec",
                 "loading_rate_nm_per_s")
         head = "".join(f"<th>{c}</th>" for c in cols)
         body = "".join(
-            "<tr>" + "".join(f"<td>{'yes' if lp.get(c) is True else 'no' if lp.get(c) is False else _fmt(lp.get(c))}</td>"
+            "<tr>" + "".join(f"<td>{t('report.yes') if lp.get(c) is True else t('report.no') if lp.get(c) is False else _fmt(lp.get(c))}</td>"
                              for c in cols) + "</tr>"
             for lp in loops
         )
-        parts.append(f"<h3>Loops</h3><table class='loops'><tr>{head}</tr>{body}</table>")
+        parts.append(f"<h3>{html.escape(t('report.loops'))}</h3><table class='loops'><tr>{head}</tr>{body}</table>")
     warnings = results.get("warnings")
     if isinstance(warnings, list) and warnings:
-        parts.append("<h3>Warnings</h3><ul>" + "".join(f"<li>{html.escape(str(w))}</li>" for w in warnings) + "</ul>")
+        parts.append(f"<h3>{html.escape(t('report.warnings'))}</h3><ul>" + "".join(f"<li>{html.escape(str(w))}</li>" for w in warnings) + "</ul>")
     details = "".join(
         f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in flatten_results(results)
     )
-    parts.append(f"<details><summary>all values</summary><table class='details'>{details}</table></details>")
+    parts.append(f"<details><summary>{html.escape(t('report.all_values'))}</summary><table class='details'>{details}"
+                 "</table></details>")
     return "\n".join(parts)

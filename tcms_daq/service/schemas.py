@@ -260,6 +260,20 @@ class TestSummary(BaseModel):
         "rigidity, lost motion and backlash as text: 'value ± U unit (k = …)', 'value unit (U not stated)' or '—'"))
     headline_results: HeadlineResults | None = Field(
         None, description="rigidity, lost motion and backlash with value, U, k and unit (null: no results)")
+    user: str | None = Field(None, description="who started it (a user, or 'service' for the service token)")
+    plan: PlanRef | None = Field(None, description="the saved plan version it ran (null: a free request)")
+
+
+class PlanRef(BaseModel):
+    """The saved plan version a run was started from."""
+
+    id: int
+    name: str
+    version: int
+
+
+#: what a run's stored request holds beside the request: who started it and from which plan (identity's hooks)
+RUN_CONTEXT_KEYS = ("user", "plan")
 
 
 def request_echo(stored: dict[str, Any]) -> TestRequest:
@@ -278,8 +292,10 @@ def summary_view(summary: dict[str, Any]) -> TestSummary:
     from tcms_daq.identity import headline_results
 
     results = summary.get("results")
+    stored = summary.get("request") or {}
     return TestSummary.model_validate({
-        **summary, "request": request_echo(summary.get("request") or {}),
+        **summary, "request": request_echo({k: v for k, v in stored.items() if k not in RUN_CONTEXT_KEYS}),
+        **{key: stored.get(key) for key in RUN_CONTEXT_KEYS},
         "headline_results": headline_results(results) if results else None})
 
 
@@ -415,6 +431,7 @@ class BenchStatus(BaseModel):
     """``GET /api/bench``."""
 
     name: str
+    id: str | None = Field(None, description="the bench's id ([bench] id): its runs are GET /api/tests?bench=<id>")
     config: str | None = None
     max_torque_nm: float
     clock: Literal["simulated", "monotonic"] | None = None

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import threading
 import traceback
+from collections.abc import Mapping
 from typing import Any
 
 from tcms_daq.errors import TcmsError
@@ -42,9 +43,17 @@ class TestManager:
     def active_id(self) -> str | None:
         return self._active_id
 
-    def submit(self, request: TestRequest) -> StoredRun:
-        """Validate, store as ``queued`` and start a test. Raises RequestRejected (422) or Conflict (409)."""
+    def submit(self, request: TestRequest, *, user: str | None = None,
+               plan_ref: Mapping[str, Any] | None = None) -> StoredRun:
+        """Validate, store as ``queued`` and start a test. Raises RequestRejected (422) or Conflict (409).
+        ``user``: who started it; ``plan_ref``: the saved plan it came from (name, version, id); both are kept
+        in the run's request (its identity: ``user``, ``plan``)."""
         plan = self.runner.plan(request)  # raises RequestRejected with a one-line reason
+        stored_request = request.model_dump(exclude_none=True)
+        if user is not None:
+            stored_request["user"] = user
+        if plan_ref is not None:
+            stored_request["plan"] = dict(plan_ref)
         with self._lock:
             if self._active_id is not None:
                 raise Conflict(f"test {self._active_id} is still active; abort it or wait for it to finish")
@@ -55,7 +64,7 @@ class TestManager:
             run_id = new_run_id()
             record = self.store.create_run(
                 run_id,
-                request.model_dump(exclude_none=True),
+                stored_request,
                 self.runner.channels,
                 profile=plan.profile_summary,
                 config_snapshot={**self.runner.config_snapshot(),

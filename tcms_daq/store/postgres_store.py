@@ -55,6 +55,8 @@ from tcms_daq.store.base import (
     text_sha256,
 )
 from tcms_daq.store.opening import redact_url
+from tcms_daq.store.people import POSTGRES_MIGRATION as _PEOPLE_MIGRATION
+from tcms_daq.store.people import PeopleRecords
 
 # Each entry moves the schema one version up; applied in order, each in its own transaction. Never edit an
 # applied entry: add the next one.
@@ -173,6 +175,7 @@ MIGRATIONS: tuple[str, ...] = (
         FROM sample_batches_v1 b JOIN runs r ON r.id = b.run_id;
     DROP TABLE sample_batches_v1;
     """,
+    _PEOPLE_MIGRATION,  # users, API tokens, sessions, the append-only audit trail, saved plans
 )
 
 _MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)
@@ -200,7 +203,7 @@ def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
     return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
 
 
-class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
+class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, PeopleRecords):
     """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
     pool)."""
 
@@ -409,6 +412,21 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
             else:
                 row = conn.execute(sql + "ORDER BY version DESC LIMIT 1", own_params).fetchone()
         return None if row is None else tuple(row)
+
+    # -- people (users, audit, plans: tcms_daq.store.people) ------------------------------------------------
+    def _people_query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple[Any, ...]]:
+        with self._connection() as conn:
+            return [tuple(r) for r in conn.execute(sql.replace("?", "%s"), params).fetchall()]
+
+    def _people_execute(self, sql: str, params: Sequence[Any] = ()) -> int:
+        try:
+            with self._connection() as conn:
+                return int(conn.execute(sql.replace("?", "%s"), params).rowcount)
+        except psycopg.Error as exc:
+            raise StoreError(f"refused by the run store: {_reason(exc)}") from None
+
+    def _json_param(self, obj: Mapping[str, Any]) -> Any:
+        return _jsonb(obj)
 
     # -- samples ----------------------------------------------------------------------------------------------
     def _sample_key(self, run_id: str, conn: Any) -> tuple[tuple[str, ...], float]:

@@ -48,6 +48,8 @@ from tcms_daq.store.base import (
     status_update,
     text_sha256,
 )
+from tcms_daq.store.people import SQLITE_SCHEMA as _PEOPLE_SCHEMA
+from tcms_daq.store.people import PeopleRecords
 
 __all__ = ["ACTIVE_STATUSES", "FINAL_STATUSES", "RUN_STATUSES", "STORE_FILENAME", "BenchModelVersion",
            "CompensationVersion", "RunStore", "StoreError", "StoredRun", "new_run_id", "text_sha256"]
@@ -124,7 +126,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
+class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries, PeopleRecords):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Connections come from a small pool (WAL lets readers run beside the one writer): a call takes an idle one
@@ -161,6 +163,7 @@ class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
     def _migrate(self) -> None:
         with self._write_lock, self._connection() as conn:
             conn.executescript(_SCHEMA)
+            conn.executescript(_PEOPLE_SCHEMA)
             for table, column, kind in _ADDED_COLUMNS:
                 if column not in {row[1] for row in conn.execute(f"PRAGMA table_info({table})")}:
                     conn.execute(f"ALTER TABLE {table} ADD COLUMN {column} {kind}")
@@ -347,6 +350,16 @@ class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries):
         rows = (self._query(sql + "AND version=?", (*own_params, version)) if version is not None
                 else self._query(sql + "ORDER BY version DESC LIMIT 1", own_params))
         return rows[0] if rows else None
+
+    # -- people (users, audit, plans: tcms_daq.store.people) ------------------------------------------------
+    def _people_query(self, sql: str, params: Sequence[Any] = ()) -> list[tuple[Any, ...]]:
+        return [tuple(r) for r in self._query(sql, params)]
+
+    def _people_execute(self, sql: str, params: Sequence[Any] = ()) -> int:
+        try:
+            return self._write(sql, params)[0]
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"refused by the run store: {exc}") from None
 
     # -- runs (reading) --------------------------------------------------------------------------------------
     def get_run(self, run_id: str) -> StoredRun | None:

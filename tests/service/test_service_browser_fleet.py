@@ -76,7 +76,8 @@ def test_fleet_page_searches_links_overlays_and_charts(settings_factory, tmp_pat
             assert "± 2.3 N·m/arcmin (k = 2.05)" in first and "41.27 ± 0.82″ (k = 2.00)" in first
             assert "U not stated" in page.inner_text("#runs tbody tr[data-id='run-02']")
             hrefs = page.eval_on_selector_all("#runs tbody tr[data-id='run-02'] td.files a", "els => els.map(e => e.href)")
-            assert any(h.endswith(f"/api/tests/run-02/certificate.pdf?token={TOKEN}") for h in hrefs)
+            assert any("/api/tests/run-02/certificate.pdf?" in h and f"token={TOKEN}" in h and "lang=en" in h
+                       for h in hrefs)
             assert any("format=mdf4" in h for h in hrefs) and any("/metadata" in h for h in hrefs)
 
             page.fill("#f-serial", "REF-1")

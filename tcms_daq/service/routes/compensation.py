@@ -7,7 +7,7 @@ import math
 from dataclasses import replace
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi import Path as PathParam
 from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
@@ -17,10 +17,12 @@ from tcms_daq.compensation.plausibility import (
     judge_upload,
     synthetic_reference,
 )
-from tcms_daq.service.deps import AUTH, Bench, Events, Manager, Store, errors
+from tcms_daq.service.auth import Principal, require
+from tcms_daq.service.deps import Bench, Events, Manager, Store, errors
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import CompensationDryRun, CompensationVersion
 from tcms_daq.service.testruns import Conflict, UnknownRun
+from tcms_daq.service.users import audit
 
 router = APIRouter(prefix="/api/compensation", tags=["compensation"])
 
@@ -42,23 +44,29 @@ def get_compensation(bench: Bench) -> PlainTextResponse:
 
 
 async def _activate(bench: Bench, manager: Manager, store: Store, events: Events, text: str, note: str,
-                    rollback_of: int | None = None) -> PlainTextResponse:
-    """Check, apply and keep a compensation as the next version (422 implausible; 409 during a test)."""
+                    who: Principal, action: str, rollback_of: int | None = None) -> PlainTextResponse:
+    """Check, apply and keep a compensation as the next version (422 implausible; 409 during a test); audited
+    as ``action`` with the version and hash before and after."""
     if manager.active_id is not None:
         raise Conflict(f"test {manager.active_id} is running; change the compensation after it")
+    previous = store.compensation()
     await asyncio.to_thread(bench.set_compensator_toml, text)
     applied = bench.compensator_toml()
     version = await asyncio.to_thread(store.add_compensation, applied, note, rollback_of)
     events.publish("compensation_changed", version=version.version, note=note)
+    audit(store, who, action, target="compensation",
+          before=None if previous is None else f"v{previous[0].version} sha256 {previous[0].sha256[:16]}",
+          after=f"v{version.version} sha256 {version.sha256[:16]}", detail=note or None)
     return PlainTextResponse(applied, media_type="application/toml",
                              headers={"X-Compensation-Version": str(version.version)})
 
 
-@router.put("", response_class=PlainTextResponse, dependencies=AUTH, openapi_extra=TOML_BODY,
-            responses={**TOML_ANSWER, **errors(401, 409, 413, 422),
+@router.put("", response_class=PlainTextResponse, openapi_extra=TOML_BODY,
+            responses={**TOML_ANSWER, **errors(401, 403, 409, 413, 422),
                        202: {"description": "dry run: what the upload would do (nothing stored)",
                              "model": CompensationDryRun}})
 async def put_compensation(request: Request, bench: Bench, manager: Manager, store: Store, events: Events,
+                           who: Annotated[Principal, Depends(require("compensation.edit"))],
                            note: Annotated[str, Query(max_length=200)] = "",
                            dry_run: Annotated[bool, Query(description="judge the upload, store nothing")] = False,
                            force: Annotated[bool, Query(description="accept a rigidity change beyond the band")]
@@ -84,7 +92,7 @@ async def put_compensation(request: Request, bench: Bench, manager: Manager, sto
         return JSONResponse(body.model_dump(), status_code=202)
     if judgement.refused and not force:
         raise RequestRejected(judgement.refused)
-    return await _activate(bench, manager, store, events, text, note)
+    return await _activate(bench, manager, store, events, text, note, who, "compensation.upload")
 
 
 def _judge(bench: Bench, store: Store, text: str) -> UploadJudgement:
@@ -111,20 +119,25 @@ def compensation_history(store: Store) -> list[dict]:
     return [v.summary() for v in store.compensation_history()]
 
 
-@router.post("/rollback/{version}", response_class=PlainTextResponse, dependencies=AUTH,
-             responses={**TOML_ANSWER, **errors(401, 404, 409, 422)})
+@router.post("/rollback/{version}", response_class=PlainTextResponse,
+             responses={**TOML_ANSWER, **errors(401, 403, 404, 409, 422)})
 async def rollback_compensation(version: Annotated[int, PathParam(ge=1, le=2**31 - 1)], bench: Bench,
-                                manager: Manager, store: Store, events: Events) -> PlainTextResponse:
+                                manager: Manager, store: Store, events: Events,
+                                who: Annotated[Principal, Depends(require("compensation.edit"))]
+                                ) -> PlainTextResponse:
     """Use an earlier version again (kept as a new version that names it; 404 unknown version)."""
     found = store.compensation(version)
     if found is None:
         raise UnknownRun(f"no compensation version {version}")
-    return await _activate(bench, manager, store, events, found[1], f"rollback to version {version}", version)
+    return await _activate(bench, manager, store, events, found[1], f"rollback to version {version}", who,
+                           "compensation.rollback", version)
 
 
-@router.post("/from-model", response_class=PlainTextResponse, dependencies=AUTH,
-             responses={**TOML_ANSWER, **errors(401, 409, 422)})
-async def compensation_from_model(bench: Bench, manager: Manager, store: Store, events: Events) -> PlainTextResponse:
+@router.post("/from-model", response_class=PlainTextResponse,
+             responses={**TOML_ANSWER, **errors(401, 403, 409, 422)})
+async def compensation_from_model(bench: Bench, manager: Manager, store: Store, events: Events,
+                                  who: Annotated[Principal, Depends(require("compensation.edit"))]
+                                  ) -> PlainTextResponse:
     """The bench model's measuring-chain effects (scale, torsion) added to the compensator in use, kept as a new
     compensation version (an explicit step; the effects that cannot be compensator terms stay in the bench
     model and are named in the version's note). 422 when the bench model has none; 409 during a test."""
@@ -140,7 +153,8 @@ async def compensation_from_model(bench: Bench, manager: Manager, store: Store, 
     current = Compensator.loads(bench.compensator_toml(), "the compensation in use")
     note = (f"added {', '.join(t.type_name for t in terms)} from bench model version {version}"
             + (f"; left in the model: {', '.join(left)}" if left else ""))
-    answer = await _activate(bench, manager, store, events, current.with_terms(*terms).to_toml(), note[:200])
+    answer = await _activate(bench, manager, store, events, current.with_terms(*terms).to_toml(), note[:200], who,
+                             "compensation.from_model")
     # the moved effects are corrected in the measurement from now on: the bench model must not add them again
     kept = replace(model, terms=[t for t in model.terms if t.name in left])
     moved = await asyncio.to_thread(
@@ -148,4 +162,6 @@ async def compensation_from_model(bench: Bench, manager: Manager, store: Store, 
         f"moved {', '.join(sorted(set(t.name for t in model.terms) - set(left)))} to compensation version "
         f"{answer.headers['X-Compensation-Version']}")
     events.publish("bench_model", version=moved.version)
+    audit(store, who, "bench_model.move", target="bench model", before=f"v{version}", after=f"v{moved.version}",
+          detail=moved.note)
     return answer

@@ -5,10 +5,11 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Depends, Query, Response
 from fastapi.responses import FileResponse, HTMLResponse, PlainTextResponse
 
-from tcms_daq.service.deps import AUTH, Analyses, Manager, errors
+from tcms_daq.service.auth import Principal, require
+from tcms_daq.service.deps import Analyses, Manager, Store, errors
 from tcms_daq.service.schemas import (
     ApplyRequest,
     BenchModelView,
@@ -17,13 +18,14 @@ from tcms_daq.service.schemas import (
     DiscrepancyRequest,
 )
 from tcms_daq.service.testruns import Conflict
+from tcms_daq.service.users import audit
 
 router = APIRouter(prefix="/api/discrepancy", tags=["discrepancy"])
 model_router = APIRouter(prefix="/api/model", tags=["discrepancy"])
 
 
-@router.post("", status_code=201, response_model=DiscrepancyAnalysis, dependencies=AUTH,
-             responses=errors(401, 404, 409, 413, 422))
+@router.post("", status_code=201, response_model=DiscrepancyAnalysis,
+             dependencies=[Depends(require("discrepancy.run"))], responses=errors(401, 403, 404, 409, 413, 422))
 async def post_discrepancy(body: DiscrepancyRequest, response: Response, manager: Manager,
                            analyses: Analyses) -> dict[str, Any]:
     """Name the effects the bench model misses on a stored run (as ``tcms discrepancy --run ID --json``).
@@ -66,13 +68,20 @@ def get_discrepancy_model(analysis_id: str, analyses: Analyses) -> FileResponse:
     return FileResponse(analyses.path(analysis_id, "model.toml"), media_type="application/toml")
 
 
-@router.post("/{analysis_id}/apply", response_model=BenchModelView, dependencies=AUTH,
-             responses=errors(401, 404, 409, 413, 422))
-def apply_discrepancy(analysis_id: str, analyses: Analyses, body: ApplyRequest | None = None) -> dict[str, Any]:
+@router.post("/{analysis_id}/apply", response_model=BenchModelView, responses=errors(401, 403, 404, 409, 413, 422))
+def apply_discrepancy(analysis_id: str, analyses: Analyses, store: Store,
+                      who: Annotated[Principal, Depends(require("bench_model.apply"))],
+                      body: ApplyRequest | None = None) -> dict[str, Any]:
     """Add the effects an analysis named to the bench model, as its next version; the next analysis compares
     against it. 404 unknown analysis; 409 when the analysis was made against an older version (analyse the run
     again) or its names are provisional and ``accept_provisional`` is not set; 422 when it named nothing."""
-    return analyses.apply(analysis_id, accept_provisional=bool(body and body.accept_provisional))
+    before = store.bench_model()
+    view = analyses.apply(analysis_id, accept_provisional=bool(body and body.accept_provisional))
+    after = store.bench_model()
+    audit(store, who, "bench_model.apply", target=analysis_id,
+          before=f"v{before[0].version}" if before else "v0",
+          after=f"v{after[0].version} sha256 {after[0].sha256[:16]}" if after else None)
+    return view
 
 
 @model_router.get("", response_model=BenchModelView)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from fastapi import APIRouter, Request
-from fastapi.responses import FileResponse, PlainTextResponse
+from fastapi.responses import FileResponse, PlainTextResponse, Response
 
 from tcms_daq.service.metrics import render
 from tcms_daq.service.schemas import Health
@@ -36,3 +37,19 @@ def dashboard() -> FileResponse:
 def fleet() -> FileResponse:
     """The fleet page: every bench's runs (search, downloads, overlay of two loops) and SPC."""
     return FileResponse(STATIC_DIR / "fleet.html", media_type="text/html")
+
+
+@router.get("/favicon.ico", include_in_schema=False)
+def favicon() -> FileResponse:
+    """The pages' icon (browsers ask for /favicon.ico whatever the page links)."""
+    return FileResponse(STATIC_DIR / "favicon.svg", media_type="image/svg+xml")
+
+
+@router.get("/i18n/messages.js", include_in_schema=False)
+def messages_js() -> Response:
+    """The pages' message catalogues, one per language (tcms_daq/service/messages.py), as a script."""
+    from tcms_daq.service.messages import LANGUAGES, catalogue
+
+    doc = {lang: catalogue(lang) for lang in LANGUAGES}
+    body = "window.TCMS_MESSAGES = " + json.dumps(doc, ensure_ascii=False, sort_keys=True) + ";\n"
+    return Response(body, media_type="text/javascript; charset=utf-8", headers={"Cache-Control": "no-cache"})

@@ -2,32 +2,52 @@
 
 from __future__ import annotations
 
+import json
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Query, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.extras import require_extra
 from tcms_daq.service import exports
-from tcms_daq.service.deps import AUTH, Manager, RunWithSamplesDep, Store, StoredRunDep, errors
+from tcms_daq.service.auth import AUTOMATION, Principal, require
+from tcms_daq.service.deps import Manager, RunWithSamplesDep, Store, StoredRunDep, errors
+from tcms_daq.service.messages import language
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary, summary_view
+from tcms_daq.service.users import audit
 from tcms_daq.store import RunQuery, StoreError
+from tcms_daq.store.base import text_sha256
+from tcms_daq.store.people import SavedPlan
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
 
+Lang = Annotated[Literal["en", "zh", "zh-CN"] | None, Query(description="language of the words: en, zh")]
 MEDIA_TYPES = {fmt: media for fmt, (_, media, _) in exports.EXPORTERS.items()}
 
 
-@router.post("", status_code=202, response_model=TestAccepted, dependencies=AUTH,
-             responses=errors(401, 409, 413, 422))
-def create_test(body: TestRequest, manager: Manager) -> TestAccepted:
-    """Queue a test; 422 when it leaves the bench's or the reducer's bounds, 409 while another test runs."""
-    record = manager.submit(body)
+@router.post("", status_code=202, response_model=TestAccepted, responses=errors(401, 403, 409, 413, 422))
+def create_test(body: TestRequest, manager: Manager, store: Store,
+                who: Annotated[Principal, Depends(require("test.start"))]) -> TestAccepted:
+    """Queue a test (an engineer's right; an operator starts saved plans: ``POST /api/tests/from-plan``); 422
+    when it leaves the bench's or the reducer's bounds, 409 while another test runs."""
+    return start_test(manager, store, who, body)
+
+
+def start_test(manager: Manager, store: Store, who: Principal, request: TestRequest,
+               plan: SavedPlan | None = None) -> TestAccepted:
+    """The one way a test starts (a free request or a saved plan's): queued by the manager with its user and
+    plan, audited."""
+    plan_ref = None if plan is None else {"id": plan.id, "name": plan.name, "version": plan.version}
+    record = manager.submit(request, user=who.name, plan_ref=plan_ref)
+    audit(store, who, "test.start", target=record.id,
+          after=f"plan {plan.name} v{plan.version}" if plan is not None else
+          f"request sha256 {text_sha256(json.dumps(record.request, sort_keys=True))[:16]}",
+          detail=f"{request.reducer}, serial {request.serial_number or '—'}")
     return TestAccepted(id=record.id, status=record.status)
 
 
@@ -87,11 +107,13 @@ def get_profile(run: StoredRunDep) -> dict[str, Any]:
     return run.profile or {}
 
 
-@router.post("/{run_id}/abort", status_code=202, response_model=TestAccepted, dependencies=AUTH,
-             responses=errors(401, 404, 409))
-def abort_test(run_id: str, manager: Manager) -> TestAccepted:
+@router.post("/{run_id}/abort", status_code=202, response_model=TestAccepted, responses=errors(401, 403, 404, 409))
+def abort_test(run_id: str, manager: Manager, store: Store,
+               who: Annotated[Principal, Depends(require("test.abort"))]) -> TestAccepted:
     """Ramp down from the measured torque and disable the drive (within the bench's stop bound)."""
-    record = manager.abort(run_id)
+    record = manager.abort(run_id, reason="aborted by the operator" + (
+        f" ({who.name})" if who.role != AUTOMATION else ""))
+    audit(store, who, "test.abort", target=run_id, before=record.status, after="aborting")
     return TestAccepted(id=record.id, status="aborting")
 
 
@@ -125,20 +147,24 @@ def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
 @router.get("/{run_id}/certificate.pdf", response_class=Response, responses={
     **errors(404, 410), 200: {"description": "the test certificate", "content": {"application/pdf": {
         "schema": {"type": "string", "format": "binary"}}}}})
-def get_certificate(run: RunWithSamplesDep, store: Store) -> Response:
+def get_certificate(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> Response:
     """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
-    the instruments with their calibration and the compensation version (``tcms certificate`` writes the same)."""
+    the instruments with their calibration and the compensation version (``tcms certificate`` writes the same).
+    ``lang``: en or zh (default: the browser's Accept-Language, else English)."""
     from tcms_daq.service.certificate import render_certificate
 
-    pdf = render_certificate(run, store.read_columns(run.id))
+    pdf = render_certificate(run, store.read_columns(run.id),
+                             lang=language(lang, request.headers.get("accept-language")))
     return Response(pdf, media_type="application/pdf",
                     headers={"Content-Disposition": f'inline; filename="tcms-certificate-{run.id}.pdf"'})
 
 
 @router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404, 410))
-def get_report(run: RunWithSamplesDep, store: Store) -> HTMLResponse:
-    """A self-contained HTML report: the loop, the results and the verdict."""
-    return HTMLResponse(render_report(run, store.read_columns(run.id)))
+def get_report(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> HTMLResponse:
+    """A self-contained HTML report: the loop, the results and the verdict. ``lang``: en or zh (default: the
+    browser's Accept-Language, else English)."""
+    return HTMLResponse(render_report(run, store.read_columns(run.id),
+                                      lang=language(lang, request.headers.get("accept-language"))))
 
 
 @router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 410, 422))

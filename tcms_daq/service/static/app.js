@@ -17,9 +17,13 @@
     activeId: null, testState: "idle", eventSeq: 0, dirty: false, schema: null, resultId: null,
   };
 
-  // ---- the API token and requests (session.js) ----
+  // ---- words (i18n.js), the API token and requests (session.js) ----
+  const { t } = TcmsI18n;
+  TcmsI18n.apply(document);
+  TcmsI18n.bindSwitch($("lang"));
   const { withToken, escapeHtml } = TcmsSession;
-  TcmsSession.bindTokenField($("f-token"));
+  const link = (path) => withToken(TcmsI18n.withLang(path));
+  TcmsSession.bindTokenField($("f-token"), () => whoAmI());
 
   function message(text, isError) {
     $("message").textContent = text || "";
@@ -30,32 +34,42 @@
 
   // ---- plots ----
   function width(el) { return Math.max(300, el.clientWidth - 4); }
+  // At idle the traces are sensor noise: a y axis of at least this span (centred on the data) shows a flat line,
+  // not the noise blown up into a band; a test's excursion is far larger and sets its own span.
+  const MIN_SPAN = { torque: 20, angle: 20 };  // N·m, arcsec
+  function spanAtLeast(span) {
+    return (u, lo, hi) => {
+      if (lo == null || hi == null || !isFinite(lo) || !isFinite(hi)) return [-span / 2, span / 2];
+      const mid = (lo + hi) / 2, half = Math.max((hi - lo) * 0.55, span / 2);
+      return [mid - half, mid + half];
+    };
+  }
 
   const torquePlot = new uPlot({
-    width: width($("plot-torque")), height: 220,
-    scales: { x: { time: false } },
-    axes: [{ label: "time / s" }, { label: "torque / N·m", size: 60 }],
-    series: [{ label: "t / s" }, { label: "torque / N·m", stroke: "#1f5fa8", width: 1 }],
+    width: width($("plot-torque")), height: 200,
+    scales: { x: { time: false }, y: { range: spanAtLeast(MIN_SPAN.torque) } },
+    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_torque"), size: 60 }],
+    series: [{ label: "t / s" }, { label: t("dash.axis_torque"), stroke: "#1f5fa8", width: 1 }],
     legend: { live: false },
   }, [[], []], $("plot-torque"));
 
   const anglePlot = new uPlot({
-    width: width($("plot-angle")), height: 220,
-    scales: { x: { time: false } },
-    axes: [{ label: "time / s" }, { label: "angle / arcsec", size: 70 }],
+    width: width($("plot-angle")), height: 200,
+    scales: { x: { time: false }, y: { range: spanAtLeast(MIN_SPAN.angle) } },
+    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_angle"), size: 70 }],
     series: [
       { label: "t / s" },
-      { label: "raw encoder", stroke: "#b8c0cc", width: 1 },
-      { label: "compensated", stroke: "#d9771e", width: 1 },
+      { label: t("dash.raw_encoder"), stroke: "#b8c0cc", width: 1 },
+      { label: t("dash.compensated"), stroke: "#d9771e", width: 1 },
     ],
     legend: { live: false },
   }, [[], [], []], $("plot-angle"));
 
   const loopPlot = new uPlot({
     mode: 2,
-    width: width($("plot-loop")), height: 380,
+    width: width($("plot-loop")), height: 330,
     scales: { x: { time: false, auto: true }, y: { auto: true } },
-    axes: [{ label: "torque / N·m" }, { label: "compensated angle / arcsec", size: 70 }],
+    axes: [{ label: t("dash.axis_torque") }, { label: t("dash.axis_loop_angle"), size: 70 }],
     series: [
       {},
       { label: "hysteresis loop", stroke: "#157a2e", width: 1.5, paths: uPlot.paths.linear(), points: { show: false },
@@ -66,9 +80,9 @@
   }, [null, [[], []]], $("plot-loop"));
 
   window.addEventListener("resize", () => {
-    torquePlot.setSize({ width: width($("plot-torque")), height: 220 });
-    anglePlot.setSize({ width: width($("plot-angle")), height: 220 });
-    loopPlot.setSize({ width: width($("plot-loop")), height: 380 });
+    torquePlot.setSize({ width: width($("plot-torque")), height: 200 });
+    anglePlot.setSize({ width: width($("plot-angle")), height: 200 });
+    loopPlot.setSize({ width: width($("plot-loop")), height: 330 });
   });
 
   // ---- live stream ----
@@ -138,10 +152,31 @@
       $("loop-points").textContent = state.loop.x.length;
       $("live-frames").textContent = state.frames;
       $("live-dropped").textContent = state.dropped;
+      showReadouts();
     }
     requestAnimationFrame(paint);
   }
   requestAnimationFrame(paint);
+
+  // the large readouts: the newest samples of the live stream (their mean over 20 ms, so the last digit is not
+  // the sensor's noise), torque to 0.1 N·m and angle to 0.1″: the live view, not a result
+  function newest(key, n) {
+    const last = state.chunks[state.chunks.length - 1];
+    if (!last || !last[key].length) return null;
+    const col = last[key], from = Math.max(0, col.length - n);
+    let sum = 0, count = 0;
+    for (let i = from; i < col.length; i++) if (isFinite(col[i])) { sum += col[i]; count++; }
+    return count ? sum / count : null;
+  }
+  function showReadouts() {
+    const n = Math.max(1, Math.round(((state.schema && state.schema.rate_hz) || 1000) * 0.02));
+    const torque = newest("torque", n), angle = newest("angle", n);
+    $("ro-torque").textContent = torque === null ? "–" : (Math.abs(torque) < 0.05 ? 0 : torque).toFixed(1);
+    // an output turned to another position reads in degrees (648000″ is 180°), near zero in arcseconds
+    const degrees = angle !== null && Math.abs(angle) >= 3600;
+    $("ro-angle").textContent = angle === null ? "–" : degrees ? (angle / 3600).toFixed(4) : angle.toFixed(1);
+    $("ro-angle-unit").textContent = degrees ? "°" : "″";
+  }
 
   function wsUrl(path) {
     return (location.protocol === "https:" ? "wss://" : "ws://") + location.host + withToken(path);
@@ -150,12 +185,12 @@
   function connectLive() {
     const ws = new WebSocket(wsUrl("/ws/live"));
     ws.binaryType = "arraybuffer";
-    ws.onopen = () => { $("live-state").textContent = "connected"; };
+    ws.onopen = () => { $("live-state").textContent = t("dash.connected"); };
     ws.onmessage = (ev) => {
       if (typeof ev.data === "string") { state.schema = JSON.parse(ev.data); state.lastSeq = 0; return; }
       onFrame(parseFrame(ev.data));
     };
-    ws.onclose = () => { $("live-state").textContent = "reconnecting"; setTimeout(connectLive, 1000); };
+    ws.onclose = () => { $("live-state").textContent = t("dash.reconnecting"); setTimeout(connectLive, 1000); };
   }
   connectLive();
 
@@ -163,15 +198,18 @@
   function setTestState(id, status) {
     if (id) { state.activeId = id; $("test-id").textContent = id; }
     state.testState = status;
-    $("test-state").textContent = status;
+    $("test-state").textContent = t("state." + status);
+    $("ro-state").textContent = t("state." + status);
+    $("ro-state").dataset.state = status;
     const active = status === "queued" || status === "running";
     $("start").disabled = active;
     $("abort").disabled = !active;
+    if (!active) { $("ro-eta").textContent = "–"; $("ro-eta-unit").textContent = ""; $("ro-phase").textContent = ""; }
   }
 
   function connectEvents() {
     const ws = new WebSocket(wsUrl("/ws/events" + (state.eventSeq ? "?since=" + state.eventSeq : "")));
-    ws.onopen = () => { $("events-state").textContent = "connected"; };
+    ws.onopen = () => { $("events-state").textContent = t("dash.connected"); };
     ws.onmessage = (ev) => {
       const e = JSON.parse(ev.data);
       if (e.type === "hello") { if (!state.eventSeq) syncBench(); return; }
@@ -181,29 +219,32 @@
         setTestState(e.id, e.status);
         if (["completed", "aborted", "failed", "interrupted"].includes(e.status)) {
           $("test-phase").textContent = "–";
+          $("ro-phase").textContent = "";
           $("progress").hidden = true;
           state.outputMoving = false;
           $("progress-text").textContent = "";
           showResults(e.id);
           loadHistory();
-          if (e.error) message(e.status + ": " + e.error, e.status !== "aborted");
-          else message("test " + e.status);
+          if (e.error) message(t("state." + e.status) + ": " + e.error, e.status !== "aborted");
+          else message(t("dash.test_ended", { status: t("state." + e.status) }));
         }
       } else if (e.type === "test_phase") {
         $("test-phase").textContent = e.phase;
+        $("ro-phase").textContent = e.phase;
       } else if (e.type === "test_progress") {
         showProgress(e);
       }
     };
-    ws.onclose = () => { $("events-state").textContent = "reconnecting"; setTimeout(connectEvents, 1000); };
+    ws.onclose = () => { $("events-state").textContent = t("dash.reconnecting"); setTimeout(connectEvents, 1000); };
   }
 
   // progress of the active test (test_progress events): the bar is the elapsed share of elapsed + ETA; times in
   // real seconds (clock seconds divided by the simulated clock's speed)
   function duration(s) {
     s = Math.max(0, Math.round(s));
-    return s >= 3600 ? Math.floor(s / 3600) + " h " + Math.floor((s % 3600) / 60) + " min"
-      : s >= 60 ? Math.floor(s / 60) + " min " + (s % 60) + " s" : s + " s";
+    const [h, m, sec] = [t("dash.hours"), t("dash.minutes"), t("dash.seconds")];
+    return s >= 3600 ? Math.floor(s / 3600) + " " + h + " " + Math.floor((s % 3600) / 60) + " " + m
+      : s >= 60 ? Math.floor(s / 60) + " " + m + " " + (s % 60) + " " + sec : s + " " + sec;
   }
   function showProgress(e) {
     // the output turns to the next position: no loop points meanwhile; the new position's loops (degrees away
@@ -216,11 +257,15 @@
     $("progress").hidden = false;
     $("progress-bar").style.width = (100 * share).toFixed(1) + "%";
     const parts = [];
-    if (e.positions > 1) parts.push("position " + e.position + "/" + e.positions + (e.position_deg != null ? " (" + fmt(e.position_deg) + "°)" : ""));
-    else if (e.stages > 1) parts.push("rate " + e.stage + "/" + e.stages + (e.rate_nm_per_s != null ? " (" + fmt(e.rate_nm_per_s) + " N·m/s)" : ""));
-    parts.push(e.moving ? "moving" : e.loop === 0 ? "conditioning loop" : e.loop > 0 ? "loop " + e.loop + "/" + e.loops : "approach / return");
-    parts.push("elapsed " + duration(done), "ETA " + duration(left));
+    if (e.positions > 1) parts.push(t("prog.position", { n: e.position, of: e.positions }) + (e.position_deg != null ? " (" + fmt(e.position_deg) + "°)" : ""));
+    else if (e.stages > 1) parts.push(t("prog.rate", { n: e.stage, of: e.stages }) + (e.rate_nm_per_s != null ? " (" + fmt(e.rate_nm_per_s) + " N·m/s)" : ""));
+    parts.push(e.moving ? t("prog.moving") : e.loop === 0 ? t("prog.conditioning") : e.loop > 0 ? t("prog.loop", { n: e.loop, of: e.loops }) : t("prog.approach"));
+    parts.push(t("prog.elapsed", { time: duration(done) }), t("prog.eta", { time: duration(left) }));
     $("progress-text").textContent = parts.join(" · ");
+    // the readout: real seconds left (the clock's seconds divided by a simulated clock's speed)
+    const secondsLeft = Math.max(0, Math.round(left));
+    $("ro-eta").textContent = secondsLeft >= 60 ? Math.floor(secondsLeft / 60) + ":" + String(secondsLeft % 60).padStart(2, "0") : String(secondsLeft);
+    $("ro-eta-unit").textContent = secondsLeft >= 60 ? t("dash.minutes") + ":" + t("dash.seconds") : t("dash.seconds");
   }
 
   // per-position / per-rate table of a test of several stages, and its summary (max, min, spread)
@@ -229,26 +274,39 @@
     const entries = res.positions || res.rates;
     if (!entries || !entries.length) { table.hidden = true; return; }
     const positional = !!res.positions;
+    const KEYS = ["rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec"];
+    // each value to the decimal place of its U; the summary rows to that of the largest U of their column
+    const largestU = {};
+    for (const k of KEYS) {
+      const us = entries.map((e) => e.uncertainty && e.uncertainty[k] && e.uncertainty[k].U).filter((u) => typeof u === "number" && u > 0);
+      largestU[k] = us.length ? Math.max(...us) : null;
+    }
     const cell = (e, k) => {
       const u = e.uncertainty && e.uncertainty[k];
-      return typeof e[k] !== "number" ? "–" : u && typeof u.U === "number" ? fmt(e[k]) + " ± " + fmt(+u.U.toPrecision(2)) : fmt(e[k]);
+      if (typeof e[k] !== "number") return "–";
+      if (!u || !(u.U > 0)) return fmt3(e[k]);
+      const [v, r] = roundToU(e[k], u.U);
+      return v + " ± " + r;
     };
-    table.tHead.innerHTML = "<tr><th>" + (positional ? "position / °" : "rate / N·m/s") +
-      "</th><th>rigidity / N·m/arcmin</th><th>lost motion / ″</th><th>backlash / ″</th></tr>";
+    const summary = (k, v) => typeof v !== "number" ? "–" : largestU[k] ? roundToU(v, largestU[k])[0] : fmt3(v);
+    table.tHead.innerHTML = "<tr><th>" + escapeHtml(positional ? t("res.position") : t("res.rate")) + "</th>" +
+      ["res.rigidity_short", "res.lost_motion_short", "res.backlash_short"].map((k) => "<th>" + escapeHtml(t(k)) + "</th>").join("") + "</tr>";
     const rows = entries.map((e) => [positional ? fmt(e.position_deg) : fmt(e.rate_nm_per_s),
       cell(e, "rigidity_nm_per_arcmin"), cell(e, "lost_motion_arcsec"), cell(e, "backlash_arcsec")]);
     for (const stat of ["max", "min", "spread"]) {
-      rows.push([stat, ...["rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec"].map((k) => fmt(res[k + "_" + stat]))]);
+      rows.push([t("res." + stat), ...KEYS.map((k) => summary(k, res[k + "_" + stat]))]);
     }
     const sens = res.rate_sensitivity;
-    if (sens) rows.push(["per decade of rate", ...["rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec"].map((k) =>
-      typeof sens[k + "_per_decade"] === "number" ? fmt(sens[k + "_per_decade"]) : "–")]);
+    if (sens) rows.push([t("res.per_decade"), ...KEYS.map((k) =>
+      typeof sens[k + "_per_decade"] === "number" ? fmt2(sens[k + "_per_decade"]) : "–")]);
     table.tBodies[0].innerHTML = rows.map((r) => "<tr>" + r.map((c, i) => (i ? "<td>" : "<th>") + escapeHtml(String(c)) + (i ? "</td>" : "</th>")).join("") + "</tr>").join("");
     table.hidden = false;
   }
 
   function resetLoop() { state.loop = { x: [], y: [], stride: 1, counter: 0 }; state.dirty = true; }
 
+  // three significant digits for a value without a stated U (never six)
+  function fmt3(v) { return typeof v === "number" ? String(+v.toPrecision(3)) : "–"; }
   function fmt(v) { return typeof v === "number" ? (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(4) : +v.toPrecision(6)) : String(v); }
   function verdictClass(v) {
     if (v === true || v === "pass" || v === "passed") return "pass";
@@ -268,7 +326,7 @@
   }
   function fmtU(value, entry) {
     if (typeof value !== "number") return "–";
-    if (!entry || typeof entry.U !== "number" || !(entry.U > 0)) return fmt(value) + " (U not stated)";
+    if (!entry || typeof entry.U !== "number" || !(entry.U > 0)) return fmt3(value) + " (" + t("res.u_not_stated") + ")";
     const [v, u] = roundToU(value, entry.U);
     return `${v} ± ${u}` + (typeof entry.k === "number" ? ` (k = ${entry.k.toFixed(2)})` : "");
   }
@@ -279,14 +337,23 @@
   // the verdict checks with their ISO 14253-1 decision, the warnings; results of an unknown shape fall back to
   // their top-level scalars.
   const HEADLINE = [
-    ["rigidity_nm_per_arcmin", "rigidity / N·m/arcmin", true],
-    ["lost_motion_arcsec", "lost motion / arcsec", true],
-    ["backlash_arcsec", "backlash / arcsec", true],
-    ["loading_rate_nm_per_s", "loading rate / N·m/s", false],
-    ["test_torque_nm", "test torque / N·m", false],
-    ["n_loops", "evaluated loops", false],
+    ["rigidity_nm_per_arcmin", t("res.rigidity"), true],
+    ["lost_motion_arcsec", t("res.lost_motion"), true],
+    ["backlash_arcsec", t("res.backlash"), true],
+    ["loading_rate_nm_per_s", t("res.loading_rate"), false],
+    ["test_torque_nm", t("res.test_torque"), false],
+    ["n_loops", t("res.n_loops"), false],
   ];
-  const DECISION_WORD = { pass: "PASS", fail: "FAIL", undecided: "UNDECIDED" };
+  const DECISION_WORD = { pass: t("res.pass"), fail: t("res.fail"), undecided: t("res.undecided") };
+  // a check's requirement in this page's language ("扭转刚度 ≥ 235.2 N·m/arcmin"); the service's own label else
+  const QUANTITY = { rigidity_nm_per_arcmin: ["res.rigidity", "N·m/arcmin"], lost_motion_arcsec: ["res.lost_motion", "″"],
+    backlash_arcsec: ["res.backlash", "″"] };
+  function checkLabel(c) {
+    const q = QUANTITY[c.quantity];
+    const op = { ">=": "≥", "<=": "≤", ">": ">", "<": "<" }[c.comparison];
+    if (TcmsI18n.lang === "en" || !q || !op || typeof c.limit !== "number") return c.label || `${c.quantity} ${c.comparison} ${fmt(c.limit)}`;
+    return `${t(q[0]).split(" / ")[0]} ${op} ${fmt(c.limit)}${q[1] === "″" ? "″" : " " + q[1]}`;
+  }
   function decisionOf(c) { return c.decision || (c.passed ? "pass" : "fail"); }
 
   function resultRows(res) {
@@ -298,29 +365,29 @@
       if (uncertain) {
         const entry = unc[key];
         const notes = [];
-        if (entry && entry.dominant) notes.push("dominant: " + entry.dominant);
-        if (typeof std[key] === "number") notes.push("std over loops " + fmt2(std[key]));
+        if (entry && entry.dominant) notes.push(t("res.dominant", { name: entry.dominant }));
+        if (typeof std[key] === "number") notes.push(t("res.std", { value: fmt2(std[key]) }));
         rows.push([label, fmtU(res[key], entry), "", notes.join(" · ")]);
       } else {
-        rows.push([label, fmt(res[key]), ""]);
+        rows.push([label, fmt3(res[key]), ""]);
       }
     }
     for (const k of ["k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"]) {
       if (typeof res[k] === "number") rows.push([k.slice(0, 2).toUpperCase() + " / N·m/rad", fmtU(res[k], unc[k]), ""]);
     }
-    if (res.uncertainty_basis) rows.push(["U (95 %) basis", res.uncertainty_basis, "muted"]);
+    if (res.uncertainty_basis) rows.push([t("res.u_basis"), res.uncertainty_basis, "muted"]);
     const verdict = res.verdict;
     if (verdict && typeof verdict === "object") {
       for (const [name, c] of Object.entries(verdict.checks || {})) {
         const d = decisionOf(c);
-        const guard = typeof c.guard_band === "number" && c.guard_band > 0 ? ", guard band " + fmt2(c.guard_band) : "";
-        rows.push([c.label || `${c.quantity} ${c.comparison} ${fmt(c.limit)}`, DECISION_WORD[d] + " (" + fmt(c.value) + guard + ")", d]);
+        const guard = typeof c.guard_band === "number" && c.guard_band > 0 ? ", " + t("res.guard_band", { value: fmt2(c.guard_band) }) : "";
+        rows.push([checkLabel(c), DECISION_WORD[d] + " (" + fmt3(c.value) + guard + ")", d]);
       }
       const d = decisionOf(verdict);
       // the decision first: it is what the operator looks for
-      rows.unshift(["decision", DECISION_WORD[d] + (verdict.rule ? " (ISO 14253-1, " + verdict.rule + " rule)" : ""), d]);
+      rows.unshift([t("res.decision"), DECISION_WORD[d] + (verdict.rule ? " (" + t("res.rule", { rule: verdict.rule }) + ")" : ""), d]);
     }
-    for (const w of res.warnings || []) rows.push(["warning", String(w), "warning"]);
+    for (const w of res.warnings || []) rows.push([t("res.warning"), String(w), "warning"]);
     if (!rows.length) {
       for (const [k, v] of Object.entries(res)) {
         if (v === null || typeof v === "object") continue;
@@ -338,7 +405,7 @@
     const rows = run.results ? resultRows(run.results) : [];
     showStages(run.results || {});
     if (!rows.length) {
-      body.innerHTML = `<tr><td class="muted">${run.status}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
+      body.innerHTML = `<tr><td class="muted">${escapeHtml(t("state." + run.status))}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
     }
     for (const [label, value, cls, note] of rows) {
       const tr = document.createElement("tr");
@@ -346,10 +413,17 @@
         (note ? `<div class="note">${escapeHtml(note)}</div>` : "") + `</td>`;
       body.appendChild(tr);
     }
-    const link = $("report-link");
-    link.href = withToken("/api/tests/" + encodeURIComponent(id) + "/report");
-    link.hidden = false;
+    const report = $("report-link");
+    report.href = link("/api/tests/" + encodeURIComponent(id) + "/report");
+    report.hidden = false;
     state.resultId = id;
+    // a page opened after the test draws the test's loop from the store
+    if (!state.loop.x.length && run.sample_count > 0 && !["queued", "running"].includes(run.status)) {
+      try {
+        const loop = await api("GET", "/api/tests/" + encodeURIComponent(id) + "/loop?max_points=" + LOOP_MAX_POINTS);
+        if (!state.loop.x.length) { state.loop = { x: loop.torque_nm, y: loop.angle_arcsec, stride: 1, counter: 0 }; state.dirty = true; }
+      } catch (e) { /* the live loop stays empty */ }
+    }
     $("discrepancy").disabled = !(run.sample_count > 0) || ["queued", "running"].includes(run.status);
     $("discrepancy-link").hidden = true;
     $("discrepancy-result").textContent = "";
@@ -392,7 +466,7 @@
     $("apply-effects").disabled = true;
     try {
       const m = await api("POST", "/api/discrepancy/" + d.id + "/apply", body);
-      message("bench model version " + m.version + ": " + m.history[0].note);
+      message(t("dash.model_saved", { version: m.version, note: m.history[0].note }));
       $("apply-effects").hidden = true;
       await loadModel();
     } catch (e) {
@@ -406,11 +480,11 @@
     if (!id) return;
     $("discrepancy").disabled = true;
     $("apply-effects").hidden = true;
-    $("discrepancy-result").textContent = "analysing run " + id + " …";
+    $("discrepancy-result").textContent = t("dash.analysing", { id });
     try {
       const d = await api("POST", "/api/discrepancy", { run_id: id });
       state.analysis = d;
-      $("discrepancy-result").textContent = describeDiscrepancy(d) + " (against bench model v" + d.model_version + ")";
+      $("discrepancy-result").textContent = describeDiscrepancy(d) + " " + t("dash.against_model", { version: d.model_version });
       const named = d.effects.length > 0 || d.aliases.some((a) => a.in_model);
       $("apply-effects").hidden = !named;
       $("apply-effects").disabled = !named;
@@ -425,16 +499,24 @@
     }
   });
 
+  // this bench's own recent runs (a store several benches share lists every bench's on the fleet page)
   async function loadHistory() {
     let runs = [];
-    try { runs = await api("GET", "/api/tests?limit=8"); } catch (e) { return; }
+    const bench = state.benchId ? "&bench=" + encodeURIComponent(state.benchId) : "";
+    try { runs = await api("GET", "/api/tests?limit=8" + bench); } catch (e) { return; }
+    // a page opened after a test shows that test's results
+    if (!state.resultId && runs.length && !["queued", "running"].includes(runs[0].status)) showResults(runs[0].id);
     const body = $("history").tBodies[0];
     body.innerHTML = "";
     for (const r of runs) {
       const tr = document.createElement("tr");
-      tr.innerHTML = `<td>${escapeHtml(r.id)}</td><td>${escapeHtml(String(r.request.reducer || ""))}</td>` +
-        `<td>${escapeHtml(r.status)}</td><td><a href="${escapeHtml(withToken("/api/tests/" + encodeURIComponent(r.id) + "/report"))}" target="_blank">report</a> ` +
-        `<a href="${escapeHtml(withToken("/api/tests/" + encodeURIComponent(r.id) + "/certificate.pdf"))}" target="_blank">certificate</a></td>`;
+      const id = encodeURIComponent(r.id);
+      tr.title = r.id;  // the run's time names it here; its id is on hover and in the report
+      tr.innerHTML = `<td>${escapeHtml((r.created_at || "").slice(5, 16).replace("T", " "))}</td><td>${escapeHtml(String(r.request.serial_number || "—"))}</td>` +
+        `<td>${escapeHtml(t("state." + r.status))}</td>` +
+        `<td class="${escapeHtml(r.verdict || "")}">${escapeHtml(r.verdict ? t("verdict." + r.verdict) : "—")}</td>` +
+        `<td class="files"><a href="${escapeHtml(link("/api/tests/" + id + "/report"))}" target="_blank">${escapeHtml(t("dash.report"))}</a>` +
+        `<a href="${escapeHtml(link("/api/tests/" + id + "/certificate.pdf"))}" target="_blank">${escapeHtml(t("dash.certificate"))}</a></td>`;
       body.appendChild(tr);
     }
   }
@@ -443,6 +525,7 @@
     try {
       const bench = await api("GET", "/api/bench");
       $("bench-name").textContent = bench.name || "";
+      if (bench.id && bench.id !== state.benchId) { state.benchId = bench.id; loadHistory(); }
       const sel = $("f-reducer");
       if (!sel.options.length) {
         for (const r of bench.reducers || []) {
@@ -492,8 +575,8 @@
     $("test-form").classList.toggle("stepped", $("f-profile").value === "stepped");
   });
 
-  $("test-form").addEventListener("submit", async (ev) => {
-    ev.preventDefault();
+  // the form as a test request (POST /api/tests; a saved plan keeps the same body)
+  function formRequest() {
     const req = {
       reducer: $("f-reducer").value,
       max_torque_nm: parseFloat($("f-torque").value),
@@ -512,24 +595,110 @@
     if (rates) { req.rates = rates.split(",").map(Number); delete req.rate_nm_per_s; }
     if ($("f-serial").value.trim()) req.serial_number = $("f-serial").value.trim();
     if ($("f-operator").value.trim()) req.operator = $("f-operator").value.trim();
+    return req;
+  }
+
+  $("test-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const req = formRequest();
+    const planId = $("f-plan").value;
     try {
-      const res = await api("POST", "/api/tests", req);
+      // a saved plan starts through POST /api/tests/from-plan: the plan's request with this unit's fields
+      const res = planId
+        ? await api("POST", "/api/tests/from-plan", Object.assign({ plan_id: parseInt(planId, 10) },
+          req.serial_number ? { serial_number: req.serial_number } : {}, req.operator ? { operator: req.operator } : {}))
+        : await api("POST", "/api/tests", req);
       if (state.activeId !== res.id) {  // the event channel may already have reported this test
         resetLoop();
         setTestState(res.id, res.status);
       }
-      message("test " + res.id + " started");
+      message(t("dash.started", { id: res.id }));
     } catch (e) { message(e.message, true); }
   });
 
   $("abort").addEventListener("click", async () => {
     if (!state.activeId) return;
-    try { await api("POST", "/api/tests/" + encodeURIComponent(state.activeId) + "/abort"); message("abort requested"); }
+    try { await api("POST", "/api/tests/" + encodeURIComponent(state.activeId) + "/abort"); message(t("dash.abort_requested")); }
     catch (e) { message(e.message, true); }
   });
 
+  // ---- saved plans: the picker fills the form (its test fields fixed) and starts the plan; "save as plan"
+  // keeps the form's test as the next version of a named plan ----
+  const PLAN_FIELDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
+    rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates" };
+  async function loadPlans(selectId) {
+    let plans = [];
+    try { plans = await api("GET", "/api/plans"); } catch (e) { return; }
+    state.plans = new Map(plans.map((p) => [String(p.id), p]));
+    const select = $("f-plan");
+    select.length = 1;
+    for (const p of plans) {
+      const o = document.createElement("option");
+      o.value = p.id; o.textContent = t("dash.plan_option", { name: p.name, version: p.version });
+      o.title = p.note || "";
+      select.appendChild(o);
+    }
+    if (selectId !== undefined) { select.value = String(selectId); showPlan(); }
+  }
+  function showPlan() {
+    const plan = (state.plans || new Map()).get($("f-plan").value);
+    const form = $("test-form");
+    form.classList.toggle("from-plan", !!plan);
+    for (const [key, id] of Object.entries(PLAN_FIELDS)) {
+      const el = $(id);
+      el.disabled = !!plan;
+      el.closest("label").classList.toggle("plan-fixed", !!plan);
+      if (!plan) continue;
+      const v = plan.request[key];
+      el.value = v === undefined || v === null ? "" : Array.isArray(v) ? v.join(",") : String(v);
+    }
+    if (plan) form.classList.toggle("stepped", plan.request.profile === "stepped");
+  }
+  $("f-plan").addEventListener("change", showPlan);
+  $("save-plan").addEventListener("click", async () => {
+    const name = $("p-name").value.trim();
+    if (!name) { $("p-name").focus(); return; }
+    const req = formRequest();
+    delete req.serial_number; delete req.operator;
+    try {
+      const saved = await api("POST", "/api/plans", { name, request: req });
+      message(t("dash.plan_saved", { name: saved.name, version: saved.version }));
+      await loadPlans(saved.id);
+    } catch (e) { message(e.message, true); }
+  });
+
+  // ---- who is signed in (GET /api/me): the token's user, the session's, or a sign-in form ----
+  async function whoAmI() {
+    const who = $("who");
+    try {
+      const me = await api("GET", "/api/me");
+      who.innerHTML = escapeHtml(t("dash.signed_in_as", { name: me.name, role: me.role })) +
+        (me.via === "session" ? ` <button type="button" id="sign-out">${escapeHtml(t("dash.sign_out"))}</button>` : "");
+      $("login-box").hidden = true;
+      const out = $("sign-out");
+      if (out) out.addEventListener("click", async () => { try { await api("POST", "/api/logout"); } catch (e) { /* gone */ } whoAmI(); });
+      $("save-plan").disabled = !me.rights.includes("plan.edit");
+      $("start").title = me.rights.includes("test.start") ? "" : t("dash.plan");
+    } catch (e) {
+      who.textContent = "";
+      $("login-box").hidden = false;
+    }
+  }
+  $("login-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    try {
+      await api("POST", "/api/login", { name: $("l-name").value.trim(), password: $("l-password").value });
+      $("l-password").value = "";
+      message("");
+      await whoAmI();
+    } catch (e) { message(e.message, true); }
+  });
+
   window.tcms = { state, loopPoints: () => state.loop.x.length };
+  setTestState(null, "idle");
   connectEvents();
   loadHistory();
   loadModel();
+  loadPlans();
+  whoAmI();
 })();

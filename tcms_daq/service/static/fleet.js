@@ -6,9 +6,13 @@
   const $ = (id) => document.getElementById(id);
   const state = { offset: 0, total: 0, selected: [], runs: new Map() };
 
+  const { t } = TcmsI18n;
+  TcmsI18n.apply(document);
+  TcmsI18n.bindSwitch($("lang"));
   const { withToken } = TcmsSession;
+  const link = (path) => withToken(TcmsI18n.withLang(path));
   const esc = TcmsSession.escapeHtml;
-  TcmsSession.bindTokenField($("f-token"), () => search());
+  TcmsSession.bindTokenField($("f-token"), () => { search(); loadAudit(); });
 
   function message(text, isError) { $("message").textContent = text || ""; $("message").className = isError ? "error" : ""; }
   async function api(path) {
@@ -17,6 +21,9 @@
   }
   function utc(local) { return local ? local + (local.length === 16 ? ":00" : "") + "Z" : ""; }  // datetime-local as UTC
   function width(el) { return Math.max(300, el.clientWidth - 4); }
+
+  // a headline result as the API words it, "U not stated" in this page's language
+  function shown(text) { return text ? text.replace("U not stated", t("res.u_not_stated")) : "—"; }
 
   // ---- the table ----
   function query() {
@@ -37,7 +44,7 @@
     $("total").textContent = state.total;
     const limit = parseInt($("f-limit").value, 10);
     const first = state.total ? state.offset + 1 : 0;
-    $("page").textContent = `${first}–${Math.min(state.offset + limit, state.total)} of ${state.total}`;
+    $("page").textContent = t("fleet.page", { first, last: Math.min(state.offset + limit, state.total), total: state.total });
     $("prev").disabled = state.offset === 0;
     $("next").disabled = state.offset + limit >= state.total;
     const body = $("runs").tBodies[0];
@@ -45,25 +52,25 @@
     for (const r of answer.data) {
       state.runs.set(r.id, r);
       const id = encodeURIComponent(r.id);
-      const file = (label, path) => `<a href="${esc(withToken(path))}" target="_blank">${label}</a>`;
+      const file = (label, path) => `<a href="${esc(label === "report" || label === "certificate" ? link(path) : withToken(path))}" target="_blank">${esc(label === "report" ? t("dash.report") : label === "certificate" ? t("dash.certificate") : label)}</a>`;
       const h = r.headline || {};
       const tr = document.createElement("tr");
       tr.dataset.id = r.id;
       if (state.selected.includes(r.id)) tr.classList.add("selected");
       tr.innerHTML =
         `<td><input type="checkbox" class="pick" ${state.selected.includes(r.id) ? "checked" : ""}></td>` +
-        `<td>${esc(r.id)}</td><td>${esc((r.created_at || "").replace("T", " ").slice(0, 19))}</td>` +
-        `<td title="${esc(r.bench_name)}">${esc(r.bench_id || "—")}</td><td>${esc(r.request.reducer)}</td>` +
-        `<td>${esc(r.request.serial_number || "—")}</td><td>${esc(r.request.operator || "—")}</td>` +
-        `<td>${esc(r.status)}</td><td class="${esc(r.verdict || "")}">${esc(r.verdict || "—")}</td>` +
-        `<td>${esc(h.rigidity_nm_per_arcmin || "—")}</td><td>${esc(h.lost_motion_arcsec || "—")}</td>` +
-        `<td>${esc(h.backlash_arcsec || "—")}</td>` +
+        `<td class="nowrap">${esc(r.id)}</td><td class="nowrap">${esc((r.created_at || "").replace("T", " ").slice(0, 19))}</td>` +
+        `<td class="nowrap" title="${esc(r.bench_name)}">${esc(r.bench_id || "—")}</td><td class="nowrap">${esc(r.request.reducer)}</td>` +
+        `<td class="nowrap">${esc(r.request.serial_number || "—")}</td><td class="nowrap">${esc(r.request.operator || "—")}</td>` +
+        `<td class="nowrap">${esc(t("state." + r.status))}</td><td class="nowrap ${esc(r.verdict || "")}">${esc(r.verdict ? t("verdict." + r.verdict) : "—")}</td>` +
+        `<td class="result">${esc(shown(h.rigidity_nm_per_arcmin))}</td><td class="result">${esc(shown(h.lost_motion_arcsec))}</td>` +
+        `<td class="result">${esc(shown(h.backlash_arcsec))}</td>` +
         `<td class="files">${file("report", `/api/tests/${id}/report`)}${file("certificate", `/api/tests/${id}/certificate.pdf`)}` +
         `${file("CSV", `/api/tests/${id}/samples?format=csv`)}${file("JSON", `/api/tests/${id}/metadata`)}` +
         `${file("Parquet", `/api/tests/${id}/samples?format=parquet`)}${file("MDF4", `/api/tests/${id}/samples?format=mdf4`)}</td>`;
       body.appendChild(tr);
     }
-    if (!answer.data.length) body.innerHTML = `<tr><td colspan="13" class="muted">no test matches</td></tr>`;
+    if (!answer.data.length) body.innerHTML = `<tr><td colspan="13" class="muted">${esc(t("fleet.none"))}</td></tr>`;
   }
 
   $("filters").addEventListener("submit", (ev) => { ev.preventDefault(); state.offset = 0; search(); });
@@ -90,7 +97,7 @@
   let overlayPlot = null;
   async function overlay() {
     const ids = state.selected.slice();
-    $("overlay-ids").textContent = ids.length ? ids.join(" vs ") : "select two runs (⊕)";
+    $("overlay-ids").textContent = ids.length ? ids.join(" vs ") : t("fleet.select_two");
     let loops = [];
     try { loops = await Promise.all(ids.map((id) => api(`/api/tests/${encodeURIComponent(id)}/loop?max_points=3000`).then((a) => a.data))); }
     catch (e) { message(e.message, true); return; }
@@ -100,7 +107,7 @@
     overlayPlot = new uPlot({
       mode: 2, width: width($("plot-overlay")), height: 380,
       scales: { x: { time: false, auto: true }, y: { auto: true } },
-      axes: [{ label: "torque / N·m" }, { label: "compensated angle / arcsec", size: 70 }],
+      axes: [{ label: t("dash.axis_torque") }, { label: t("dash.axis_loop_angle"), size: 70 }],
       series: [{}, ...loops.map((l, i) => ({ label: label(l), stroke: COLORS[i], width: 1.2, paths: uPlot.paths.linear(),
         points: { show: false }, facets: [{ scale: "x", auto: true }, { scale: "y", auto: true }] }))],
       legend: { show: true, live: false }, cursor: { show: false },
@@ -113,8 +120,8 @@
   // a series is one test method: one position, the worst of N positions, the worst of N loading rates
   function methodLabel(m) {
     const [kind, n] = m.split("-");
-    return kind === "positions" ? `worst of ${n} positions` : kind === "rates" ? `worst of ${n} loading rates`
-      : "single position";
+    return kind === "positions" ? t("fleet.worst_positions", { n }) : kind === "rates" ? t("fleet.worst_rates", { n })
+      : t("fleet.single");
   }
   function showMethods(methods, chosen) {
     const select = $("s-method");
@@ -172,6 +179,19 @@
     } catch (e) { body.innerHTML = `<tr><td colspan="5" class="muted">${esc(e.message)}</td></tr>`; }
   });
 
+  // ---- the audit trail (GET /api/audit: a signed-in user's or a token's; read only) ----
+  async function loadAudit() {
+    const body = $("audit").tBodies[0];
+    let entries;
+    try { entries = (await api("/api/audit?limit=50")).data; }
+    catch (e) { body.innerHTML = `<tr><td colspan="7" class="muted">${esc(t("fleet.audit_needs_sign_in"))}</td></tr>`; return; }
+    body.innerHTML = entries.map((e) => `<tr><td>${esc((e.at || "").replace("T", " ").slice(0, 19))}</td>` +
+      `<td>${esc(e.user)}${e.role ? ` <span class="muted">${esc(e.role)}</span>` : ""}</td><td>${esc(e.action)}</td>` +
+      `<td>${esc(e.target || "—")}</td><td class="wrap">${esc(e.before || "—")}</td><td class="wrap">${esc(e.after || "—")}</td>` +
+      `<td>${esc(e.bench_id || "—")}</td></tr>`).join("") || `<tr><td colspan="7" class="muted">–</td></tr>`;
+  }
+
   window.tcmsFleet = { state };
   search();
+  loadAudit();
 })();

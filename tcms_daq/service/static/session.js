@@ -1,6 +1,7 @@
 // TCMS-DAQ pages: what the dashboard and the fleet page share. The API token (?token=… printed by `tcms serve`)
 // is kept for this tab and taken out of the address bar; requests carry it as a bearer header, links and
-// WebSockets (which cannot set headers) as ?token= (the service masks it in its access log).
+// WebSockets (which cannot set headers) as ?token= (the service masks it in its access log). Without a token, a
+// signed-in user's session cookie is the credential (POST /api/login).
 "use strict";
 const TcmsSession = (() => {
   const params = new URLSearchParams(location.search);
@@ -30,11 +31,12 @@ const TcmsSession = (() => {
 
   /** A JSON request; resolves to {data, response}, throws Error("status: detail") when not ok. */
   async function request(method, path, body) {
-    const headers = {};
+    const headers = { "X-Requested-By": "tcms" };  // a signed-in change must carry it (no cross-site forgery)
     const t = token();
     if (t) headers["Authorization"] = "Bearer " + t;
     if (body !== undefined) headers["Content-Type"] = "application/json";
-    const response = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+    const response = await fetch(path, { method, headers, credentials: "same-origin",
+                                         body: body === undefined ? undefined : JSON.stringify(body) });
     let data = null;
     try { data = await response.json(); } catch (e) { data = null; }
     if (!response.ok) {

@@ -1,0 +1,49 @@
+// TCMS-DAQ pages in the user's language: the catalogues come from /i18n/messages.js (tcms_daq/service/messages.py,
+// one per language). The language is ?lang=, else the one chosen with the switch (kept in this browser), else the
+// first of the browser's languages the catalogue has, else English. Elements name their words by key:
+// data-i18n (text), data-i18n-placeholder, data-i18n-title.
+"use strict";
+const TcmsI18n = (() => {
+  const all = window.TCMS_MESSAGES || { en: {} };
+  const params = new URLSearchParams(location.search);
+
+  function primary(tag) { return String(tag || "").toLowerCase().split("-")[0]; }
+  function pick() {
+    let kept = null;
+    try { kept = localStorage.getItem("tcmsLang"); } catch (e) { kept = null; }
+    const candidates = [params.get("lang"), kept, ...(navigator.languages || [navigator.language])];
+    for (const c of candidates) if (c && all[primary(c)]) return primary(c);
+    return "en";
+  }
+  const lang = pick();
+  const words = Object.assign({}, all.en || {}, all[lang] || {});
+
+  /** The text of `key` with its {fields} filled; the key itself when no catalogue has it. */
+  function t(key, fields) {
+    const template = Object.prototype.hasOwnProperty.call(words, key) ? words[key] : key;
+    return fields ? template.replace(/\{(\w+)\}/g, (m, name) => (name in fields ? String(fields[name]) : m)) : template;
+  }
+
+  function apply(root) {
+    document.documentElement.lang = lang === "zh" ? "zh-CN" : "en";
+    for (const el of (root || document).querySelectorAll("[data-i18n]")) el.textContent = t(el.dataset.i18n);
+    for (const el of (root || document).querySelectorAll("[data-i18n-placeholder]")) el.placeholder = t(el.dataset.i18nPlaceholder);
+    for (const el of (root || document).querySelectorAll("[data-i18n-title]")) el.title = t(el.dataset.i18nTitle);
+  }
+
+  /** A <select> of languages: shows the one in use; a choice is kept for this browser and the page reloads. */
+  function bindSwitch(select) {
+    select.value = lang;
+    select.addEventListener("change", () => {
+      try { localStorage.setItem("tcmsLang", select.value); } catch (e) { /* private mode: this page only */ }
+      const next = new URLSearchParams(location.search);
+      next.set("lang", select.value);
+      location.search = next.toString();
+    });
+  }
+
+  /** `path` with this page's language (?lang=), for reports and certificates. */
+  function withLang(path) { return path + (path.includes("?") ? "&" : "?") + "lang=" + lang; }
+
+  return { lang, t, apply, bindSwitch, withLang };
+})();

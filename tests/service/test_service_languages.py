@@ -1,0 +1,77 @@
+"""The HTML report and the certificate in the language asked for (``?lang=``, else the browser's Accept-Language):
+every word from one catalogue per language (issue 26 item 5); the catalogues have the same keys and fields."""
+
+from __future__ import annotations
+
+import string
+
+import httpx
+import numpy as np
+import pytest
+from svc_helpers import ScriptedRunner, results_with_uncertainty, serve
+from test_service_certificate import pdf_text
+
+from tcms_daq.service import certificate_text, messages
+from tcms_daq.service.fonts import cjk_fonts
+from tcms_daq.store import open_store
+
+CHANNELS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec")
+
+
+def _fields(template: str) -> set[str]:
+    return {name for _, name, _, _ in string.Formatter().parse(template) if name}
+
+
+@pytest.mark.parametrize("module", [messages, certificate_text])
+def test_each_language_has_every_key_with_the_same_fields(module):
+    for lang, words in module.CATALOGUES.items():
+        assert set(words) == set(module.EN), lang
+        for key, template in words.items():
+            assert _fields(template) == _fields(module.EN[key]), (lang, key)
+
+
+def test_the_chinese_terms_of_the_standards():
+    zh = messages.catalogue("zh")
+    assert zh["res.rigidity"].startswith("扭转刚度") and zh["res.lost_motion"].startswith("空程")
+    assert zh["res.backlash"].startswith("背隙") and zh["certificate.q_rigidity_nm_per_arcmin"] == "扭转刚度"
+    assert messages.language(None, "zh-CN,zh;q=0.9,en;q=0.8") == "zh"
+    assert messages.language("en", "zh-CN") == "en" and messages.language(None, "fr-FR") == "en"
+
+
+def _stored_run(data_dir) -> str:
+    t = np.linspace(0.0, 20.0, 2000)
+    torque = 300.0 * np.sin(2 * np.pi * t / 10.0)
+    angle = torque / 290.0 * 60.0 + 10.0 * np.sign(np.cos(2 * np.pi * t / 10.0))
+    with open_store(None, data_dir) as store:
+        store.create_run("run-1", {"reducer": "RV-110E", "serial_number": "SN-7", "max_torque_nm": 300.0,
+                                   "user": "olga", "plan": {"id": 1, "name": "incoming", "version": 2}}, CHANNELS)
+        store.append_samples("run-1", [{"time_s": t, "torque_nm": torque, "angle_arcsec": angle,
+                                        "encoder_arcsec": angle}])
+        store.set_status("run-1", "completed", results=results_with_uncertainty())
+    return "run-1"
+
+
+def test_report_and_certificate_in_chinese_and_english(settings_factory):
+    settings = settings_factory()
+    run_id = _stored_run(settings.data_dir)
+    with serve(settings, runner=ScriptedRunner()) as srv:
+        english = httpx.get(f"{srv.base}/api/tests/{run_id}/report", timeout=60).text
+        assert "torsional rigidity / N·m/arcmin" in english and "扭转刚度" not in english
+        assert "incoming v2" in english and "olga" in english
+        chinese = httpx.get(f"{srv.base}/api/tests/{run_id}/report", params={"lang": "zh"}, timeout=60).text
+        assert '<html lang="zh-CN">' in chinese
+        for word in ("扭转刚度 / N·m/arcmin", "空程 / arcsec", "背隙 / arcsec", "滞回曲线", "合格判定"):
+            assert word in chinese, word
+        by_browser = httpx.get(f"{srv.base}/api/tests/{run_id}/report", timeout=60,
+                               headers={"Accept-Language": "zh-CN,zh;q=0.9"}).text
+        assert "扭转刚度" in by_browser
+        assert httpx.get(f"{srv.base}/api/tests/{run_id}/report", params={"lang": "fr"}).status_code == 422
+        if not cjk_fonts():
+            pytest.skip("no CJK font installed (bash scripts/setup --test installs fonts-noto-cjk)")
+        pdf = httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf", params={"lang": "zh"}, timeout=120)
+        assert pdf.status_code == 200, pdf.text
+        text = pdf_text(pdf.content)
+        for word in ("试验证书", "扭转刚度", "空程", "背隙", "委托方与被测件", "SN-7"):
+            assert word in text, word
+        assert "Test certificate" in pdf_text(httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf",
+                                                        timeout=120).content)
