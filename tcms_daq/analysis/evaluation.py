@@ -16,8 +16,8 @@ Results are reported per loop, per direction and as mean ± std over the evaluat
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from dataclasses import asdict, dataclass, field
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -37,6 +37,7 @@ SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken
 RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
 SCALE_PERCENTILE = 99.5
 MIN_SIGNAL_TO_NOISE = 20.0  # a torque excursion below 20 × the torque noise is not a test
+DRIFT_SIGNIFICANCE = 3.0  # a drift rate beyond 3 standard uncertainties of its estimate is corrected
 
 ENERGY_GRID_POINTS = 201  # torque levels for the loop-area integral
 
@@ -53,7 +54,7 @@ class Limits:
     lost_motion_max_arcsec: float | None = None
 
     def judge(self, values: dict[str, float], expanded: dict[str, float] | None = None,
-              rule: str = "simple") -> dict[str, Any]:
+              rule: str = "simple", refusals: Sequence[str] = ()) -> dict[str, Any]:
         """Verdict of mean values per ISO 14253-1: ``{"passed", "decision", "rule", "checks": {limit_name: {...}}}``.
 
         ``expanded`` maps a quantity to its expanded uncertainty U (same unit). Rule "simple": the value alone
@@ -61,6 +62,8 @@ class Limits:
         value is inside the limit by at least U, fail only when it is outside by more than U, otherwise
         "undecided" (a quantity without U gets guard band 0 and says so: ``"U": None``). Each check carries a
         readable ``label`` of its limit ("rigidity ≥ 235.2 N·m/arcmin"); ``passed`` is True only for "pass".
+        ``refusals``: reasons the record cannot be judged (angle units implausible, …): every check is then
+        "undecided" whatever its value, and the verdict carries the reasons (``"reasons"``).
         """
         if rule not in DECISION_RULES:
             raise EvaluationError(f"decision rule must be one of {', '.join(DECISION_RULES)}, got {rule!r}")
@@ -80,7 +83,7 @@ class Limits:
             value = float(values[quantity])
             u_expanded = (expanded or {}).get(quantity)
             guard = float(u_expanded) if rule == "guarded" and u_expanded is not None else 0.0
-            decision = _decide(value, float(limit), comparison, guard)
+            decision = "undecided" if refusals else _decide(value, float(limit), comparison, guard)
             what, unit = readable[quantity]
             sign = "≥" if comparison == ">=" else "≤"
             checks[name] = {
@@ -94,8 +97,11 @@ class Limits:
                 "U": None if u_expanded is None else float(u_expanded),
                 "label": f"{what} {sign} {float(limit):.4g}{'' if unit == '″' else ' '}{unit}",
             }
-        overall = overall_decision(c["decision"] for c in checks.values())
-        return {"passed": overall == "pass", "decision": overall, "rule": rule, "checks": checks}
+        overall = "undecided" if refusals else overall_decision(c["decision"] for c in checks.values())
+        verdict: dict[str, Any] = {"passed": overall == "pass", "decision": overall, "rule": rule, "checks": checks}
+        if refusals:
+            verdict["reasons"] = list(refusals)
+        return verdict
 
 
 DECISION_RULES = ("simple", "guarded")
@@ -188,13 +194,16 @@ class Evaluation:
     noise: dict[str, float] = field(default_factory=dict)
     fit_window_samples: int = 2
     warnings: list[str] = field(default_factory=list)
-    # loop closure: drift rate of the angle at the turning points, the closure over the record, the bias drift
-    # gives the backlash and the drift-corrected backlash (None: fewer than three turning points)
-    closure: dict[str, float] | None = None
+    # loop closure: drift rate of the angle at the turning points (and its u), the closure over the record, the
+    # bias drift gives the backlash, the drift-corrected backlash and whether the results are corrected for the
+    # drift (None: fewer than three turning points)
+    closure: dict[str, Any] | None = None
     # per result name {"value", "u", "U", "k", "dof", "unit", "dominant", "budget"} (tcms_daq.uncertainty);
     # empty until a budget is attached
     uncertainty: dict[str, Any] = field(default_factory=dict)
     uncertainty_basis: str | None = None
+    # reasons no pass/fail decision can be given on this record (e.g. the angle column is not in arcsec)
+    undecidable: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = jsonable(asdict(self))
@@ -350,6 +359,7 @@ def evaluate(
     hd_breakpoints_nm: tuple[float, float] | None = None,
     limits: Limits | None = None,
     skip_loops: int = 0,
+    drift_rate_arcsec_per_s: float | None = None,
 ) -> Evaluation:
     """Evaluate a hysteresis test record.
 
@@ -358,8 +368,10 @@ def evaluate(
     the torque reached at the turning points, snapped to rated within 2 %) sets the rigidity interval
     ``rigidity_interval`` (fractions of the test torque, on each side). hd_breakpoints_nm = (T1, T2) adds
     Harmonic Drive K1/K2/K3. The first ``skip_loops`` full loops (e.g. a conditioning loop) are reported but
-    not averaged. Raises DataFormatError for malformed arrays and EvaluationError for data that do not
-    contain an evaluable loop.
+    not averaged. A significant angle drift (see ``_plausibility``) is taken out of the angle and the loops are
+    evaluated again (``closure["corrected"]``); ``drift_rate_arcsec_per_s`` forces that correction with a given
+    rate (the uncertainty budget's drift line). Raises DataFormatError for malformed arrays and EvaluationError for
+    data that do not contain an evaluable loop.
     """
     t, torque, angle = _validated(time_s, torque_nm, angle_arcsec)
     settings = EvaluationSettings(
@@ -373,18 +385,25 @@ def evaluate(
         )
     ctx = LoopContext(t, torque, angle, cond, _test_torque(loops[skip_loops:], settings), settings)
     warnings: list[str] = []
-    loop_results: list[LoopResult] = []
-    for k, loop in enumerate(loops):
-        try:
-            loop_results.append(_evaluate_loop(k, k >= skip_loops, loop, ctx, warnings))
-        except EvaluationError as exc:
-            if k >= skip_loops:
-                raise
-            warnings.append(f"skipped loop {k} not reported: {exc}")
+    undecidable: list[str] = []
+    loop_results = _evaluate_loops(loops, ctx, warnings)
     used = [r for r in loop_results if r.evaluated]
     means, stds, hd = _loop_statistics(used, with_hd=hd_breakpoints_nm is not None)
     used_loops = [loops[r.index] for r in used]
-    closure = _plausibility(ctx, used_loops, means, warnings)
+    closure = _plausibility(ctx, used_loops, means, warnings, undecidable)
+    rate = drift_rate_arcsec_per_s
+    if rate is None and closure is not None and closure["corrected"]:
+        rate = closure["drift_rate_arcsec_per_s"]
+    if rate is not None:
+        # the drift taken out of the angle and every loop evaluated again: the results are the drift-corrected ones
+        uncorrected = float(means["backlash_arcsec"])
+        ctx = replace(ctx, angle_arcsec=angle - rate * (t - t[0]))
+        loop_results = _evaluate_loops(loops, ctx, [])
+        used = [r for r in loop_results if r.evaluated]
+        means, stds, hd = _loop_statistics(used, with_hd=hd_breakpoints_nm is not None)
+        if closure is not None:
+            closure.update(corrected=True, uncorrected_backlash_arcsec=uncorrected,
+                           drift_corrected_backlash_arcsec=float(means["backlash_arcsec"]), applied_rate_arcsec_per_s=rate)
     rates = [r.loading_rate_nm_per_s for r in used if math.isfinite(r.loading_rate_nm_per_s)]
     return Evaluation(
         rigidity_nm_per_arcmin=means["rigidity_nm_per_arcmin"],
@@ -403,7 +422,7 @@ def evaluate(
         lost_motion_torque_nm=settings.lost_motion_torque_nm,
         rigidity_interval=settings.rigidity_interval,
         hd_breakpoints_nm=tuple(float(x) for x in hd_breakpoints_nm) if hd_breakpoints_nm else None,  # type: ignore[arg-type]
-        verdict=limits.judge(means) if limits is not None else None,
+        verdict=limits.judge(means, refusals=undecidable) if limits is not None else None,
         n_samples=int(t.size),
         duration_s=float(t[-1] - t[0]),
         noise={"torque_nm": cond.torque_noise_nm, "angle_arcsec": cond.angle_noise_arcsec},
@@ -413,18 +432,37 @@ def evaluate(
         k1_nm_per_rad=hd.get("k1_nm_per_rad"),
         k2_nm_per_rad=hd.get("k2_nm_per_rad"),
         k3_nm_per_rad=hd.get("k3_nm_per_rad"),
+        undecidable=undecidable,
     )
 
 
-def _plausibility(ctx: LoopContext, used: list[Loop], means: dict[str, Any], warnings: list[str]
-                  ) -> dict[str, float] | None:
-    """Warnings for what must not pass silently (tcms_daq.analysis.plausibility); returns the loop closure."""
+def _evaluate_loops(loops: list[Loop], ctx: LoopContext, warnings: list[str]) -> list[LoopResult]:
+    """Every full loop of the record (the skipped ones reported when they evaluate)."""
+    skip = ctx.settings.skip_loops
+    out: list[LoopResult] = []
+    for k, loop in enumerate(loops):
+        try:
+            out.append(_evaluate_loop(k, k >= skip, loop, ctx, warnings))
+        except EvaluationError as exc:
+            if k >= skip:
+                raise
+            warnings.append(f"skipped loop {k} not reported: {exc}")
+    return out
+
+
+def _plausibility(ctx: LoopContext, used: list[Loop], means: dict[str, Any], warnings: list[str],
+                  undecidable: list[str]) -> dict[str, Any] | None:
+    """Warnings for what must not pass silently (tcms_daq.analysis.plausibility), reasons no decision can be given
+    (``undecidable``); returns the loop closure, with ``corrected`` True when the drift is significant: larger in
+    its effect on the backlash than DRIFT_BIAS_WARNING_* and than DRIFT_SIGNIFICANCE × its own uncertainty."""
     cond, lm_nm = ctx.cond, ctx.settings.lost_motion_torque_nm
     span = plausibility.implausible_span(ctx.angle_arcsec)
     if span is not None:
-        warnings.append(
+        message = (
             f"angle span {span:.3g}″ over a ±{ctx.test_torque_nm:.4g} N·m test is implausibly small for arcsec "
             f"({plausibility.unit_hint(span)}): is angle_arcsec in degrees or radians?")
+        warnings.append(message)
+        undecidable.append(message)
     tips = turning_points(cond.torque_smooth_nm, cond.scale_nm)
     reduced, typical = plausibility.reduced_turning_points(tips, TIP_VALID_FRACTION)
     for tp in reduced:
@@ -447,21 +485,37 @@ def _plausibility(ctx: LoopContext, used: list[Loop], means: dict[str, Any], war
         ARCSEC_PER_ARCMIN / rigidity)
     if drift is None:
         return None
-    bias = float(np.mean([plausibility.backlash_drift_bias_arcsec(ctx.time_s, cond.torque_smooth_nm, lp,
-                                                                   drift.rate_arcsec_per_s) for lp in used]))
+    per_rate = float(np.mean([plausibility.backlash_drift_bias_arcsec(ctx.time_s, cond.torque_smooth_nm, lp, 1.0)
+                              for lp in used]))
+    bias = drift.rate_arcsec_per_s * per_rate
     backlash = float(means["backlash_arcsec"])
-    closure = {
+    large = abs(bias) > max(plausibility.DRIFT_BIAS_WARNING_ARCSEC, plausibility.DRIFT_BIAS_WARNING_FRACTION * backlash)
+    assessed = math.isfinite(drift.rate_u_arcsec_per_s)
+    significant = large and (not assessed or abs(drift.rate_arcsec_per_s) > DRIFT_SIGNIFICANCE * drift.rate_u_arcsec_per_s)
+    closure: dict[str, Any] = {
         "drift_rate_arcsec_per_s": drift.rate_arcsec_per_s,
+        "drift_rate_u_arcsec_per_s": drift.rate_u_arcsec_per_s if assessed else None,
         "closure_arcsec": drift.closure_arcsec,
         "span_s": drift.span_s,
+        "turning_points": drift.tips,
         "backlash_drift_bias_arcsec": bias,
         "drift_corrected_backlash_arcsec": backlash - bias,
+        "corrected": significant,
     }
-    if abs(bias) > max(plausibility.DRIFT_BIAS_WARNING_ARCSEC, plausibility.DRIFT_BIAS_WARNING_FRACTION * backlash):
+    if significant:
         warnings.append(
             f"loop does not close: the angle at the turning points drifts by {drift.rate_arcsec_per_s:+.3g}″/s "
-            f"({drift.closure_arcsec:+.3g}″ over {drift.span_s:.3g} s); this moves the backlash by {bias:+.3g}″, "
-            f"drift-corrected backlash {backlash - bias:.4g}″ (reported {backlash:.4g}″)")
+            f"({drift.closure_arcsec:+.3g}″ over {drift.span_s:.3g} s); this moves the backlash by {bias:+.3g}″: the "
+            f"results are drift-corrected (drift-corrected backlash {backlash - bias:.4g}″, uncorrected {backlash:.4g}″)"
+            + ("" if assessed else "; the correction's uncertainty cannot be assessed from one loop"))
+        if not assessed:
+            undecidable.append(f"angle drift of {drift.rate_arcsec_per_s:+.3g}″/s corrected from one loop: the "
+                               "correction's uncertainty cannot be assessed")
+    elif large:
+        warnings.append(
+            f"the angle at the turning points may drift by {drift.rate_arcsec_per_s:+.3g}″/s (± "
+            f"{drift.rate_u_arcsec_per_s:.2g}″/s, not significant: not corrected); it would move the backlash by "
+            f"{bias:+.3g}″")
     return closure
 
 

@@ -5,7 +5,8 @@ Pure functions on the record and its segmentation; each returns its finding, and
 - turning points of reduced amplitude (the loops around them are not evaluated);
 - loop closure and drift: the angle at the turning points of one sign, corrected for the torque reached, should
   not move with time; a drift biases the backlash (the branches cross zero torque at different times) by
-  rate × (t_B↓(0) − t_B↑(0)), and the drift-corrected backlash is offered;
+  rate × (t_B↓(0) − t_B↑(0)); the rate comes with its standard uncertainty, and ``evaluate`` corrects a significant
+  drift;
 - sampling too coarse for the loop: the torque between the samples bracketing the evaluation levels.
 """
 
@@ -54,6 +55,7 @@ class Drift:
     closure_arcsec: float
     span_s: float
     tips: int
+    rate_u_arcsec_per_s: float  # standard uncertainty of the rate from the fit's residuals (NaN: no redundancy)
 
 
 def _tip_means(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, torque_smooth_nm: np.ndarray,
@@ -87,7 +89,14 @@ def drift_from_turning_points(time_s: np.ndarray, torque_nm: np.ndarray, angle_a
     coef = np.linalg.lstsq(design, corrected, rcond=None)[0]
     rate = float(coef[0])
     span = float(t[-1] - t[0])
-    return Drift(rate, rate * span, span, len(rows))
+    dof = len(rows) - design.shape[1]
+    if dof > 0:
+        residual = corrected - design @ coef
+        cov = float(residual @ residual) / dof * np.linalg.pinv(design.T @ design)
+        rate_u = float(np.sqrt(max(cov[0, 0], 0.0)))
+    else:
+        rate_u = float("nan")
+    return Drift(rate, rate * span, span, len(rows), rate_u)
 
 
 def zero_crossing_time_s(time_s: np.ndarray, torque_smooth_nm: np.ndarray, branch: Branch) -> float:

@@ -25,6 +25,7 @@ from tcms_daq.uncertainty import attach, evaluation_budgets, expanded_by_quantit
 FAR_FROM_CATALOGUE = 3.0  # a rigidity more than 3× off the catalogue's is not a reducer deviation
 UNIT_MIXUPS = (("degrees", 3600.0), ("radians", 206_264.806), ("arcmin", 60.0))
 NO_CHAIN = "type A only (no --uncertainty file)"
+UNIT_MIXUP_TEXT = "as if the angle were in"
 
 
 def catalogue_options(reducer: ReducerSpec, test_torque_nm: float | None = None) -> dict[str, Any]:
@@ -47,8 +48,9 @@ def evaluate_test(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec:
                   settings: EvaluationSettings, *, limits: Limits | None = None,
                   chain: ChainUncertainty | None = None, rule: str = "guarded", reducer: ReducerSpec | None = None,
                   no_chain_basis: str = NO_CHAIN) -> Evaluation:
-    """Evaluate a record, attach the uncertainty budget of every result, judge the limits (ISO 14253-1 rule
-    ``rule``: "simple" or "guarded") and add the catalogue plausibility warnings (with ``reducer``).
+    """Evaluate a record, attach the uncertainty budget of every result, add the catalogue plausibility warnings
+    (with ``reducer``) and judge the limits (ISO 14253-1 rule ``rule``: "simple" or "guarded"; "undecided" with
+    the reasons when the record cannot be judged: ``Evaluation.undecidable``, a unit mix-up against the catalogue).
 
     A budget that cannot be evaluated (a declared uncertainty so large that a perturbed record no longer
     evaluates) leaves ``uncertainty`` empty with a warning saying why; the evaluation itself stands.
@@ -61,12 +63,15 @@ def evaluate_test(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec:
         ev.uncertainty_basis = uncertainty_basis(chain, no_chain_basis)
     else:
         attach(ev, budgets, uncertainty_basis(chain, no_chain_basis))
+    if reducer is not None:
+        found = catalogue_warnings(ev, reducer)
+        ev.warnings.extend(found)
+        # a rigidity off by the factor of a unit mix-up: the angle column is not in arcsec, nothing can be judged
+        ev.undecidable.extend(w for w in found if UNIT_MIXUP_TEXT in w)
     if limits is not None:
         means = {"rigidity_nm_per_arcmin": ev.rigidity_nm_per_arcmin, "backlash_arcsec": ev.backlash_arcsec,
                  "lost_motion_arcsec": ev.lost_motion_arcsec}
-        ev.verdict = limits.judge(means, expanded_by_quantity(ev), rule)
-    if reducer is not None:
-        ev.warnings.extend(catalogue_warnings(ev, reducer))
+        ev.verdict = limits.judge(means, expanded_by_quantity(ev), rule, refusals=ev.undecidable)
     return ev
 
 
@@ -82,7 +87,7 @@ def catalogue_warnings(ev: Evaluation, reducer: ReducerSpec) -> list[str]:
                f"{reducer.name}")
     for unit, factor in UNIT_MIXUPS:
         if factor / 1.5 <= ratio <= factor * 1.5:
-            message += f": as if the angle were in {unit} (× {factor:g}), not arcsec"
+            message += f": {UNIT_MIXUP_TEXT} {unit} (× {factor:g}), not arcsec"
             break
     return [message]
 

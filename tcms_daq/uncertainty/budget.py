@@ -126,6 +126,8 @@ class Contribution:
     u: float
     sensitivity: float
     line: str = ""
+    dof: float | None = None  # None: infinite
+    type: str = "B"
 
 
 def combine(value: float, unit: str, type_a_u: float | None, type_a_dof: float | None, type_a_source: str,
@@ -136,7 +138,7 @@ def combine(value: float, unit: str, type_a_u: float | None, type_a_dof: float |
     if type_a_u is not None:
         terms.append(ureal(0.0, type_a_u, math.inf if type_a_dof is None else type_a_dof, label=type_a_source))
     for b in type_b:
-        terms.append(b.sensitivity * ureal(0.0, b.u, label=b.source))
+        terms.append(b.sensitivity * ureal(0.0, b.u, math.inf if b.dof is None else b.dof, label=b.source))
     if not terms:
         return Budget(value, 0.0, float(reporting.k_factor(math.inf, COVERAGE_PROBABILITY)), None, unit)
     y = value + sum(terms[1:], terms[0])
@@ -150,7 +152,7 @@ def combine(value: float, unit: str, type_a_u: float | None, type_a_dof: float |
         line = b.line or b.source
         before = lines.get(line)
         if before is None:
-            lines[line] = BudgetLine(line, "B", b.u, b.unit, b.sensitivity, abs(b.sensitivity) * b.u, None)
+            lines[line] = BudgetLine(line, b.type, b.u, b.unit, b.sensitivity, abs(b.sensitivity) * b.u, b.dof)
         else:  # another phase component of the same error: root-sum-square sensitivity
             s = math.hypot(before.sensitivity, b.sensitivity)
             lines[line] = replace(before, sensitivity=s, contribution=s * b.u)
@@ -235,6 +237,8 @@ def evaluation_budgets(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_ar
     names = list(values)
     inputs = chain_inputs(chain, nominal.test_torque_nm) if chain is not None else []
     sens = _sensitivities(t, torque, angle, fixed, inputs, names)
+    for name, contribution in _drift_correction(t, torque, angle, fixed, nominal, names).items():
+        sens[name].append(contribution)
     n = nominal.n_loops
     if n >= 2:
         scatter = {name: _type_a(loop_values(nominal, name)) for name in names}
@@ -245,6 +249,24 @@ def evaluation_budgets(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_ar
         source = "noise within the one loop (loop-to-loop repeatability not assessed)"
     return {name: combine(values[name], RESULT_UNITS[name], scatter[name][0], scatter[name][1], source, sens[name])
             for name in names}
+
+
+def _drift_correction(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
+                      settings: EvaluationSettings, nominal: Evaluation, names: list[str]) -> dict[str, Contribution]:
+    """The drift correction's line when the results are drift-corrected: the rate's standard uncertainty (Type A,
+    from the fit over the turning points, its degrees of freedom) with sensitivities from evaluating with the
+    rate moved by ±u."""
+    closure = nominal.closure or {}
+    u = closure.get("drift_rate_u_arcsec_per_s")
+    if not closure.get("corrected") or u is None or not u > 0.0:
+        return {}
+    rate = float(closure["applied_rate_arcsec_per_s"])
+    dof = max(int(closure["turning_points"]) - 3, 1)  # the fit: a rate and one offset per sign
+    moved = [result_values(evaluate(time_s, torque_nm, angle_arcsec, **asdict(settings),
+                                    drift_rate_arcsec_per_s=rate + x)) for x in (u, -u)]
+    return {name: Contribution("drift correction", "arcsec/s", float(u),
+                               (moved[0][name] - moved[1][name]) / (2.0 * u), dof=float(dof), type="A")
+            for name in names if name in moved[0] and name in moved[1]}
 
 
 def _type_a(values: list[float]) -> tuple[float | None, float | None]:

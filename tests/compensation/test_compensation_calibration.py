@@ -54,17 +54,19 @@ def test_uncertainty_covers_truth_in_exact_model():
     off, sc = res.fits
     assert abs(off.values["value_arcsec"] - 1.2) <= off.uncertainty["value_arcsec"]
     assert abs(sc.values["coefficient"] - 0.03) <= sc.uncertainty["coefficient"]
-    # independent residuals: U = t(95 %, n_eff − 2)·sqrt(s² (XᵀX)⁻¹ · n/n_eff), n_eff from the lag-1
-    # autocorrelation (about n here), compared with the textbook formula written out
+    # U = t(95 %, n_eff − 2)·sqrt(diag(σ²(XᵀX)⁻¹XᵀR(XᵀX)⁻¹)) with R the AR(1) correlation ρ^|i−j| the residuals
+    # imply, σ² = rᵀr/tr(M R), n_eff = n(1 − ρ)/(1 + ρ): written out here
     x = np.column_stack([np.ones(60), encoder])
     r = res.residual_after_arcsec
-    lag1 = float(r[1:] @ r[:-1] / (r @ r))
-    rho = max(lag1 + (1 + 3 * max(lag1, 0.0)) / 60, 0.0)
+    rho = res.correlation.rho
     n_eff = 60 * (1 - rho) / (1 + rho)
     assert res.correlation.n_eff == pytest.approx(n_eff)
-    s2 = np.sum(r**2) / (60 - 2)
+    big_r = rho ** np.abs(np.subtract.outer(np.arange(60), np.arange(60)))
+    xtx_inv = np.linalg.inv(x.T @ x)
+    m = np.eye(60) - x @ xtx_inv @ x.T
+    s2 = np.sum(r**2) / np.trace(m @ big_r)
     k = scipy_t.ppf(0.975, n_eff - 2)
-    u = k * np.sqrt(np.diag(s2 * np.linalg.inv(x.T @ x)) * 60 / n_eff)
+    u = k * np.sqrt(np.diag(s2 * xtx_inv @ x.T @ big_r @ x @ xtx_inv))
     assert off.uncertainty["value_arcsec"] == pytest.approx(u[0], rel=1e-3)
     assert sc.uncertainty["coefficient"] == pytest.approx(u[1], rel=1e-3)
 
@@ -185,12 +187,12 @@ def test_table4_comparison_numbers(paper_geometry_path):
 
 
 def test_table4_calibration_uncertainty_with_autocorrelation(paper_geometry_path):
-    # Table 4's residuals are autocorrelated (Durbin–Watson 0.73): about 9 effective points of 35, so U of the
-    # scale coefficient is about 2.3× the textbook U (independent residuals, k = 2); the 0.2″ autocollimator is in
+    # Table 4's residuals are autocorrelated (Durbin–Watson 0.73): about 4.5 effective points of 35, so U of the
+    # scale coefficient is several times the textbook U (independent residuals, k = 2); the 0.2″ autocollimator is in
     fit = table4_comparison(paper_geometry_path)["calibration"]["offset_scale"]
     corr = fit["residual_correlation"]
     assert corr["durbin_watson"] == pytest.approx(0.73, abs=0.01)
-    assert 0.5 < corr["lag1_autocorrelation"] < 0.65 and 7 < corr["n_eff"] < 11
+    assert 0.5 < corr["lag1_autocorrelation"] < 0.65 and 3 < corr["n_eff"] < 7
     t4 = load_table4()
     x = np.column_stack([np.ones(35), t4.encoder_arcsec])
     y = t4.encoder_arcsec - t4.reference_arcsec

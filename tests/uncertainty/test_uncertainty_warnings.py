@@ -60,17 +60,20 @@ def test_a_loop_at_85_percent_amplitude_is_named_with_its_amplitude():
     assert "np.float64" not in w
 
 
-def test_drift_of_0_05_arcsec_per_second_warns_and_offers_the_corrected_backlash():
+def test_drift_of_0_05_arcsec_per_second_warns_and_is_corrected():
     t, torque, angle = clean_run()
     plain = evaluate(t, torque, angle, rated_torque_nm=1000.0)
     drifted = evaluate(*clean_run(drift_arcsec_per_s=0.05), rated_torque_nm=1000.0)
     (w,) = [w for w in drifted.warnings if "does not close" in w]
-    assert "drifts by +0.0497″/s" in w and "drift-corrected backlash" in w
+    assert "drifts by +0.0497″/s" in w and "drift-corrected backlash" in w and "results are drift-corrected" in w
     assert drifted.closure["drift_rate_arcsec_per_s"] == pytest.approx(0.05, rel=0.05)
-    # the drift widens the loop; the drift-corrected backlash is the undrifted one
-    assert drifted.backlash_arcsec - plain.backlash_arcsec > 0.2
-    assert drifted.closure["drift_corrected_backlash_arcsec"] == pytest.approx(plain.backlash_arcsec, abs=0.02)
-    assert abs(plain.closure["drift_rate_arcsec_per_s"]) < 0.002
+    assert drifted.closure["corrected"] is True
+    # the drift widens the loop; the reported results are the drift-corrected ones, the undrifted loop's
+    assert drifted.closure["uncorrected_backlash_arcsec"] - plain.backlash_arcsec > 0.2
+    assert drifted.backlash_arcsec == pytest.approx(plain.backlash_arcsec, abs=0.02)
+    assert drifted.closure["drift_corrected_backlash_arcsec"] == drifted.backlash_arcsec
+    assert drifted.lost_motion_arcsec == pytest.approx(plain.lost_motion_arcsec, abs=0.02)
+    assert abs(plain.closure["drift_rate_arcsec_per_s"]) < 0.002 and plain.closure["corrected"] is False
 
 
 def test_sampling_too_coarse_for_the_lost_motion_warns():
