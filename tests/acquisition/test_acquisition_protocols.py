@@ -1,13 +1,13 @@
 """The acquisition over the real protocols (ND 287 + AED + CiA 402 over Modbus TCP) against the protocol
 simulators in this process, on real time × speed (threaded mode): the stiffness result matches the in-process
-virtual bench, and the protocol faults (Modbus timeout, drive fault, encoder fault) abort the run safely."""
+virtual bench within the two runs' expanded uncertainties, and the protocol faults (Modbus timeout, drive fault,
+encoder fault) abort the run safely."""
 
 from __future__ import annotations
 
+import math
 import threading
 from pathlib import Path
-
-import pytest
 
 from tcms_daq.acquisition import TestRun, compose_bench
 from tcms_daq.acquisition.procedure import analysis_evaluator
@@ -22,24 +22,47 @@ def short_profile(cycles: int = 2):
     return continuous_profile(1000.0, 1000.0, cycles=cycles, conditioning_loops=1, tip_dwell_s=0.1)
 
 
-def in_process_reference(pb, profile):
+def evaluator_with_u(pb, profile):
+    """The service's evaluation (the catalogue's RV-110E, the bench config's declared uncertainties): each
+    result with its expanded uncertainty U."""
+    from tcms_daq.config import get_reducer, load_reducers_for
+    from tcms_daq.procedure.evaluation import evaluate_for_reducer
+
+    reducer = get_reducer(load_reducers_for(pb.config), "RV-110E")
+    chain = pb.config.chain_uncertainty()
+    return lambda samples: evaluate_for_reducer(samples, reducer, profile.test_torque_nm, chain=chain).to_dict()
+
+
+def in_process_reference(pb, profile, evaluate=None):
     cfg = pb.bench_config()
     for kind in ("angle", "torque", "loader"):
         cfg["instruments"][kind] = {"driver": "virtual", "url": "virtual://sim"}
     bench = compose_bench(cfg, config_dir=LOOPBACK_DIR)
-    return TestRun(bench, profile, evaluate=analysis_evaluator(1078.0)).run()
+    return TestRun(bench, profile, evaluate=evaluate or analysis_evaluator(1078.0)).run()
+
+
+def assert_agree_within_u(result: dict, reference: dict, key: str) -> None:
+    """|result − reference| within the two runs' expanded uncertainties combined (a difference of two
+    independent measurements), not a fixed share: a loaded machine samples more coarsely and says so in U."""
+    u = result["uncertainty"][key]["U"], reference["uncertainty"][key]["U"]
+    allowed = math.hypot(*u)
+    assert abs(result[key] - reference[key]) <= allowed, (key, result[key], reference[key], u)
+
+
+COMPARE_SPEED = 2.0  # the comparison at half the fault tests' pace: at 4× a loaded machine polls too coarsely
+# for the lost-motion level (±32 N·m) and the lost motion moves by more than its U (the run warns so)
 
 
 def test_stiffness_over_protocols_matches_in_process(protocol_bench):
-    pb = protocol_bench(SPEED)
+    pb = protocol_bench(COMPARE_SPEED)
     profile = short_profile()
-    record = TestRun(pb.compose(), profile, evaluate=analysis_evaluator(1078.0)).run()
+    evaluate = evaluator_with_u(pb, profile)
+    record = TestRun(pb.compose(), profile, evaluate=evaluate).run()
     assert record.state == "completed", record.reason
-    ref = in_process_reference(pb, profile)
+    ref = in_process_reference(pb, profile, evaluate)
     assert ref.state == "completed"
-    k, k_ref = record.evaluation["rigidity_nm_per_arcmin"], ref.evaluation["rigidity_nm_per_arcmin"]
-    assert k == pytest.approx(k_ref, rel=0.01)
-    assert record.evaluation["lost_motion_arcsec"] == pytest.approx(ref.evaluation["lost_motion_arcsec"], abs=1.5)
+    for key in ("rigidity_nm_per_arcmin", "lost_motion_arcsec"):
+        assert_agree_within_u(record.evaluation, ref.evaluation, key)
     stats = record.acquisition["channels"]
     assert stats["angle"]["readings"] > 300 and stats["torque"]["readings"] > 300
     assert record.loader_final["state"] == "SWITCH ON DISABLED"

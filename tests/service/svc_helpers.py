@@ -148,7 +148,7 @@ class LiveServer:
 
     def __enter__(self) -> LiveServer:
         self.thread.start()
-        deadline = time.monotonic() + 20
+        deadline = time.monotonic() + 120  # a ceiling: the wait ends when uvicorn has started (or its thread died)
         while not self.server.started:
             if time.monotonic() > deadline or not self.thread.is_alive():
                 raise RuntimeError("service did not start")
@@ -188,8 +188,9 @@ def wait_for(predicate: Callable[[], object], timeout_s: float = 20.0, interval_
         time.sleep(interval_s)
 
 
-def start_serve_process(args: list[str], *, cwd=None, timeout_s: float = 30.0) -> tuple[subprocess.Popen, str]:
-    """``tcms serve ARGS`` as a child process (token ``TOKEN``); (process, base URL) once it printed its URL."""
+def start_serve_process(args: list[str], *, cwd=None, timeout_s: float = 300.0) -> tuple[subprocess.Popen, str]:
+    """``tcms serve ARGS`` as a child process (token ``TOKEN``); (process, base URL) once it printed its URL (its
+    readiness; a child that exits ends the wait at once, ``timeout_s`` is a ceiling for one that hangs)."""
     env = {**os.environ, "TCMS_API_TOKEN": TOKEN, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "tcms_daq.cli", "serve", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, env=env, cwd=cwd)
