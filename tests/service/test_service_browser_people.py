@@ -9,13 +9,17 @@ Set TCMS_UPDATE_SCREENSHOT=1 to write docs/screenshot-dashboard-{en,zh}.png and 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from pathlib import Path
 
 import httpx
 import pytest
-from svc_helpers import TOKEN, ScriptedRunner, serve
+from svc_helpers import TOKEN, ScriptedRunner, _u_entry, results_with_uncertainty, serve
 from test_service_browser_fleet import _seed
+
+from tcms_daq.service.users import hash_password
+from tcms_daq.store import open_store
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -110,7 +114,6 @@ def test_dashboard_in_chinese_and_english_at_1280(settings_factory, sim_config, 
             page.fill("#f-torque", "400")
             page.fill("#f-cycles", "1")
             page.fill("#f-rate", "200")
-            page.fill("#f-positions", "2")
             page.fill("#f-serial", "SN-1280")
             page.click("#start")
             page.wait_for_function("document.querySelector('#ro-state').dataset.state === 'running'", timeout=20_000)
@@ -124,10 +127,8 @@ def test_dashboard_in_chinese_and_english_at_1280(settings_factory, sim_config, 
             page.wait_for_selector("#results td.pass, #results td.fail, #results td.undecided")
             results = page.inner_text("#results")
             assert "扭转刚度 / N·m/arcmin" in results and "空程" in results and "背隙" in results, results
-            stages = page.inner_text("#stages")
-            assert "位置 / °" in stages and "极差" in stages
-            # values to the decimal place of their U: no six-digit figures in the per-position table
-            assert not any(len(part.split(".")[-1]) > 3 for part in stages.split() if part.replace(".", "").isdigit())
+            # a value to the decimal place of its U ("306.0 ± 2.6"), never six significant digits
+            assert re.search(r"扭转刚度 / N·m/arcmin\s+\d+\.\d ± \d\.\d \(k = \d\.\d\d\)", results), results
             page.wait_for_function("document.querySelectorAll('#history tbody tr').length > 0")
             assert "已完成" in page.inner_text("#history")
             _check_layout(page)
@@ -177,6 +178,77 @@ def test_fleet_table_fits_1280_and_no_result_cell_overflows(settings_factory, tm
             headers = page.inner_text("#runs thead")
             assert ("扭转刚度" in headers and "背隙" in headers) if lang == "zh" else "backlash" in headers
             _keep(page, f"screenshot-fleet-{lang}.png", tmp_path)
+            assert errors == []
+        finally:
+            browser.close()
+
+
+def _positions_results() -> dict:
+    """Results of a test at two output positions, with U per position (as the evaluation writes them)."""
+    def entry(position: float, rigidity: float, lost: float, backlash: float) -> dict:
+        u = {"rigidity_nm_per_arcmin": _u_entry(rigidity, 2.6813 / 1.96, 1.96, "N·m/arcmin", "torque scale"),
+             "lost_motion_arcsec": _u_entry(lost, 0.36412 / 1.97, 1.97, "arcsec", "encoder interpolation"),
+             "backlash_arcsec": _u_entry(backlash, 0.33071 / 2.2, 2.2, "arcsec", "loop-to-loop scatter")}
+        return {"position_deg": position, "rigidity_nm_per_arcmin": rigidity, "lost_motion_arcsec": lost,
+                "backlash_arcsec": backlash, "uncertainty": u}
+
+    results = results_with_uncertainty()
+    results.update({
+        "positions": [entry(0.0, 304.246123, 24.8712, 7.8893), entry(180.0, 304.816770, 24.9044, 7.7801)],
+        "rigidity_nm_per_arcmin_max": 304.81677, "rigidity_nm_per_arcmin_min": 304.246123,
+        "rigidity_nm_per_arcmin_spread": 0.570647, "lost_motion_arcsec_max": 24.9044,
+        "lost_motion_arcsec_min": 24.8712, "lost_motion_arcsec_spread": 0.0332, "backlash_arcsec_max": 7.8893,
+        "backlash_arcsec_min": 7.7801, "backlash_arcsec_spread": 0.1092})
+    return results
+
+
+@pytest.mark.timeout(150)
+def test_an_operator_signs_in_picks_a_plan_and_starts_it(settings_factory, tmp_path):
+    """Sign-in (session cookie), the plan picker and the start of a plan from the page, as an operator; the page
+    opened after a test shows its per-position table rounded to U."""
+    from playwright.sync_api import sync_playwright
+
+    settings = settings_factory()
+    with open_store(None, settings.data_dir, bench_id="line-a", bench_name="Line A") as store:
+        store.add_user("olga", "operator", hash_password("olga-password"))
+        plan = store.add_plan("incoming RV-110E", {"reducer": "RV-110E", "max_torque_nm": 300.0, "cycles": 2,
+                                                   "profile": "continuous", "rate_nm_per_s": 1000.0}, "erik")
+        store.create_run("earlier", {"reducer": "RV-110E", "serial_number": "SN-1", "max_torque_nm": 300.0},
+                         ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec"))
+        store.set_status("earlier", "completed", results=_positions_results())
+    runner = ScriptedRunner()
+    runner.bench_id = "line-a"
+    with serve(settings, runner=runner) as srv, sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_context(locale="en-US", viewport={"width": WIDTH, "height": 900}).new_page()
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(srv.base + "/")  # no token: the sign-in form
+            page.wait_for_selector("#login-box:not([hidden])")
+            # the earlier run of this bench: its per-position table with each value to the decimal place of its U
+            page.wait_for_function("!document.querySelector('#stages').hidden")
+            stages = page.inner_text("#stages")
+            assert "304.2 ± 2.7" in stages and "304.8 ± 2.7" in stages and "24.87 ± 0.36" in stages, stages
+            assert "304.246" not in stages and "0.570647" not in stages
+            page.fill("#l-name", "olga")
+            page.fill("#l-password", "olga-password")
+            page.click("#login-form button")
+            page.wait_for_function("document.querySelector('#who').textContent.includes('olga (operator)')")
+            assert page.is_hidden("#login-box") and page.is_disabled("#save-plan")  # an operator saves no plan
+            page.wait_for_function(f"[...document.querySelector('#f-plan').options].some(o => o.value === '{plan.id}')")
+            page.select_option("#f-plan", str(plan.id))
+            assert page.input_value("#f-torque") == "300" and page.is_disabled("#f-torque")
+            page.fill("#f-serial", "SN-0042")
+            page.click("#start")
+            page.wait_for_function("document.querySelector('#ro-state').dataset.state === 'completed'", timeout=60_000)
+            run_id = page.inner_text("#test-id")
+            with srv.client() as service:
+                run = service.get(f"/api/tests/{run_id}").json()
+                assert run["user"] == "olga" and run["plan"]["name"] == "incoming RV-110E"
+                assert run["request"]["serial_number"] == "SN-0042" and run["bench_id"] == "line-a"
+                started = service.get("/api/audit", params={"action": "test.start"}).json()[0]
+                assert started["user"] == "olga" and started["target"] == run_id
             assert errors == []
         finally:
             browser.close()
