@@ -617,3 +617,92 @@ class BenchBiasView(BaseModel):
     units: list[str] = Field(description="serial numbers of the reference units used")
     excluded_runs: int = Field(description="runs of units tested on one bench only")
     benches: list[BenchBiasRow]
+
+
+# -- people: users, the audit trail, saved plans (routes/people.py, routes/plans.py) ------------------------------
+Role = Literal["operator", "engineer", "admin"]
+
+
+class Login(BaseModel):
+    name: str = Field(min_length=1, max_length=64)
+    password: str = Field(min_length=1, max_length=256)
+
+
+class Me(BaseModel):
+    """Who the request's credential names, and the role's rights."""
+
+    name: str
+    role: str
+    via: str
+    rights: list[str]
+
+
+class UserView(BaseModel):
+    name: str
+    role: str
+    disabled: bool
+    created_at: str | None
+
+
+class NewUser(BaseModel):
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9._@-]*$")
+    role: Role
+    password: str = Field(min_length=8, max_length=256)
+
+
+class NewToken(BaseModel):
+    label: str = Field(default="", max_length=80, description="what the token is for (a script, a PC)")
+
+
+class TokenIssued(BaseModel):
+    user: str
+    token: str = Field(description="the API token: shown this once, kept only as a hash")
+
+
+class AuditView(BaseModel):
+    """One change of state: when, who, what, and the version or hash before and after."""
+
+    id: int
+    at: str | None
+    user: str
+    role: str | None
+    action: str
+    target: str | None
+    before: str | None
+    after: str | None
+    detail: str | None
+    bench_id: str | None
+
+
+class PlanBody(BaseModel):
+    """``POST /api/plans``: the next version of plan ``name`` (version 1 when the name is new)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(min_length=1, max_length=80, pattern=r"^[^\x00-\x1f]+$",
+                      description="the plan's name, e.g. 'RV-110E incoming inspection'")
+    note: str = Field(default="", max_length=200, description="what changed in this version")
+    request: TestRequest = Field(description="the test it runs: reducer, profile, torque, rates or positions, "
+                                 "loops, decision rule (the limits policy); the unit's serial number, customer "
+                                 "and order are given at each start")
+
+
+class PlanView(BaseModel):
+    id: int = Field(description="this version's id (``plan_id`` of a start)")
+    name: str
+    version: int
+    created_at: str | None
+    created_by: str
+    note: str
+    request: dict[str, Any]
+    sha256: str = Field(description="of the request as JSON with sorted keys")
+
+
+class PlanStart(TestDocumentation):
+    """``POST /api/tests/from-plan``: run version ``plan_id`` of a saved plan on one unit."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    plan_id: int = Field(ge=1, le=2**31 - 1, description="the id of a plan version (GET /api/plans)")
+    serial_number: str | None = Field(default=None, max_length=64)
+    operator: str | None = Field(default=None, max_length=64)

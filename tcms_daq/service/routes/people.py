@@ -5,16 +5,16 @@ from __future__ import annotations
 
 import asyncio
 from datetime import datetime
-from typing import Annotated, Literal
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi import Path as PathParam
-from pydantic import BaseModel, Field
 
 from tcms_daq.service.auth import SESSION_COOKIE, Principal, authenticate, require
 from tcms_daq.service.deps import Store, errors
 from tcms_daq.service.routes.tests import unix_seconds
 from tcms_daq.service.runner import RequestRejected
+from tcms_daq.service.schemas import AuditView, Login, Me, NewToken, NewUser, TokenIssued, UserView
 from tcms_daq.service.testruns import UnknownRun
 from tcms_daq.service.users import audit, check_login, hash_password, new_api_token, new_secret
 from tcms_daq.store import StoreError
@@ -23,58 +23,6 @@ from tcms_daq.store.people import SESSION_LIFETIME_S, AuditQuery
 router = APIRouter(prefix="/api", tags=["people"])
 
 UserName = Annotated[str, PathParam(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9._@-]*$")]
-Role = Literal["operator", "engineer", "admin"]
-
-
-class Login(BaseModel):
-    name: str = Field(min_length=1, max_length=64)
-    password: str = Field(min_length=1, max_length=256)
-
-
-class Me(BaseModel):
-    """Who the request's credential names, and the role's rights."""
-
-    name: str
-    role: str
-    via: str
-    rights: list[str]
-
-
-class UserView(BaseModel):
-    name: str
-    role: str
-    disabled: bool
-    created_at: str | None
-
-
-class NewUser(BaseModel):
-    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9._@-]*$")
-    role: Role
-    password: str = Field(min_length=8, max_length=256)
-
-
-class NewToken(BaseModel):
-    label: str = Field(default="", max_length=80, description="what the token is for (a script, a PC)")
-
-
-class TokenIssued(BaseModel):
-    user: str
-    token: str = Field(description="the API token: shown this once, kept only as a hash")
-
-
-class AuditView(BaseModel):
-    """One change of state: when, who, what, and the version or hash before and after."""
-
-    id: int
-    at: str | None
-    user: str
-    role: str | None
-    action: str
-    target: str | None
-    before: str | None
-    after: str | None
-    detail: str | None
-    bench_id: str | None
 
 
 def _me(principal: Principal) -> Me:

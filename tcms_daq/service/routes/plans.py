@@ -8,13 +8,20 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query
 from fastapi import Path as PathParam
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ValidationError
 
 from tcms_daq.service.auth import Principal, require
 from tcms_daq.service.deps import Bench, Manager, Store, errors
 from tcms_daq.service.routes.tests import start_test
 from tcms_daq.service.runner import RequestRejected
-from tcms_daq.service.schemas import TestAccepted, TestDocumentation, TestRequest
+from tcms_daq.service.schemas import (
+    PlanBody,
+    PlanStart,
+    PlanView,
+    TestAccepted,
+    TestDocumentation,
+    TestRequest,
+)
 from tcms_daq.service.testruns import UnknownRun
 from tcms_daq.service.users import audit
 from tcms_daq.store.people import SavedPlan
@@ -25,40 +32,6 @@ start_router = APIRouter(prefix="/api/tests", tags=["tests"])
 PlanId = Annotated[int, PathParam(ge=1, le=2**31 - 1)]
 #: what each start of a plan gives for its unit; a plan keeps none of them
 PER_UNIT_FIELDS = ("serial_number", "operator", *TestDocumentation.model_fields)
-
-
-class PlanBody(BaseModel):
-    """``POST /api/plans``: the next version of plan ``name`` (version 1 when the name is new)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    name: str = Field(min_length=1, max_length=80, pattern=r"^[^\x00-\x1f]+$",
-                      description="the plan's name, e.g. 'RV-110E incoming inspection'")
-    note: str = Field(default="", max_length=200, description="what changed in this version")
-    request: TestRequest = Field(description="the test it runs: reducer, profile, torque, rates or positions, "
-                                 "loops, decision rule (the limits policy); the unit's serial number, customer "
-                                 "and order are given at each start")
-
-
-class PlanView(BaseModel):
-    id: int = Field(description="this version's id (``plan_id`` of a start)")
-    name: str
-    version: int
-    created_at: str | None
-    created_by: str
-    note: str
-    request: dict[str, Any]
-    sha256: str = Field(description="of the request as JSON with sorted keys")
-
-
-class PlanStart(TestDocumentation):
-    """``POST /api/tests/from-plan``: run version ``plan_id`` of a saved plan on one unit."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    plan_id: int = Field(ge=1, le=2**31 - 1, description="the id of a plan version (GET /api/plans)")
-    serial_number: str | None = Field(default=None, max_length=64)
-    operator: str | None = Field(default=None, max_length=64)
 
 
 def _plan_request(plan: SavedPlan, start: PlanStart) -> TestRequest:
