@@ -140,30 +140,30 @@
     showMethods(chart.methods, chart.method);
     if (spcPlot) { spcPlot.destroy(); spcPlot = null; }
     if (mrPlot) { mrPlot.destroy(); mrPlot = null; }
-    const where = chart.bench ? " on " + chart.bench : " (fleet)";
+    const where = chart.bench ? t("fleet.spc_on", { bench: chart.bench }) : t("fleet.spc_fleet");
+    const runsOf = (n) => t("fleet.spc_runs", { n, reducer: chart.reducer, method: methodLabel(chart.method) });
     if (!chart.chart) {  // too few runs: no limits, say so
-      $("spc-summary").textContent = `${chart.runs.length} runs of ${chart.reducer}, ${methodLabel(chart.method)}` +
-        `${where}: ${chart.note}`;
+      $("spc-summary").textContent = `${runsOf(chart.runs.length)}${where}: ${chart.note}`;
       $("bias").tBodies[0].innerHTML = `<tr><td colspan="5" class="muted">–</td></tr>`;
       return;
     }
     const c = chart.chart, n = c.values.length, x = Array.from({ length: n }, (_, i) => i + 1);
     const flagged = c.values.map((v, i) => (c.flags[i].length ? v : null));
-    $("spc-summary").textContent = `${n} runs of ${chart.reducer}, ${methodLabel(chart.method)}${where}; ` +
-      `${chart.note}: centre ${c.center.toPrecision(5)}, σ̂ ${c.sigma.toPrecision(3)} ${chart.unit}; ` +
-      `out of control: ${c.out_of_control.length ? c.out_of_control.map((i) => chart.runs[i].id).join(", ") : "none"}`;
+    $("spc-summary").textContent = `${runsOf(n)}${where}; ` +
+      `${chart.note}: ${t("fleet.spc_centre")} ${c.center.toPrecision(5)}, σ̂ ${c.sigma.toPrecision(3)} ${chart.unit}; ` +
+      `${t("fleet.spc_out")}: ${c.out_of_control.length ? c.out_of_control.map((i) => chart.runs[i].id).join(", ") : t("fleet.spc_none")}`;
     spcPlot = new uPlot({
       width: width($("plot-spc")), height: 240, scales: { x: { time: false } },
-      axes: [{ label: "run (test order)" }, { label: chart.unit, size: 70 }],
-      series: [{ label: "run" }, { label: "value", stroke: "#1f5fa8", width: 1, points: { show: true, size: 4 } },
-        { label: "centre", stroke: "#157a2e", dash: [4, 4], points: { show: false } },
+      axes: [{ label: t("fleet.spc_order") }, { label: chart.unit, size: 70 }],
+      series: [{ label: t("fleet.spc_run") }, { label: t("fleet.spc_value"), stroke: "#1f5fa8", width: 1, points: { show: true, size: 4 } },
+        { label: t("fleet.spc_centre"), stroke: "#157a2e", dash: [4, 4], points: { show: false } },
         { label: "UCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } },
         { label: "LCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } },
-        { label: "out of control", stroke: "transparent", points: { show: true, size: 9, stroke: "#b3261e", fill: "#b3261e" } }],
+        { label: t("fleet.spc_out"), stroke: "transparent", points: { show: true, size: 9, stroke: "#b3261e", fill: "#b3261e" } }],
     }, [x, c.values, line(n, c.center), line(n, c.ucl), line(n, c.lcl), flagged], $("plot-spc"));
     mrPlot = new uPlot({
       width: width($("plot-mr")), height: 140, scales: { x: { time: false } },
-      axes: [{}, { label: "moving range", size: 70 }],
+      axes: [{}, { label: t("fleet.spc_mr"), size: 70 }],
       series: [{}, { label: "MR", stroke: "#5b6678", width: 1 },
         { label: "MR̄", stroke: "#157a2e", dash: [4, 4], points: { show: false } },
         { label: "UCL", stroke: "#b3261e", dash: [6, 3], points: { show: false } }],
@@ -173,7 +173,7 @@
     const body = $("bias").tBodies[0];
     try {
       const bias = (await api("/api/spc/bias?" + b)).data;
-      body.innerHTML = bias.benches.map((r) => `<tr><td>${esc(r.bench)}${bias.reference === r.bench ? " (reference)" : ""}</td>` +
+      body.innerHTML = bias.benches.map((r) => `<tr><td>${esc(r.bench)}${bias.reference === r.bench ? " (" + esc(t("fleet.spc_reference")) + ")" : ""}</td>` +
         `<td>${r.bias.toFixed(3)} ${esc(bias.unit)}</td><td>± ${r.U.toPrecision(2)} (k = ${r.k.toFixed(2)})</td>` +
         `<td>${r.runs}</td><td>${r.units}</td></tr>`).join("");
     } catch (e) { body.innerHTML = `<tr><td colspan="5" class="muted">${esc(e.message)}</td></tr>`; }
