@@ -32,8 +32,8 @@ from tcms_daq.analysis.rounding import round_to_uncertainty, unit_suffix, with_u
 from tcms_daq.config.models import CertificateSection
 from tcms_daq.errors import TcmsError
 from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision
+from tcms_daq.service import fonts
 from tcms_daq.service.certificate_text import catalogue
-from tcms_daq.service.fonts import cjk_fonts, figure_families
 from tcms_daq.service.loop_figure import loop_figure_svg
 from tcms_daq.store import StoredRun
 
@@ -49,6 +49,10 @@ PATH = re.compile(r"(?<![\w:/\\])(?:[A-Za-z]:)?(?:[\\/][^\s\\/,;()]+)+")
 
 class CertificateError(TcmsError):
     """The certificate could not be typeset."""
+
+
+class MissingFont(CertificateError):
+    """The certificate's language needs a font this machine does not have (a CJK font for Chinese)."""
 
 
 def without_paths(text: str) -> str:
@@ -308,14 +312,14 @@ def render_certificate(record: StoredRun, columns: Mapping[str, np.ndarray],
     font_paths: list[str] = []
     families = ["DejaVu Sans"]
     if lang != "en":  # Typst's embedded fonts have no CJK glyphs: an installed CJK font after the Latin one
-        cjk = cjk_fonts()
+        cjk = fonts.cjk_fonts()
         if not cjk:
-            raise CertificateError(f"certificate of run {record.id} in {lang!r}: no CJK font installed "
+            raise MissingFont(f"certificate of run {record.id} in {lang!r}: no CJK font installed "
                                    "(Debian: apt-get install fonts-noto-cjk)")
         doc["fonts"] = [cjk[0][0]]
         doc["lang"] = lang
         font_paths.append(str(cjk[0][1].parent))
-        families = figure_families()
+        families = fonts.figure_families()
     inputs = {"data": json.dumps(doc, allow_nan=False)}
     t = doc["t"]
     import matplotlib

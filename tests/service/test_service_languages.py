@@ -75,3 +75,14 @@ def test_report_and_certificate_in_chinese_and_english(settings_factory):
             assert word in text, word
         assert "Test certificate" in pdf_text(httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf",
                                                         timeout=120).content)
+
+
+def test_a_chinese_certificate_without_a_cjk_font_is_a_clear_503(settings_factory, monkeypatch):
+    from tcms_daq.service import fonts
+
+    settings = settings_factory()
+    run_id = _stored_run(settings.data_dir)
+    monkeypatch.setattr(fonts, "cjk_fonts", lambda: ())
+    with serve(settings, runner=ScriptedRunner()) as srv:
+        r = httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf", params={"lang": "zh"}, timeout=60)
+        assert r.status_code == 503 and "no CJK font installed" in r.json()["detail"]

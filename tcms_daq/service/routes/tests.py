@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
 
 from tcms_daq.analysis.evaluation import jsonable
@@ -18,7 +18,7 @@ from tcms_daq.service.deps import Manager, RunWithSamplesDep, Store, StoredRunDe
 from tcms_daq.service.messages import language
 from tcms_daq.service.report import render_report
 from tcms_daq.service.runner import RequestRejected
-from tcms_daq.service.schemas import LoopView, TestAccepted, TestRequest, TestSummary, summary_view
+from tcms_daq.service.schemas import ErrorBody, LoopView, TestAccepted, TestRequest, TestSummary, summary_view
 from tcms_daq.service.users import audit
 from tcms_daq.store import RunQuery, StoreError
 from tcms_daq.store.base import text_sha256
@@ -145,16 +145,20 @@ def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
 
 
 @router.get("/{run_id}/certificate.pdf", response_class=Response, responses={
-    **errors(404, 410), 200: {"description": "the test certificate", "content": {"application/pdf": {
+    **errors(404, 410), 503: {"model": ErrorBody, "description": "the language needs a font the service lacks"},
+    200: {"description": "the test certificate", "content": {"application/pdf": {
         "schema": {"type": "string", "format": "binary"}}}}})
 def get_certificate(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> Response:
     """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
     the instruments with their calibration and the compensation version (``tcms certificate`` writes the same).
     ``lang``: en or zh (default: the browser's Accept-Language, else English)."""
-    from tcms_daq.service.certificate import render_certificate
+    from tcms_daq.service.certificate import MissingFont, render_certificate
 
-    pdf = render_certificate(run, store.read_columns(run.id),
-                             lang=language(lang, request.headers.get("accept-language")))
+    try:
+        pdf = render_certificate(run, store.read_columns(run.id),
+                                 lang=language(lang, request.headers.get("accept-language")))
+    except MissingFont as exc:
+        raise HTTPException(status_code=503, detail=str(exc)) from None
     return Response(pdf, media_type="application/pdf",
                     headers={"Content-Disposition": f'inline; filename="tcms-certificate-{run.id}.pdf"'})
 
