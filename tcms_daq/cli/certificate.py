@@ -22,6 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"data directory of the SQLite run store (default: $TCMS_DATA_DIR or ./{DEFAULT_DATA_DIR})")
     p.add_argument("--store", metavar="URL", default=None,
                    help="run store URL, e.g. postgresql://user@host/db (default: $TCMS_STORE_URL, else --data-dir)")
+    p.add_argument("--lang", choices=("en", "zh"), default="en",
+                   help="language of the certificate: en (English) or zh (Simplified Chinese; needs a CJK font)")
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="PDF file to write (default: ./tcms-certificate-RUN_ID.pdf)")
     p.set_defaults(func=run)
@@ -45,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         record = store.get_run(args.run_id)
         if record is None:
             raise DataFormatError(f"unknown run {args.run_id!r} in {store.describe()}")
-        pdf = render_certificate(record, store.read_columns(record.id))
+        pdf = render_certificate(record, store.read_columns(record.id), lang=args.lang)
     finally:
         store.close()
     out = args.output or Path(f"tcms-certificate-{record.id}.pdf")

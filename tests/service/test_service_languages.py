@@ -86,3 +86,18 @@ def test_a_chinese_certificate_without_a_cjk_font_is_a_clear_503(settings_factor
     with serve(settings, runner=ScriptedRunner()) as srv:
         r = httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf", params={"lang": "zh"}, timeout=60)
         assert r.status_code == 503 and "no CJK font installed" in r.json()["detail"]
+
+
+def test_tcms_certificate_lang_zh(tmp_path):
+    import subprocess
+    import sys
+
+    if not cjk_fonts():
+        pytest.skip("no CJK font installed (bash scripts/setup --test installs fonts-noto-cjk)")
+    run_id = _stored_run(tmp_path / "data")
+    out = tmp_path / "cert-zh.pdf"
+    done = subprocess.run([sys.executable, "-m", "tcms_daq.cli", "certificate", run_id, "--data-dir",
+                           str(tmp_path / "data"), "--lang", "zh", "-o", str(out)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "试验证书" in pdf_text(out.read_bytes()) and "扭转刚度" in pdf_text(out.read_bytes())
