@@ -55,15 +55,18 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
 
 
 def find_gaps(time_s: np.ndarray, torque_nm: np.ndarray, torque_interval_s: np.ndarray | None = None,
-              settings: GapSettings = GapSettings()) -> list[Gap]:
-    """The gaps of an aligned record (angle stamps ``time_s``, torque ``torque_nm``), in time order."""
+              settings: GapSettings = GapSettings(), contiguous: np.ndarray | None = None) -> list[Gap]:
+    """The gaps of an aligned record (angle stamps ``time_s``, torque ``torque_nm``), in time order.
+    ``contiguous`` (one per step between samples): False where the record was cut on purpose (the move between
+    two stages of a test was not kept): no gap there."""
     t = np.asarray(time_s, dtype=float)
     torque = np.asarray(torque_nm, dtype=float)
     gaps: list[Gap] = []
     if t.size >= 2:
         steps = np.diff(t)
-        limit = settings.limit_for(steps)
-        for i in np.flatnonzero(steps > limit):
+        joined = np.ones(steps.size, dtype=bool) if contiguous is None else np.asarray(contiguous, dtype=bool)
+        limit = settings.limit_for(steps[joined])
+        for i in np.flatnonzero((steps > limit) & joined):
             pair = torque[i:i + 2]
             gaps.append(Gap("angle", float(t[i]), float(t[i + 1]), float(pair.min()), float(pair.max())))
     if torque_interval_s is not None and t.size:
@@ -94,11 +97,16 @@ def exclude_gapped_loops(samples: Samples, settings: GapSettings = GapSettings()
     """Leave out every evaluated loop (``loop_index`` ≥ 1) that holds a gap (or touches one: a gap between two
     loops leaves both out). Without a ``loop_index`` column a gap leaves nothing to evaluate."""
     interval = samples.extra.get(TORQUE_INTERVAL_COLUMN)
-    gaps = find_gaps(samples.time_s, samples.torque_nm, interval, settings)
+    loop = samples.extra.get("loop_index")
+    contiguous = None
+    if loop is not None:  # the loops of a stage follow each other; between stages the record was cut (a move)
+        stage_of = np.asarray(samples.extra.get("stage_index", np.zeros(len(loop))), dtype=float)
+        step = np.diff(np.asarray(loop, dtype=float))
+        contiguous = (np.diff(stage_of) == 0) & ((step == 0) | (step == 1))
+    gaps = find_gaps(samples.time_s, samples.torque_nm, interval, settings, contiguous)
     if not gaps:
         return GapExclusion(samples)
     t = samples.time_s
-    loop = samples.extra.get("loop_index")
     if loop is None:
         return GapExclusion(samples, gaps, [f"gap: {g.describe()}" for g in gaps],
                             reason=f"a gap in the data: {gaps[0].describe()}; nothing left to evaluate")

@@ -104,3 +104,16 @@ def test_the_aligner_carries_the_torque_interval():
     stale.push(np.array([0.0]), np.zeros(1), np.array([0.0]), np.zeros(1), now_s=0.0)
     stale.push(np.array([0.9]), np.zeros(1), np.empty(0), np.empty(0), now_s=1.5)  # torque stalled
     assert stale.released_extra[TORQUE_INTERVAL_COLUMN] == pytest.approx([1.5])
+
+
+def test_the_cut_between_two_stages_is_no_gap():
+    """A test at several positions keeps each stage's loops; the move between them is not evaluated, so the
+    record jumps in time there: that is no gap."""
+    first, second = loops_record(1), loops_record(1)
+    later = Samples(second.time_s + 60.0, second.torque_nm, second.angle_arcsec, dict(second.extra))
+    both = Samples.concat([first, later])
+    stage = np.concatenate([np.zeros(first.time_s.size), np.ones(later.time_s.size)])
+    staged = Samples(both.time_s, both.torque_nm, both.angle_arcsec, {**both.extra, "stage_index": stage})
+    evaluated = staged.select(staged.extra["loop_index"] >= 1)
+    out = exclude_gapped_loops(evaluated)
+    assert out.gaps == [] and out.reason is None and out.samples is evaluated
