@@ -46,7 +46,7 @@ from tcms_daq.acquisition.record import (
     StateChange,
     empty_samples,
 )
-from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapSettings, exclude_gapped_loops
+from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops
 from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
@@ -92,7 +92,7 @@ class ProcedureOptions:
     ramp_down_timeout_s: float = 3.0
     max_stop_s: float = 5.0
     kept_columns: tuple[str, ...] | None = None
-    gaps: GapSettings = GapSettings()
+    gaps: GapLimits = GapLimits()
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_stop_s) and self.max_stop_s > 0):

@@ -18,13 +18,35 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tcms_daq.config.models import GapSettings
 from tcms_daq.samples import Samples
 
-__all__ = ["TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapSettings", "exclude_gapped_loops", "find_gaps"]
+__all__ = ["TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops", "find_gaps"]
 
 #: per aligned sample: time between the torque readings that bracket it (s); 0 when a reading has its stamp
 TORQUE_INTERVAL_COLUMN = "torque_interval_s"
+
+
+@dataclass(frozen=True)
+class GapLimits:
+    """What a gap is (the bench config's ``[gaps]``, ``tcms_daq.config.models.GapSettings``, validated there).
+
+    limit_s: the longest stretch without readings of a channel that is not a gap (s, clock time); None:
+    ``limit_periods`` of the channel's median reading period, at least ``min_limit_s``. min_loops: the fewest
+    evaluated loops (per stage) a run must keep, once the loops with a gap are left out, to complete."""
+
+    limit_s: float | None = None
+    limit_periods: float = 5.0
+    min_limit_s: float = 0.2
+    min_loops: int = 1
+
+    def limit_for(self, periods_s: np.ndarray) -> float:
+        """The gap limit (s) of a channel whose reading periods (s) are ``periods_s``."""
+        if self.limit_s is not None:
+            return self.limit_s
+        periods = np.asarray(periods_s, dtype=float)
+        finite = periods[np.isfinite(periods)]  # zeros count: torque readings stamped with the angle's
+        typical = float(np.median(finite)) if finite.size else 0.0
+        return max(self.limit_periods * typical, self.min_limit_s)
 
 
 @dataclass(frozen=True)
@@ -55,7 +77,7 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
 
 
 def find_gaps(time_s: np.ndarray, torque_nm: np.ndarray, torque_interval_s: np.ndarray | None = None,
-              settings: GapSettings = GapSettings(), contiguous: np.ndarray | None = None) -> list[Gap]:
+              settings: GapLimits = GapLimits(), contiguous: np.ndarray | None = None) -> list[Gap]:
     """The gaps of an aligned record (angle stamps ``time_s``, torque ``torque_nm``), in time order.
     ``contiguous`` (one per step between samples): False where the record was cut on purpose (the move between
     two stages of a test was not kept): no gap there."""
@@ -93,7 +115,7 @@ class GapExclusion:
     reason: str | None = None
 
 
-def exclude_gapped_loops(samples: Samples, settings: GapSettings = GapSettings()) -> GapExclusion:
+def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) -> GapExclusion:
     """Leave out every evaluated loop (``loop_index`` ≥ 1) that holds a gap (or touches one: a gap between two
     loops leaves both out). Without a ``loop_index`` column a gap leaves nothing to evaluate."""
     interval = samples.extra.get(TORQUE_INTERVAL_COLUMN)

@@ -212,7 +212,7 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile | Plan, se
                 t["source"] = "[sim] of the config (what tcms sim serve simulates when given the same file)"
         used_seed = cfg.sim.seed
     truth = None if truths is None else (truths[0] if len(truths) == 1 else _worst_truth(truths))
-    exclusion = exclude_gapped_loops(rec.evaluated_samples(), cfg.gaps)
+    exclusion = exclude_gapped_loops(rec.evaluated_samples(), cfg.gaps.limits())
     if exclusion.reason is not None:
         raise TcmsError(f"test failed: {exclusion.reason}")
     return SimulatedRun(cfg, reducer, plan.first, used_seed, record, exclusion.samples, truth, compensation,

@@ -7,11 +7,14 @@ twists the reducer output towards positive angle.
 from __future__ import annotations
 
 from datetime import date
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
+
+if TYPE_CHECKING:
+    from tcms_daq.analysis.gaps import GapLimits
 
 # ------------------------------------------------------------------------------------------------- reducers
 
@@ -476,16 +479,13 @@ class GapSettings(BaseModel):
     min_limit_s: float = Field(0.2, ge=0.0)
     min_loops: int = Field(1, ge=1)
 
-    def limit_for(self, periods_s: Any) -> float:
-        """The gap limit (s) of a channel whose reading periods (s, a numpy array) are ``periods_s``."""
-        import numpy as np
+    def limits(self) -> GapLimits:
+        """The analysis's form of these settings."""
+        # imported here: the analysis package pulls in scipy, which loading a config does not need
+        from tcms_daq.analysis.gaps import GapLimits
 
-        if self.limit_s is not None:
-            return self.limit_s
-        periods = np.asarray(periods_s, dtype=float)
-        finite = periods[np.isfinite(periods)]  # zeros count: torque readings stamped with the angle's
-        typical = float(np.median(finite)) if finite.size else 0.0
-        return max(self.limit_periods * typical, self.min_limit_s)
+        return GapLimits(limit_s=self.limit_s, limit_periods=self.limit_periods, min_limit_s=self.min_limit_s,
+                         min_loops=self.min_loops)
 
 
 class RichReducerConfig(BaseModel):

@@ -424,7 +424,7 @@ class BenchRunner:
                     evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
                     run_id=run_id, profile_info={"reducer": payload.reducer.name},
                     # the store records every channel as it arrives: the run keeps in memory what it evaluates
-                    options=ProcedureOptions(kept_columns=(), gaps=self.config.gaps),
+                    options=ProcedureOptions(kept_columns=(), gaps=self.config.gaps.limits()),
                 )
                 result = run.run()
             except ProfileRejected as exc:

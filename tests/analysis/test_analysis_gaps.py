@@ -9,7 +9,7 @@ import pytest
 
 from tcms_daq.acquisition.align import Aligner
 from tcms_daq.analysis import evaluate
-from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapSettings, exclude_gapped_loops, find_gaps
+from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops, find_gaps
 from tcms_daq.samples import Samples
 
 RATE_HZ = 500.0
@@ -77,7 +77,7 @@ def test_too_few_loops_left_is_a_reason_and_no_gap_changes_nothing():
     assert out.reason is not None and out.reason.startswith("0 of 1 loops left")
     assert "angle channel: no readings for 1.00 s" in out.reason
     # a configured limit above the gap lets it pass; a sampling jitter of a few periods is no gap
-    assert exclude_gapped_loops(without(evaluated, 5.0, 6.0), GapSettings(limit_s=2.0)).reason is None
+    assert exclude_gapped_loops(without(evaluated, 5.0, 6.0), GapLimits(limit_s=2.0)).reason is None
     jitter = without(evaluated, 5.0, 5.0 + 4 / RATE_HZ)
     assert find_gaps(jitter.time_s, jitter.torque_nm) == []
 
