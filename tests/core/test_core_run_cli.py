@@ -135,5 +135,5 @@ def test_progress_bar_only_on_a_terminal():
     out = proc.stdout.read()
     assert proc.wait(timeout=60) == 0
     os.close(master)
-    assert b"RV-110E (clock time)" in err and b"100%" in err and b"loop 1/1" in err
+    assert b"RV-110E (test time)" in err and b"(real time)" in err and b"100%" in err and b"loop 1/1" in err
     assert json.loads(out)["n_loops"] == 1  # stdout stays one JSON object
