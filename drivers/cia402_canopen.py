@@ -559,7 +559,15 @@ class CiA402Canopen(CiA402Loader):
         return self._latest_tpdo()[0]
 
     def _read_error_code(self) -> int:
-        return self._error_code()
+        """The last TPDO2 / EMCY code; 0x603F by SDO when neither told it yet (e.g. just after connecting to a
+        drive already in FAULT)."""
+        code = self._error_code()
+        if code == 0:
+            try:
+                code = self._sdo_read(0x603F)
+            except (InstrumentTimeout, CommandRejected, Disconnected):
+                pass
+        return code
 
     def _read_torque_permille(self) -> int:
         return self._latest_tpdo()[1]

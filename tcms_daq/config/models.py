@@ -297,7 +297,8 @@ class AngleInstrumentConfig(InstrumentConfig):
     uncertainty: AngleUncertainty | None = None
 
 
-DEFAULT_COMM_TIMEOUT_MS = 500  # Modbus: the drive reacts after this much silence of its master (the driver's default)
+DEFAULT_COMM_TIMEOUT_MS = 1000  # Modbus: the drive reacts after this much silence of its master (the driver's
+# default: 1 s, so a host held up a few hundred ms on a loaded machine does not fault the drive mid-test)
 
 
 class LoaderInstrumentConfig(InstrumentConfig):

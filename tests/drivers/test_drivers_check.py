@@ -78,6 +78,6 @@ def test_packaged_hardware_examples_compose(config, loader_class):
     assert bench.description["angle"]["baudrate"] == 115200 and bench.description["torque"]["baudrate"] == 38400
     # the drive's own watchdog, from the typed [instruments.loader] fields, to the driver that takes each
     if loader_class == "CiA402Modbus":
-        assert bench.loader.comm_timeout_ms == 500 and bench.loader.abort_connection_option == 1
+        assert bench.loader.comm_timeout_ms == 1000 and bench.loader.abort_connection_option == 1
     else:
         assert bench.loader.master_heartbeat_ms == 100 and bench.loader.drive_consumer_timeout_ms == 1000
