@@ -30,33 +30,27 @@ import numpy as np
 from tcms_daq.sim.physics import ReducerPhysics
 from tcms_daq.sim.unmodelled import UNMODELLED, Unmodelled
 
+from tcms_daq.discrepancy import effects as fx
 from tcms_daq.samples import Samples
 
-# Hidden effects at the tested amplitudes (contract names and parameters, as in a [sim.effects] table).
+# Hidden effects at the tested amplitudes (each effect's typical size, as in a [sim.effects] table).
+_SINGLE = (fx.TIME_SKEW, fx.THERMAL_DRIFT, fx.BENDING_DEFORMATION, fx.TORSION_OFFSET, fx.SCALE_ERROR,
+           fx.INTERPOLATION_ERROR, fx.PERIODIC_ERROR, fx.BACKLASH, fx.TORQUE_ZERO_OFFSET)
+
+
+def _typical(*names: str) -> dict[str, dict[str, float]]:
+    return {n: dict(fx.REGISTRY[n].typical) for n in names}
+
+
 CASES: dict[str, dict[str, dict[str, float]]] = {
     "null": {},
-    "time_skew": {"time_skew": {"skew_s": 0.02}},
-    "thermal_drift": {"thermal_drift": {"rate_arcsec_per_s": 0.03}},
-    "bending_deformation": {"bending_deformation": {"coef_arcsec_per_nm2": 2.5e-6}},
-    "torsion_offset": {"torsion_offset": {"coef_arcsec_per_nm": 0.003}},
-    "scale_error": {"scale_error": {"ratio": 0.01}},
-    "interpolation_error": {"interpolation_error": {"period_arcsec": 72.0, "amplitude_arcsec": 0.6,
-                                                    "phase_rad": 0.5}},
-    "periodic_error": {"periodic_error": {"period_arcsec": 110.0, "amplitude_arcsec": 0.8, "phase_rad": 1.0}},
-    "backlash": {"backlash": {"backlash_arcsec": 2.0}},
-    "torque_zero_offset": {"torque_zero_offset": {"offset_nm": 8.0}},
-    "time_skew+interpolation_error": {"time_skew": {"skew_s": 0.02},
-                                      "interpolation_error": {"period_arcsec": 72.0, "amplitude_arcsec": 0.6,
-                                                              "phase_rad": 0.5}},
-    "thermal_drift+backlash": {"thermal_drift": {"rate_arcsec_per_s": 0.03}, "backlash": {"backlash_arcsec": 2.0}},
+    **{n: _typical(n) for n in _SINGLE},
+    f"{fx.TIME_SKEW}+{fx.INTERPOLATION_ERROR}": _typical(fx.TIME_SKEW, fx.INTERPOLATION_ERROR),
+    f"{fx.THERMAL_DRIFT}+{fx.BACKLASH}": _typical(fx.THERMAL_DRIFT, fx.BACKLASH),
 }
 
 # The parameter whose recovery is checked (within 10 %) per effect.
-PRIMARY: dict[str, str] = {
-    "time_skew": "skew_s", "thermal_drift": "rate_arcsec_per_s", "bending_deformation": "coef_arcsec_per_nm2",
-    "torsion_offset": "coef_arcsec_per_nm", "scale_error": "ratio", "interpolation_error": "amplitude_arcsec",
-    "periodic_error": "amplitude_arcsec", "backlash": "backlash_arcsec", "torque_zero_offset": "offset_nm",
-}
+PRIMARY: dict[str, str] = {n: fx.REGISTRY[n].primary for n in _SINGLE}
 
 
 @dataclass(frozen=True)

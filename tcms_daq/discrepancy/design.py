@@ -194,6 +194,11 @@ class DesignData:
         return self.measured_angle_arcsec - self.sim_angle_arcsec
 
     @cached_property
+    def elapsed_s(self) -> np.ndarray:
+        """Time since the first row (s): the clock the time-dependent effects run on."""
+        return self.time_s - self.time_s[0]
+
+    @cached_property
     def segment_rows(self) -> list[np.ndarray]:
         """Row indices of each time-continuous segment, in segment order (computed once)."""
         order = np.argsort(self.segments, kind="stable")
