@@ -178,11 +178,12 @@ def _interp_amplitude(period_arcsec: float, g: float) -> float:
 
 def _one_sided_dead_zone(p: Programme, rng: np.random.Generator) -> Run:
     t, applied, angle = _base(p)
-    lo, hi = 100.0, 160.0  # loading only: the output stops while the torque rises through [lo, hi] N·m
-    rising = np.diff(applied, prepend=applied[0]) > 0
-    inside = rising & (applied > lo)
-    stuck = np.where(inside, np.clip(applied, lo, hi) - lo, 0.0) / K_NM_PER_ARCSEC
-    m, s = _read(p, rng, t, applied, angle - stuck)
+    lo, hi = 100.0, 220.0  # loading only: the output stalls while the torque rises through [lo, hi] N·m, then
+    rising = np.diff(applied, prepend=applied[0]) > 0  # catches up (a sticky spot on one flank of the teeth)
+    inside = rising & (applied > lo) & (applied < hi)
+    x = np.clip((applied - lo) / (hi - lo), 0.0, 1.0)
+    lag = np.where(inside, np.minimum(x * (hi - lo) / K_NM_PER_ARCSEC, 3.0 * np.sin(math.pi * x)), 0.0)
+    m, s = _read(p, rng, t, applied, angle - lag)
     return Run(m, s, {}, {"torque_window_nm": (lo, hi), "direction": "loading"})
 
 
@@ -249,9 +250,9 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
            _catalogue(fx.PERIODIC_ERROR, 0.7, lambda t, a, th: th + 0.7 * np.sin(2 * math.pi * th / 95 + 0.4)), True),
     Family("play", "backlash: a 2.5″ play operator on the angle",
            _catalogue(fx.BACKLASH, 2.5, lambda t, a, th: play(th, 2.5)), True),
-    Family("torque_zero_offset", "the torque reading 6 N·m high (the simulation run on the offset reading)",
+    Family("torque_reading_offset", "the torque reading 6 N·m high (the simulation run on the offset reading)",
            _catalogue(fx.TORQUE_ZERO_OFFSET, 6.0, lambda t, a, th: th, lambda t, a: a + 6.0), True),
-    Family("one_sided_dead_zone", "a dead zone 100…160 N·m while loading only", _one_sided_dead_zone, False),
+    Family("one_sided_dead_zone", "a dead zone 100…220 N·m while loading only (stalls up to 3″, catches up)", _one_sided_dead_zone, False),
     Family("stick_slip", "stick-slip: up to 2″ behind for 0.4 s after each reversal", _stick_slip, False),
     Family("loop_grows_with_amplitude", "a friction loop twice as wide at full amplitude", _loop_grows, False),
     Family("vibration_in_time", "a 0.4″ vibration at 1.3 Hz", _vibration, False),
@@ -266,26 +267,25 @@ def located(family: str, where: dict[str, Any], unexplained: dict[str, Any] | No
     if not unexplained:
         return False
     shapes = [unexplained.get("shape_detail") or {}, *unexplained.get("shapes_considered", [])[:3]]
-    spans = unexplained.get("spans", [])
     best = unexplained.get("shape")
     if "period_s" in where:
         return any(s.get("shape") == "periodic_in_time" and abs(s["period_s"] / where["period_s"] - 1) < 0.05
                    for s in shapes)
-    if "steps_at_s" in where:
-        found = [s.get("at_time_s") for s in shapes if s.get("shape") == "step"]
-        found += [x for s in spans for x in (s["from_time_s"], s["to_time_s"])]
-        return all(any(f is not None and abs(f - a) < 2.0 for f in found) for a in where["steps_at_s"][:1])
-    if "torque_window_nm" in where:
+    if "steps_at_s" in where:  # every step located within 1 s
+        found = [x["at_time_s"] for s in unexplained.get("shapes_considered", []) if s.get("shape") == "step"
+                 for x in s.get("steps", [])]
+        return all(any(abs(f - a) < 1.0 for f in found) for a in where["steps_at_s"])
+    if "torque_window_nm" in where:  # a window in the right direction overlapping the dead zone, not the whole range
         lo, hi = where["torque_window_nm"]
-        return any(s["torque_range_nm"][0] < hi + 50 and s["torque_range_nm"][1] > lo - 50
-                   and s["torque_range_nm"][1] - s["torque_range_nm"][0] < 600 and s.get("loading_share", 0.5) > 0.6
-                   for s in spans)
+        return any(w["direction"] == where["direction"] and w["torque_range_nm"][0] < hi + 40
+                   and w["torque_range_nm"][1] > lo - 40 and w["torque_range_nm"][1] - w["torque_range_nm"][0] < 600
+                   for w in unexplained.get("torque_windows", []))
     if "after_reversals" in where:
         return bool(best and best.startswith("transition_after_reversal")) or best == "spikes"
     if where.get("loop_width"):
         return best in ("loop_width_change", "transition_after_reversal_in_torque")
     if where.get("grows_with_time"):
-        return best in ("ramp", "lagged_response") or any(s.get("shape") == "ramp" for s in shapes[:2])
+        return best == "stiffness_change_in_time"
     return False
 
 
