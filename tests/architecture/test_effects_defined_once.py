@@ -21,6 +21,7 @@ OTHER_MEANINGS = {
     (Path("tcms_daq/analysis/evaluation.py"), fx.BACKLASH),
     (Path("tcms_daq/analysis/report.py"), fx.BACKLASH),
     (Path("tcms_daq/identity.py"), fx.BACKLASH),
+    (Path("tcms_daq/service/messages.py"), fx.BACKLASH),  # the fleet page's column label of the measured backlash
     (Path("tcms_daq/compensation/terms.py"), fx.THERMAL_DRIFT),
 }
 

@@ -499,7 +499,7 @@
 
   function addDiscrepancyButtons() {
     for (const tr of $("history").tBodies[0].rows) {
-      const id = tr.cells.length ? tr.cells[0].textContent : "";
+      const id = tr.title;  // the row names its run by time; the id is its title
       if (!id || tr.querySelector(".find-effects")) continue;
       const button = document.createElement("button");
       button.type = "button";
