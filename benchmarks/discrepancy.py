@@ -14,8 +14,9 @@ import time
 import numpy as np
 
 from benchmarks._runs import RUNS, spread
+from tcms_daq.discrepancy import effects as fx
 
-CASE = "time_skew+interpolation_error"
+CASE = f"{fx.TIME_SKEW}+{fx.INTERPOLATION_ERROR}"
 SIZES = (100_000, 1_000_000)
 MAX_TIME_RATIO_10X = 4.0
 MAX_SECONDS_1M = 20.0
@@ -42,7 +43,7 @@ def _baseline_s(measured, simulated) -> float:
     data = build_design(measured, simulated)
     linear = [c for c in cat.EFFECT_NAMES if not cat.CATALOGUE[c].nonlinear]
     x = np.column_stack([np.ones(len(data))] + [cat.columns(c, data) for c in linear]
-                        + [cat.columns("interpolation_error", data, p) for p in cat.interpolation_periods(data)])
+                        + [cat.columns(cat.INTERPOLATION_ERROR, data, p) for p in cat.interpolation_periods(data)])
     np.linalg.lstsq(x, data.residual_arcsec, rcond=None)
     return time.perf_counter() - t0
 

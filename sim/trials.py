@@ -30,33 +30,26 @@ import numpy as np
 from tcms_daq.sim.physics import ReducerPhysics
 from tcms_daq.sim.unmodelled import UNMODELLED, Unmodelled
 
+from tcms_daq.discrepancy import effects as fx
 from tcms_daq.samples import Samples
 
-# Hidden effects at the tested amplitudes (contract names and parameters, as in a [sim.effects] table).
+# Hidden effects at the tested amplitudes (each effect's typical size, as in a [sim.effects] table).
+_SINGLE = tuple(name for name, effect in fx.REGISTRY.items() if effect.simulated and effect.typical)
+
+
+def _typical(*names: str) -> dict[str, dict[str, float]]:
+    return {n: dict(fx.REGISTRY[n].typical) for n in names}
+
+
 CASES: dict[str, dict[str, dict[str, float]]] = {
     "null": {},
-    "time_skew": {"time_skew": {"skew_s": 0.02}},
-    "thermal_drift": {"thermal_drift": {"rate_arcsec_per_s": 0.03}},
-    "bending_deformation": {"bending_deformation": {"coef_arcsec_per_nm2": 2.5e-6}},
-    "torsion_offset": {"torsion_offset": {"coef_arcsec_per_nm": 0.003}},
-    "scale_error": {"scale_error": {"ratio": 0.01}},
-    "interpolation_error": {"interpolation_error": {"period_arcsec": 72.0, "amplitude_arcsec": 0.6,
-                                                    "phase_rad": 0.5}},
-    "periodic_error": {"periodic_error": {"period_arcsec": 110.0, "amplitude_arcsec": 0.8, "phase_rad": 1.0}},
-    "backlash": {"backlash": {"backlash_arcsec": 2.0}},
-    "torque_zero_offset": {"torque_zero_offset": {"offset_nm": 8.0}},
-    "time_skew+interpolation_error": {"time_skew": {"skew_s": 0.02},
-                                      "interpolation_error": {"period_arcsec": 72.0, "amplitude_arcsec": 0.6,
-                                                              "phase_rad": 0.5}},
-    "thermal_drift+backlash": {"thermal_drift": {"rate_arcsec_per_s": 0.03}, "backlash": {"backlash_arcsec": 2.0}},
+    **{n: _typical(n) for n in _SINGLE},
+    f"{fx.TIME_SKEW}+{fx.INTERPOLATION_ERROR}": _typical(fx.TIME_SKEW, fx.INTERPOLATION_ERROR),
+    f"{fx.THERMAL_DRIFT}+{fx.BACKLASH}": _typical(fx.THERMAL_DRIFT, fx.BACKLASH),
 }
 
 # The parameter whose recovery is checked (within 10 %) per effect.
-PRIMARY: dict[str, str] = {
-    "time_skew": "skew_s", "thermal_drift": "rate_arcsec_per_s", "bending_deformation": "coef_arcsec_per_nm2",
-    "torsion_offset": "coef_arcsec_per_nm", "scale_error": "ratio", "interpolation_error": "amplitude_arcsec",
-    "periodic_error": "amplitude_arcsec", "backlash": "backlash_arcsec", "torque_zero_offset": "offset_nm",
-}
+PRIMARY: dict[str, str] = {n: fx.REGISTRY[n].primary for n in _SINGLE}
 
 
 @dataclass(frozen=True)
@@ -219,6 +212,66 @@ def run_case(case: str, seed: int, design: TrialDesign = TrialDesign(), amplitud
                         result.verdict.verdict)
 
 
+@dataclass
+class ClosedLoop:
+    """Run 1 → discrepancy → apply (the model file's terms with their uncertainties) → run 2 on new data, analysed
+    against the applied model."""
+
+    case: str
+    size: float
+    first: str  # run 1's verdict
+    named: dict[str, dict[str, float]]  # run 1's named effects and parameters
+    uncertainty: dict[str, dict[str, float]]  # their standard uncertainties (k = 1), carried by the model file
+    second: str  # run 2's verdict against the applied model
+    second_named: list[str]
+    second_cv_rms_arcsec: float
+    noise_floor_arcsec: float
+
+    @property
+    def closed(self) -> bool:
+        return self.second == "consistent" and not self.second_named
+
+    def to_dict(self) -> dict:
+        return {"case": self.case, "size": self.size, "first": self.first, "named": self.named,
+                "uncertainty": self.uncertainty, "second": self.second, "second_named": self.second_named,
+                "second_cv_rms_arcsec": self.second_cv_rms_arcsec, "noise_floor_arcsec": self.noise_floor_arcsec,
+                "closed": self.closed}
+
+
+# Run 2 is another programme than run 1 (a smaller amplitude, another seed): the model must carry over.
+SECOND_RUN = TrialDesign(amplitude_nm=600.0)
+
+
+def closed_loop(case: str, size: float, seed: int, design: TrialDesign = TrialDesign()) -> ClosedLoop:
+    """The closed loop of one case at ``size`` × its typical amplitude (seeds ``seed`` and ``seed + 1``)."""
+    from tcms_daq.discrepancy.model_file import apply_model, model_from_result, parse_model
+    from tcms_daq.discrepancy.workflow import run_discrepancy
+
+    table = scaled(CASES[case], size)
+    measured, simulated, floor = make_pair(table, seed, design)
+    first = run_discrepancy(measured, simulated)
+    model = parse_model(model_from_result(first).to_toml())  # through the file, as the service stores it
+    measured_2, simulated_2, _ = make_pair(table, seed + 1, SECOND_RUN)
+    second = run_discrepancy(measured_2, apply_model(model, simulated_2))
+    return ClosedLoop(case, size, first.verdict.verdict, {t.name: t.parameters for t in model.terms},
+                      {t.name: t.standard_uncertainty for t in model.terms}, second.verdict.verdict, second.names,
+                      second.cv_rms_after_arcsec, floor)
+
+
+def closed_loop_table(loops: list[ClosedLoop]) -> str:
+    """A Markdown table of closed loops (the README's demonstration)."""
+    lines = ["| hidden effect | size | run 1 | named (primary parameter ± u) | run 2 against the applied model |",
+             "|---|---|---|---|---|"]
+    for lp in loops:
+        named = "; ".join(
+            f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, float('nan')):.2g}"
+            for n, p in lp.named.items()) or "-"
+        hidden = "; ".join(f"{n} {v[fx.REGISTRY[n].primary]:.4g}" for n, v in scaled(CASES[lp.case], lp.size).items())
+        lines.append(f"| {hidden} | ×{lp.size:g} | {lp.first} | {named} | {lp.second} "
+                     f"({lp.second_cv_rms_arcsec:.3f}″ vs floor {lp.noise_floor_arcsec:.3f}″) |")
+    return "\n".join(lines)
+
+
 def summarise(outcomes: list[TrialOutcome]) -> dict:
     every_run = outcomes
     unknown_runs = [o for o in outcomes if o.out_of_catalogue]
@@ -267,7 +320,15 @@ def main(argv: list[str] | None = None, prog: str = "python -m tcms_daq.sim.tria
     parser.add_argument("--amplitude-scale", type=float, default=1.0,
                         help="multiply every hidden amplitude (skew, rate, coefficient, amplitude) by this")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--closed-loop", type=float, action="append", metavar="SIZE",
+                        help="run 1 → apply → run 2 for every catalogue case at SIZE × its typical amplitude "
+                             "(repeatable); prints a Markdown table")
     args = parser.parse_args(argv)
+    if args.closed_loop:
+        names = [c for c in (args.case or CASES) if c in CASES and c != "null"]
+        loops = [closed_loop(c, size, args.first_seed) for c in names for size in args.closed_loop]
+        print(json.dumps([lp.to_dict() for lp in loops], indent=1) if args.json else closed_loop_table(loops))
+        return 0 if all(lp.closed for lp in loops) else 1
     cases = args.case or list(CASES) + ([] if args.catalogue_only else list(UNMODELLED))
     outcomes = []
     for case in cases:

@@ -14,7 +14,6 @@ from pathlib import Path
 
 from tcms_daq.errors import DataFormatError
 
-HIDDEN_EFFECT = {"scale_error": {"ratio": 0.01}}
 SEED = 100
 
 
@@ -23,6 +22,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tcms_daq.compensation.calibration import CALIBRATION_COLUMNS
     from tcms_daq.compensation.table4 import load_table4
+    from tcms_daq.discrepancy.effects import SCALE_ERROR
     from tcms_daq.samples import write_csv
     from tcms_daq.sim.trials import make_pair
 
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     columns = {"torque_nm": t4.torque_nm, "encoder_arcsec": t4.encoder_arcsec, "reference_arcsec": t4.reference_arcsec}
     rows = np.column_stack([columns[c] for c in CALIBRATION_COLUMNS])
     np.savetxt(out / "cal.csv", rows, delimiter=",", header=",".join(CALIBRATION_COLUMNS), comments="", fmt="%.6g")
-    measured, simulated, _ = make_pair(HIDDEN_EFFECT, SEED)
+    measured, simulated, _ = make_pair({SCALE_ERROR: {"ratio": 0.01}}, SEED)  # a hidden 1 % scale error
     write_csv(out / "measured.csv", measured)
     write_csv(out / "simulated.csv", simulated)
     for name, what in (("cal.csv", "the paper's Table 4: torque, encoder and autocollimator angles"),

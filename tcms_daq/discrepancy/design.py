@@ -27,13 +27,15 @@ def load_direction(torque_nm: np.ndarray, threshold_nm: float | None = None) -> 
     """+1 where the torque is increasing (loading towards +), −1 where decreasing, by turning points.
 
     A turning point is accepted once the torque has moved ``threshold_nm`` (default 2 % of the span) away
-    from the running extreme; the samples after the extreme get the new direction, so sensor noise never
-    flips it. Samples before the first clear movement get the first direction found.
+    from the running extreme; the samples after the extreme get the new direction from the first one that has
+    left the extreme by more than three times the torque noise (a hold at the tip stays on the branch it ends), so
+    sensor noise never flips it. Samples before the first clear movement get the first direction found.
     """
     t = np.asarray(torque_nm, dtype=float)
     n = len(t)
     if n == 0:
         return np.zeros(0, dtype=np.int8)
+    noise_nm = 3.0 * torque_noise_nm(t)
     span = float(np.ptp(t))
     h = threshold_nm if threshold_nm is not None else max(REVERSAL_FRACTION * span, 1e-12)
     d = 0
@@ -65,6 +67,7 @@ def load_direction(torque_nm: np.ndarray, threshold_nm: float | None = None) -> 
                 d, ext, ext_i = 1, v, i
     if d == 0:
         return np.full(n, 1 if t[-1] >= t[0] else -1, dtype=np.int8)
+    turns = [_left_extreme(t, i, noise_nm) for i in turns]
     out = np.empty(n, dtype=np.int8)
     bounds = [0, *turns, n]
     sign = first
@@ -72,6 +75,26 @@ def load_direction(torque_nm: np.ndarray, threshold_nm: float | None = None) -> 
         out[a:b] = sign
         sign = -sign
     return out
+
+
+def torque_noise_nm(torque_nm: np.ndarray) -> float:
+    """Standard deviation of the torque's sample noise from its second differences (zero on ramps and holds):
+    1.4826·MAD(Δ²T)/√6."""
+    if len(torque_nm) < 5:
+        return 0.0
+    d2 = np.diff(torque_nm, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+def _left_extreme(t: np.ndarray, first_after: int, band_nm: float) -> int:
+    """The first row of a new branch: the first row after the extreme (row ``first_after − 1``) that has left the
+    extreme by more than the noise band, so a hold at the tip stays on the branch it ends (the reducer only turns
+    when the torque moves back)."""
+    ext = t[first_after - 1]
+    i = first_after
+    while i < len(t) and abs(t[i] - ext) <= band_nm and i - first_after < 50:
+        i += 1
+    return i if i < len(t) and abs(t[i] - ext) > band_nm else first_after
 
 
 def reversals(direction: np.ndarray) -> np.ndarray:
@@ -192,6 +215,11 @@ class DesignData:
     @property
     def residual_arcsec(self) -> np.ndarray:
         return self.measured_angle_arcsec - self.sim_angle_arcsec
+
+    @cached_property
+    def elapsed_s(self) -> np.ndarray:
+        """Time since the first row (s): the clock the time-dependent effects run on."""
+        return self.time_s - self.time_s[0]
 
     @cached_property
     def segment_rows(self) -> list[np.ndarray]:

@@ -71,6 +71,58 @@ def periodogram(x: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.ndarray
     return amp
 
 
+def uniform_step_s(time_s: np.ndarray) -> float | None:
+    """The sample spacing when ``time_s`` is evenly sampled (99 % of the steps within 1 % of the median), else None."""
+    if len(time_s) < 16:
+        return None
+    dt = np.diff(time_s)
+    step = float(np.median(dt))
+    if not step > 0:
+        return None
+    return step if np.mean(np.abs(dt - step) <= 0.01 * step) >= 0.99 else None
+
+
+def time_lines(time_s: np.ndarray, r: np.ndarray, *, count: int = 3, ratio: float = 25.0
+               ) -> list[tuple[float, float, float]]:
+    """The strongest sinusoids in time of ``r`` as (period s, amplitude ″, phase rad), from the FFT of the evenly
+    sampled record (every sample: a stride would alias a vibration), each refined by least squares at the peak and
+    kept when its power is ``ratio`` times the spectrum's median; at most ``count``, strongest first, each removed
+    before the next is looked for. Empty when the sampling is uneven."""
+    step = uniform_step_s(time_s)
+    if step is None:
+        return []
+    x = np.asarray(r, dtype=float) - float(np.mean(r))
+    t = np.asarray(time_s, dtype=float) - float(time_s[0])
+    n = len(x)
+    n_fft = 1 << int(math.ceil(math.log2(2 * n)))
+    f = np.fft.rfftfreq(n_fft, step)
+    low = 2.0 / (n * step)  # at least two cycles in the record
+    usable = (f >= low) & (f <= 0.45 / step)
+    if not usable.any():
+        return []
+    window = np.hanning(n)
+    out: list[tuple[float, float, float]] = []
+    for _ in range(count):
+        power = np.abs(np.fft.rfft(x * window, n_fft)) ** 2
+        band = np.where(usable, power, 0.0)
+        i = int(np.argmax(band))
+        if band[i] < ratio * float(np.median(power[usable])):
+            break
+        if 0 < i < len(power) - 1:  # parabolic refinement of the peak in log power
+            a, b, c = np.log(power[i - 1:i + 2] + 1e-300)
+            den = a - 2 * b + c
+            shift = 0.5 * (a - c) / den if den != 0 else 0.0
+            freq = float(f[i] + np.clip(shift, -0.5, 0.5) * (f[1] - f[0]))
+        else:
+            freq = float(f[i])
+        w = 2 * math.pi * freq * t
+        basis = np.column_stack((np.sin(w), np.cos(w)))
+        coef = np.linalg.lstsq(basis, x, rcond=None)[0]
+        x = x - basis @ coef
+        out.append((1.0 / freq, float(math.hypot(*coef)), float(math.atan2(coef[1], coef[0]))))
+    return out
+
+
 def localise(data: DesignData, residual: np.ndarray) -> dict:
     """JSON-ready localisation summary of ``residual`` (see the module docstring)."""
     r = residual - residual.mean()
@@ -121,7 +173,9 @@ def localise(data: DesignData, residual: np.ndarray) -> dict:
         amp = periodogram(data.time_s, r, p_time)
         i = int(np.argmax(amp))
         out["periodogram_time"] = {"period_s": p_time.tolist(), "amplitude_arcsec": amp.tolist(),
-                                   "peak_period_s": float(p_time[i]), "peak_amplitude_arcsec": float(amp[i])}
+                                   "peak_period_s": float(p_time[i]), "peak_amplitude_arcsec": float(amp[i]),
+                                   "lines": [{"period_s": p, "amplitude_arcsec": a}
+                                             for p, a, _ in time_lines(data.time_s, r)]}
     ranked = sorted(((v["explained_fraction"], k) for k, v in against.items()), reverse=True)
     out["strongest_signal"] = ranked[0][1] if ranked else None
     return out

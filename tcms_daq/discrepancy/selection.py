@@ -199,9 +199,10 @@ def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.nda
         beta = np.linalg.solve(a, b[:, :, None])[:, :, 0]
         sse = r2 - (b * beta).sum(axis=1)
     i = int(np.argmin(sse))
-    if name == "interpolation_error":
+    refine = cat.CATALOGUE[name].grid_refine
+    if refine == "discrete":
         return float(values[i])
-    if name == "periodic_error":
+    if refine == "frequency":
         f = 1.0 / values
         order = np.argsort(f)
         fi = _parabolic(f[order], sse[order], int(np.flatnonzero(order == i)[0]))
@@ -385,7 +386,7 @@ def select(cols: Columns, y: np.ndarray, rows: np.ndarray, candidates: list[str]
         win = scores[best]
         aliases: list[str] = []
         nl_prev = _prev_nl(path[-1], names)
-        if best == "periodic_error" and cat.angle_follows_torque(data):
+        if cat.CATALOGUE[best].grid_refine == "frequency" and cat.angle_follows_torque(data):
             aliases.append(cat.ONE_TO_ONE_ALIAS)  # any f(θ) is a g(T) here: the period is no evidence
         for c in order:
             if c == best or c in excluded or c in aliases:

@@ -18,19 +18,9 @@ user.
 
 from __future__ import annotations
 
-from tcms_daq.compensation.terms import Scale, Term, Torsion
+from tcms_daq.compensation.terms import Term
+from tcms_daq.discrepancy.effects import REGISTRY
 from tcms_daq.discrepancy.model_file import DiscrepancyModel
-
-_LEFT_REASONS = {
-    "thermal_drift": "time-dependent: the compensator's drift term sees the bench's absolute clock",
-    "interpolation_error": "a function of the compensated angle; re-identify it with tcms calibrate",
-    "periodic_error": "a function of the compensated angle; re-identify it with tcms calibrate",
-    "time_skew": "needs the torque trace (a time shift), not a function of (θ, T, t)",
-    "backlash": "needs the load direction, not a function of (θ, T, t)",
-    "torque_zero_offset": "needs the slope along the trace, not a function of (θ, T, t)",
-    "bending_deformation": "a property of the reducer and its loading, kept in the bench model",
-    "nonlinear_stiffness": "a property of the reducer, kept in the bench model",
-}
 
 
 def compensator_terms(model: DiscrepancyModel) -> tuple[list[Term], dict[str, str]]:
@@ -38,10 +28,9 @@ def compensator_terms(model: DiscrepancyModel) -> tuple[list[Term], dict[str, st
     terms: list[Term] = []
     left: dict[str, str] = {}
     for term in model.terms:
-        if term.name == "scale_error":
-            terms.append(Scale(coefficient=term.parameters["ratio"]))
-        elif term.name == "torsion_offset":
-            terms.append(Torsion(arcsec_per_nm=term.parameters["coef_arcsec_per_nm"]))
+        effect = REGISTRY[term.name]
+        if effect.compensator is not None:
+            terms.append(effect.compensator(term.parameters))
         else:
-            left[term.name] = _LEFT_REASONS.get(term.name, "a declared effect: kept in the bench model")
+            left[term.name] = effect.kept_in_model
     return terms, left

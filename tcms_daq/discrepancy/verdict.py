@@ -34,7 +34,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from tcms_daq.discrepancy.design import DesignData, branch_starts, reversals
-from tcms_daq.discrepancy.localise import angle_rate, equal_count_bins, periodogram
+from tcms_daq.discrepancy.localise import angle_rate, equal_count_bins, periodogram, time_lines
 
 SIGNIFICANCE_Z = 5.0  # χ² excess in standard deviations, per bin set
 MATERIAL_FRACTION = 0.35  # structured RMS / noise floor below which structure is immaterial (adds < 6 % RMS)
@@ -46,11 +46,18 @@ SPIKE_Z = 6.0
 VERDICTS = ("consistent", "explained", "partially_explained", "unexplained")
 
 
-def noise_floor_arcsec(residual_arcsec: np.ndarray) -> float:
-    """σ of the white noise in ``residual_arcsec`` (rows in time order) from its second differences (robust)."""
+def noise_floor_arcsec(residual_arcsec: np.ndarray, time_s: np.ndarray | None = None) -> float:
+    """σ of the white noise in ``residual_arcsec`` (rows in time order) from its second differences (robust).
+
+    With ``time_s`` (evenly sampled), coherent sinusoids in time (a vibration) are removed first: a line near the
+    sampling rate's range is not smooth at the sample spacing and would otherwise be counted as noise."""
     r = np.asarray(residual_arcsec, dtype=float)
     if len(r) < 5:
         return float("nan")
+    if time_s is not None:
+        t = np.asarray(time_s, dtype=float) - float(time_s[0])
+        for period, amplitude, phase in time_lines(time_s, r):
+            r = r - amplitude * np.sin(2 * math.pi * t / period + phase)
     d2 = r[2:] - 2.0 * r[1:-1] + r[:-2]
     mad = float(np.median(np.abs(d2 - np.median(d2))))
     return 1.4826 * mad / math.sqrt(6.0)
@@ -227,6 +234,78 @@ def _step_break(t: np.ndarray, r: np.ndarray) -> float | None:
     return None if best is None else best[1]
 
 
+MAX_STEPS = 6
+
+
+STEP_WINDOW = 25  # samples each side of a candidate step
+
+
+def _steps(t: np.ndarray, r: np.ndarray, noise: float, direction: np.ndarray | None = None) -> list[float]:
+    """Every step in ``r`` (rows in time order), each located: the jump between the medians of the
+    ``STEP_WINDOW`` samples after and before each row (a ramp or a slow shape moves them little), its local maxima at
+    least a window apart, kept when the jump is at least twice the noise, and not at a load reversal (where a loop
+    of another shape jumps too); at most ``MAX_STEPS``, the largest first; their times in time order."""
+    n, w = len(r), STEP_WINDOW
+    if n < 4 * w:
+        return []
+    x = np.asarray(r, dtype=float)
+    windows = np.lib.stride_tricks.sliding_window_view(x, w)
+    med = np.median(windows, axis=1)  # med[i] = median of x[i:i + w]
+    jump = np.zeros(n)
+    jump[w:n - w + 1] = med[w:] - med[:n - 2 * w + 1]
+    threshold = max(2.0 * noise, 8.0 * noise / math.sqrt(w))
+    if direction is not None:
+        for i in reversals(direction):
+            jump[max(0, i - w // 2):i + w // 2] = 0.0
+    cuts: list[float] = []
+    mag = np.abs(jump)
+    for _ in range(MAX_STEPS):
+        i = int(np.argmax(mag))
+        if mag[i] < threshold:
+            break
+        cuts.append(float(t[i]))
+        mag[max(0, i - w):i + w] = 0.0
+    return sorted(cuts)
+
+
+def torque_windows(data: DesignData, r: np.ndarray, noise: float, limit: int = 4) -> list[dict[str, Any]]:
+    """Torque windows, per load direction, whose mean residual stands out (≥ 4 standard errors and ≥ ¼ of the
+    noise): a dead zone, an effect on one side or in one direction. Each with its direction, torque range, mean and
+    whether the other direction shows it over the same torque range (``one_sided``)."""
+    found: list[tuple[float, dict[str, Any]]] = []
+    flagged_by: dict[int, list[tuple[float, float]]] = {}
+    for sign, label in ((1, "loading"), (-1, "unloading")):
+        rows = np.flatnonzero(data.direction == sign)
+        if len(rows) < 40:
+            continue
+        index = equal_count_bins(data.torque_nm[rows], min(40, max(8, len(rows) // 50)))
+        counts = np.bincount(index).astype(float)
+        means = np.bincount(index, weights=r[rows]) / np.maximum(counts, 1)
+        flagged = (np.abs(means) >= 4 * noise / np.sqrt(np.maximum(counts, 1))) & (np.abs(means) >= 0.25 * noise)
+        b = 0
+        while b < len(flagged):
+            if not flagged[b]:
+                b += 1
+                continue
+            e = b
+            while e + 1 < len(flagged) and flagged[e + 1] and np.sign(means[e + 1]) == np.sign(means[b]):
+                e += 1
+            sel = rows[(index >= b) & (index <= e)]
+            lo, hi = float(data.torque_nm[sel].min()), float(data.torque_nm[sel].max())
+            window: dict[str, Any] = {"direction": label, "torque_range_nm": [lo, hi],
+                                      "mean_arcsec": float(r[sel].mean()),
+                                      "share_of_samples": float(len(sel) / len(r))}
+            flagged_by.setdefault(sign, []).append((lo, hi))
+            found.append((float(np.sum(np.abs(r[sel]))), window))
+            b = e + 1
+    for _, w in found:
+        sign = 1 if w["direction"] == "loading" else -1
+        lo, hi = w["torque_range_nm"]
+        w["one_sided"] = not any(a < hi and b > lo for a, b in flagged_by.get(-sign, []))
+    found.sort(key=lambda x: -x[0])
+    return [w for _, w in found[:limit]]
+
+
 def _after_reversal(data: DesignData, fit: _ShapeFit) -> list[dict[str, Any]]:
     """A direction-odd transition that decays after each load reversal — over torque travelled (a friction
     loop of another shape or width) or over time (creep, relaxation) — at the best of a few scales."""
@@ -287,14 +366,21 @@ def _shapes(data: DesignData, before: np.ndarray, after: np.ndarray, noise: floa
     out: list[dict[str, Any]] = []
     t = data.time_s if data.has_time else np.arange(n, dtype=float)
     at = "at_time_s" if data.has_time else "at_sample"
-    cut = _step_break(t, after)
-    if cut is not None:
-        gain, coef = fit.gain((t >= cut).astype(float))
-        out.append({"shape": "step", "gain": gain, at: cut, "height_arcsec": float(coef[0]),
-                    **({"at_s_after_start": cut - float(t[0])} if data.has_time else {})})
+    steps = _steps(t, after, noise, data.direction)
+    if steps:
+        gain, coef = fit.gain(*[(t >= cut).astype(float) for cut in steps])
+        out.append({"shape": "step", "gain": gain, at: steps[0], "height_arcsec": float(coef[0]),
+                    **({"at_s_after_start": steps[0] - float(t[0])} if data.has_time else {}),
+                    "steps": [{at: cut, "height_arcsec": float(h),
+                               **({"at_s_after_start": cut - float(t[0])} if data.has_time else {})}
+                              for cut, h in zip(steps, coef, strict=True)]})
     gain, coef = fit.gain(t - t.mean())
     out.append({"shape": "ramp", "gain": gain,
                 f"slope_arcsec_per_{'s' if data.has_time else 'sample'}": float(coef[0])})
+    if data.has_time:  # a compliance that changes over the test (a stiffness drifting with temperature)
+        gain, coef = fit.gain(data.torque_nm * (t - t.mean()))
+        out.append({"shape": "stiffness_change_in_time", "gain": gain,
+                    "arcsec_per_nm_per_s": float(coef[0])})
     gain, coef = fit.gain(data.direction.astype(float))
     out.append({"shape": "loop_width_change", "gain": gain, "half_width_change_arcsec": float(coef[0])})
     if data.has_time:
@@ -329,13 +415,20 @@ def _shapes(data: DesignData, before: np.ndarray, after: np.ndarray, noise: floa
         out.append({"shape": "periodic_in_angle", "gain": float(amp[i] ** 2 / 2),
                     "period_arcsec": float(periods[i]), "amplitude_arcsec": float(amp[i])})
     if data.has_time and np.ptp(t) > 0:
-        dt = np.diff(t)
-        step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
-        periods = np.geomspace(8 * step, float(np.ptp(t)) / 2, 100)
-        amp = periodogram(t, r, periods)
-        i = int(np.argmax(amp))
-        out.append({"shape": "periodic_in_time", "gain": float(amp[i] ** 2 / 2), "period_s": float(periods[i]),
-                    "amplitude_arcsec": float(amp[i])})
+        lines = time_lines(t, r)
+        if lines:  # evenly sampled: the FFT's lines, every one of them
+            period, amplitude, _ = lines[0]
+            out.append({"shape": "periodic_in_time", "gain": float(amplitude ** 2 / 2), "period_s": period,
+                        "amplitude_arcsec": amplitude,
+                        "lines": [{"period_s": p, "amplitude_arcsec": a} for p, a, _ in lines]})
+        else:
+            dt = np.diff(t)
+            step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
+            periods = np.geomspace(8 * step, float(np.ptp(t)) / 2, 100)
+            amp = periodogram(t, r, periods)
+            i = int(np.argmax(amp))
+            out.append({"shape": "periodic_in_time", "gain": float(amp[i] ** 2 / 2), "period_s": float(periods[i]),
+                        "amplitude_arcsec": float(amp[i])})
     spikes, local = isolated_spikes(r, noise, data.direction)
     if spikes.any():
         out.append({"shape": "spikes", "gain": float(np.sum(local[spikes] ** 2) / n), "count": int(spikes.sum()),
@@ -400,6 +493,7 @@ def describe_remainder(data: DesignData, before: np.ndarray, after: np.ndarray, 
     shapes.sort(key=lambda s: -s["share_of_remainder"])
     best = shapes[0] if shapes and shapes[0]["share_of_remainder"] >= SHAPE_MIN_FRACTION else None
     spans = _spans(data, r, noise)
+    windows = torque_windows(data, r, noise)
     up = data.direction > 0
     loading_rms = float(np.sqrt(np.mean(r[up] ** 2))) if up.any() else 0.0
     unloading_rms = float(np.sqrt(np.mean(r[~up] ** 2))) if (~up).any() else 0.0
@@ -410,6 +504,7 @@ def describe_remainder(data: DesignData, before: np.ndarray, after: np.ndarray, 
         "shape_detail": best,
         "shapes_considered": shapes,
         "spans": spans,
+        "torque_windows": windows,
         "rms_loading_arcsec": loading_rms,
         "rms_unloading_arcsec": unloading_rms,
         "against_rate": _rate_dependence(data, r),
@@ -440,6 +535,9 @@ def _summary(best: dict[str, Any] | None, spans: list[dict[str, Any]], structure
                               + (f"{b['at_s_after_start']:.4g} s after the start" if "at_time_s" in b
                                  else f"at sample {b['at_sample']:.0f}"),
             "ramp": lambda b: "a ramp in time",
+            "stiffness_change_in_time": lambda b: (
+                f"a compliance changing over the test by {b['arcsec_per_nm_per_s']:+.2g}″/N·m per s (a stiffness "
+                "drifting, e.g. with temperature)"),
             "loop_width_change": lambda b: f"a change of the loop's half-width by {b['half_width_change_arcsec']:+.3g}″",
             "saturation": lambda b: f"a saturation at the {b['end']} end of the angle from {b['from_angle_arcsec']:.4g}″",
             "periodic_in_angle": lambda b: f"a periodicity of {b['period_arcsec']:.4g}″ in angle "
@@ -517,7 +615,7 @@ def judge(data: DesignData, before: np.ndarray, after: np.ndarray, *, any_named:
     ``not_identified`` names fitted terms that may stand in for a shape outside the catalogue (their reason),
     and ``after_identified`` is the residual after the other names alone. Such names never make the
     discrepancy ``explained``: the structure is judged on what the identified names leave."""
-    noise = noise_floor_arcsec(before)
+    noise = noise_floor_arcsec(before, data.time_s if data.has_time else None)
     not_identified = dict(not_identified or {})
     if not_identified and after_identified is not None:
         after = after_identified

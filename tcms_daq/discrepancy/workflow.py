@@ -31,6 +31,7 @@ from threadpoolctl import threadpool_limits
 
 from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import DesignData, build_design
+from tcms_daq.discrepancy.identifiability import cancelling_pairs, resolve
 from tcms_daq.discrepancy.localise import localise
 from tcms_daq.discrepancy.pairing import Pairing, pair
 from tcms_daq.discrepancy.selection import Columns, cv_score, fit_model, make_folds, nested_cv, select
@@ -38,6 +39,7 @@ from tcms_daq.discrepancy.verdict import Verdict, judge
 from tcms_daq.samples import Samples
 
 STABILITY = 0.8
+SIGNIFICANCE = 2.0  # a named parameter is identified when |value| ≥ 2 u (jackknife, k = 1)
 
 
 @dataclass
@@ -243,6 +245,20 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
     if len(model_names) != len(params):
         final = fit_model(cols, y, rows, model_names, rescan=tuple(model_names))
         params = final.parameters()
+    # two terms that cancel are never both named: keep the simpler, or name neither (an alias group)
+    cancelled: list[AliasGroup] = []
+    folds_all = make_folds(rows, data.groups)
+    while pairs := cancelling_pairs(cols, final, rows):
+        resolution = resolve(cols, y, folds_all, model_names, pairs[0])
+        for name in resolution.drop:
+            rejected.append({"name": name, "reason": resolution.reason})
+            model_names.remove(name)
+        if resolution.keep is None:
+            members = list(resolution.cancellation.names)
+            cancelled.append(AliasGroup(members, cat.separating_experiment(members), members[0], {}, False))
+        kept_steps = [s for s in kept_steps if s.name in model_names]
+        final = fit_model(cols, y, rows, model_names, rescan=tuple(model_names))
+        params = final.parameters()
     uncertainties = jackknife_uncertainties(cols, y, data.groups, model_names, params)
     path = sel.path()
     index = {s.name: i for i, s in enumerate(sel.steps)}
@@ -257,6 +273,7 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
         else:
             named.append(NamedEffect(step.name, params[step.name], path[i].rms, path[i + 1].rms,
                                      nested.inclusion.get(step.name, 0.0), uncertainties.get(step.name, {})))
+    aliases.extend(cancelled)
     # aliases among candidates that were not accepted are still worth reporting when they tied at a step
     for step in sel.steps[sel.chosen:]:
         if step.aliases:
@@ -265,6 +282,12 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
     fitted = final.predict(cols, rows)
     after = y - fitted
     not_identified = {n: why for n in model_names if (why := cat.identification_limit(n, params[n], data))}
+    for n in model_names:  # a named size must stand out of its own uncertainty
+        primary = cat.CATALOGUE[n].primary
+        u = uncertainties.get(n, {}).get(primary)
+        if n not in not_identified and u is not None and abs(params[n][primary]) < SIGNIFICANCE * u:
+            not_identified[n] = (f"{primary} = {params[n][primary]:.3g} is within {SIGNIFICANCE:g} standard "
+                                 f"uncertainties ({u:.2g}) of zero")
     identified = [n for n in model_names if n not in not_identified]
     after_identified = (y - fit_model(cols, y, rows, identified, rescan=tuple(identified)).predict(cols, rows)
                         if not_identified else after)

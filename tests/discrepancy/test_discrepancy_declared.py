@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tcms_daq.discrepancy import catalogue as cat
+from tcms_daq.discrepancy import effects as fx
 from tcms_daq.discrepancy.catalogue import DeclaredEffect, register_effect, unregister_effect
 from tcms_daq.discrepancy.model_file import model_from_result, parse_model
 from tcms_daq.discrepancy.workflow import run_discrepancy
@@ -82,7 +83,7 @@ def test_an_installed_package_declares_one_through_an_entry_point(monkeypatch):
 
     monkeypatch.setattr("importlib.metadata.entry_points",
                         lambda group: [EntryPoint()] if group == cat.ENTRY_POINT_GROUP else [])
-    monkeypatch.setattr(cat, "_ENTRY_POINTS_LOADED", False)
+    monkeypatch.setattr(fx, "_ENTRY_POINTS_LOADED", False)
     try:
         result = run_discrepancy(*loops(3, 4e-6))
         assert result.names == ["odd_quadratic_softening"]

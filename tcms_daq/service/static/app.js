@@ -432,18 +432,7 @@
   }
 
   // ---- discrepancy: the shown run against the bench model (POST /api/discrepancy) ----
-  function describeDiscrepancy(d) {
-    const rms = (v) => (typeof v === "number" ? v.toFixed(3) + "″" : "–");
-    const named = d.effects.length
-      ? "named: " + d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
-        .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ")
-      : "named: nothing (no catalogue effect improves the held-out error reliably)";
-    const aliases = d.aliases.map((a) => "; cannot be told apart: " + a.names.join(" / ")).join("");
-    const verdict = d.verdict_words ? d.verdict.replace(/_/g, " ") + ": " + d.verdict_words + " " : "";
-    const provisional = d.names_provisional && d.effects.length ? " (provisional)" : "";
-    return `${verdict}${named}${provisional}${aliases}; held-out RMS ${rms(d.cv_rms_before_arcsec)} → ` +
-      `${rms(d.cv_rms_after_arcsec)}`;
-  }
+  const describeDiscrepancy = (d) => TcmsDiscrepancy.describe(d);
 
   // ---- the bench model: its version, and "apply" after an analysis that named something ----
   async function loadModel() {
@@ -475,7 +464,9 @@
     }
   });
 
-  $("discrepancy").addEventListener("click", async () => {
+  $("discrepancy").addEventListener("click", () => analyseShownRun());
+
+  async function analyseShownRun() {
     const id = state.resultId;
     if (!id) return;
     $("discrepancy").disabled = true;
@@ -496,8 +487,35 @@
       message("discrepancy: " + e.message, true);
     } finally {
       $("discrepancy").disabled = state.resultId !== id;
+      loadDiscrepancyHistory();
     }
-  });
+  }
+
+  // ---- discrepancy of any stored run: a button on each recent test, and the analyses' history ----
+  async function discrepancyOfStoredRun(id) {
+    await showResults(id);
+    if (state.resultId === id && !$("discrepancy").disabled) await analyseShownRun();
+  }
+
+  function addDiscrepancyButtons() {
+    for (const tr of $("history").tBodies[0].rows) {
+      const id = tr.title;  // the row names its run by time; the id is its title
+      if (!id || tr.querySelector(".find-effects")) continue;
+      const button = document.createElement("button");
+      button.type = "button";
+      button.className = "find-effects";
+      button.dataset.run = id;
+      button.textContent = "missing effects";
+      button.title = "compare this stored run with the bench model (POST /api/discrepancy)";
+      button.addEventListener("click", () => discrepancyOfStoredRun(id));
+      tr.cells[tr.cells.length - 1].appendChild(button);
+    }
+  }
+  new MutationObserver(addDiscrepancyButtons).observe($("history").tBodies[0], { childList: true });
+
+  function loadDiscrepancyHistory() {
+    return TcmsDiscrepancy.history($("discrepancy-history").tBodies[0]);
+  }
 
   // this bench's own recent runs (a store several benches share lists every bench's on the fleet page)
   async function loadHistory() {
@@ -701,4 +719,5 @@
   loadModel();
   loadPlans();
   whoAmI();
+  loadDiscrepancyHistory();
 })();

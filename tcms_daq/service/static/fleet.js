@@ -191,6 +191,40 @@
       `<td>${esc(e.bench_id || "—")}</td></tr>`).join("") || `<tr><td colspan="7" class="muted">–</td></tr>`;
   }
 
+  // ---- discrepancy of any stored run: a button on each run, the result in words and the analyses' history ----
+  async function discrepancyOf(id, button) {
+    const out = $("discrepancy-result");
+    button.disabled = true;
+    out.textContent = "analysing run " + id + " …";
+    try {
+      const d = await TcmsDiscrepancy.start(id);
+      out.textContent = "run " + id + ": " + TcmsDiscrepancy.describe(d) + " (against bench model v" + d.model_version + ")";
+    } catch (e) {
+      out.textContent = "run " + id + ": " + e.message;
+    } finally {
+      button.disabled = false;
+      TcmsDiscrepancy.history($("discrepancy-history").tBodies[0]);
+    }
+  }
+
+  function addDiscrepancyButtons() {
+    for (const tr of $("runs").tBodies[0].rows) {
+      const id = tr.dataset.id;
+      const cell = tr.querySelector("td.files");
+      if (!id || !cell || cell.querySelector(".find-effects")) continue;
+      const button = document.createElement("button");
+      button.type = "button";
+      button.className = "find-effects";
+      button.dataset.run = id;
+      button.textContent = "missing effects";
+      button.title = "compare this stored run with the bench model (POST /api/discrepancy)";
+      button.addEventListener("click", () => discrepancyOf(id, button));
+      cell.appendChild(button);
+    }
+  }
+  new MutationObserver(addDiscrepancyButtons).observe($("runs").tBodies[0], { childList: true });
+  TcmsDiscrepancy.history($("discrepancy-history").tBodies[0]);
+
   window.tcmsFleet = { state };
   search();
   loadAudit();

@@ -1,0 +1,379 @@
+"""Trials on data the project did not generate: a reducer, a bench and effects written from physics here, not from the
+simulated bench (``sim.physics``) nor from the catalogue's formulas (``tcms_daq.discrepancy.effects``).
+
+The reducer is a two-slope spring (soft within ±T1 around zero torque: the lost-motion zone) with a Dahl friction
+loop in torque; the programme is ±A triangle loops at two rates sampled at ``rate_hz``; the torque reading has white
+noise, the angle reading an encoder's noise and resolution. The "simulated" run is the same reducer driven by the
+torque *reading* (as a bench model is driven by the recorded trace).
+
+Catalogue families, each by its physics: a transport delay of the torque channel, a temperature ramp through a
+thermal coefficient, an encoder with a wrong line count, shaft torsion T/k between the measuring planes, bending
+c·T², a sin/cos encoder with a gain imbalance read through atan2 (its error is at half the signal period), a
+periodic gear-mesh error in the angle, backlash as a play operator on the angle, and a zero offset of the torque
+reading (the simulation run on the offset reading).
+
+Out-of-catalogue families: a dead zone on one side of zero torque, stick-slip at each reversal, a loop whose width
+grows with the torque amplitude, a vibration periodic in time, lost counts (three permanent steps), and a stiffness
+that drifts with a temperature ramp. Each carries where it is (time spans, a torque window with its direction, or a
+period in time), so the trials check that the workflow's ``unexplained`` block locates it.
+
+    python -m tcms_daq.sim.independent [--seeds 5] [--json]
+
+prints per family: extra names, parameters within 10 %, out-of-catalogue never ``explained`` and located.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from tcms_daq.discrepancy import effects as fx
+from tcms_daq.samples import Samples
+
+K_NM_PER_ARCSEC = 5.0  # outer stiffness (300 N·m/arcmin)
+K0_NM_PER_ARCSEC = 2.0  # inside the lost-motion zone
+T1_NM = 40.0
+DAHL_HALF_WIDTH_ARCSEC = 1.5
+DAHL_TORQUE_NM = 60.0
+
+
+@dataclass(frozen=True)
+class Programme:
+    amplitude_nm: float = 800.0
+    rates_nm_per_s: tuple[float, ...] = (200.0, 600.0)
+    loops_per_rate: int = 3
+    rate_hz: float = 50.0
+    torque_noise_nm: float = 0.3
+    angle_noise_arcsec: float = 0.2
+    resolution_arcsec: float = 0.05
+
+
+def torque_path(p: Programme, t_s: np.ndarray) -> np.ndarray:
+    """The applied torque at times ``t_s``: from 0 to −A, then loops ±A at each rate, back to 0 (piecewise linear)."""
+    knots_t, knots_T, level, now = [0.0], [0.0], 0.0, 0.0
+    for rate in p.rates_nm_per_s:
+        for target in [-p.amplitude_nm] + [p.amplitude_nm, -p.amplitude_nm] * p.loops_per_rate:
+            now += abs(target - level) / rate
+            knots_t.append(now)
+            knots_T.append(target)
+            level = target
+    now += abs(level) / p.rates_nm_per_s[0]
+    knots_t.append(now)
+    knots_T.append(0.0)
+    return np.interp(t_s, knots_t, knots_T)
+
+
+def duration_s(p: Programme) -> float:
+    a, n = p.amplitude_nm, p.loops_per_rate
+    return sum((a + 2 * a * 2 * n) / r for r in p.rates_nm_per_s) + a / p.rates_nm_per_s[0]
+
+
+def spring_arcsec(torque_nm: np.ndarray) -> np.ndarray:
+    """Two-slope spring: soft within ±T1, stiff outside (continuous)."""
+    inner = np.clip(torque_nm, -T1_NM, T1_NM) / K0_NM_PER_ARCSEC
+    return inner + (torque_nm - np.clip(torque_nm, -T1_NM, T1_NM)) / K_NM_PER_ARCSEC
+
+
+def dahl_arcsec(torque_nm: np.ndarray, half_width_arcsec: float = DAHL_HALF_WIDTH_ARCSEC,
+                torque_scale_nm: float = DAHL_TORQUE_NM) -> np.ndarray:
+    """Dahl friction loop: dz/dT = (1 − z·sgn(dT))/T_s, exact per step; z ∈ (−1, 1), angle = w·z."""
+    z = np.zeros(len(torque_nm))
+    for i in range(1, len(torque_nm)):
+        d = torque_nm[i] - torque_nm[i - 1]
+        s = 1.0 if d >= 0 else -1.0
+        z[i] = s + (z[i - 1] - s) * math.exp(-abs(d) / torque_scale_nm)
+    return half_width_arcsec * z
+
+
+def reducer_arcsec(torque_nm: np.ndarray) -> np.ndarray:
+    return spring_arcsec(torque_nm) + dahl_arcsec(torque_nm)
+
+
+def play(x: np.ndarray, width: float) -> np.ndarray:
+    """Play (backlash) operator: the output stays until the input has moved half the width past it."""
+    y = np.empty(len(x))
+    y[0] = x[0] - width / 2
+    for i in range(1, len(x)):
+        y[i] = min(max(y[i - 1], x[i] - width / 2), x[i] + width / 2)
+    return y
+
+
+@dataclass
+class Run:
+    """One generated pair with its truth."""
+
+    measured: Samples
+    simulated: Samples
+    truth: dict[str, float]  # catalogue name → primary parameter (catalogue families)
+    where: dict[str, Any] = field(default_factory=dict)  # out-of-catalogue: where it is
+
+
+@dataclass(frozen=True)
+class Family:
+    name: str
+    description: str
+    make: Callable[[Programme, np.random.Generator], Run]
+    in_catalogue: bool
+
+
+def _grid(p: Programme) -> np.ndarray:
+    return np.arange(0.0, duration_s(p), 1.0 / p.rate_hz)
+
+
+def _read(p: Programme, rng: np.random.Generator, t: np.ndarray, applied: np.ndarray, angle: np.ndarray,
+          torque_reading: np.ndarray | None = None) -> tuple[Samples, Samples]:
+    """(measured, simulated): the readings, and the reducer driven by the torque reading."""
+    reading = (applied if torque_reading is None else torque_reading) + rng.normal(0, p.torque_noise_nm, len(t))
+    noisy = angle + rng.normal(0, p.angle_noise_arcsec, len(t))
+    measured_angle = np.round(noisy / p.resolution_arcsec) * p.resolution_arcsec
+    return Samples(t, reading, measured_angle), Samples(t, reading, reducer_arcsec(reading))
+
+
+def _base(p: Programme) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    t = _grid(p)
+    applied = torque_path(p, t)
+    return t, applied, reducer_arcsec(applied)
+
+
+def _catalogue(name: str, truth: float, angle_fn: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+               torque_fn: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+               ) -> Callable[[Programme, np.random.Generator], Run]:
+    def make(p: Programme, rng: np.random.Generator) -> Run:
+        t, applied, angle = _base(p)
+        reading = torque_fn(t, applied) if torque_fn is not None else None
+        m, s = _read(p, rng, t, applied, angle_fn(t, applied, angle), reading)
+        return Run(m, s, {name: truth} if name else {})
+    return make
+
+
+def _delay(tau_s: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    return lambda t, applied: np.interp(t - tau_s, t, applied)
+
+
+def _sincos_encoder(period_arcsec: float, gain_imbalance: float) -> Callable[[np.ndarray, np.ndarray, np.ndarray],
+                                                                               np.ndarray]:
+    """An interpolating encoder whose sine channel has gain 1 + g: the angle inside each signal period from atan2."""
+    def read(t: np.ndarray, applied: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        phase = 2 * math.pi * angle / period_arcsec
+        measured_phase = np.arctan2((1 + gain_imbalance) * np.sin(phase), np.cos(phase))
+        wrapped = np.angle(np.exp(1j * (measured_phase - phase)))
+        return angle + wrapped * period_arcsec / (2 * math.pi)
+    return read
+
+
+def _interp_amplitude(period_arcsec: float, g: float) -> float:
+    """Amplitude of the half-period error of a gain imbalance g (first order: g/2 rad of phase)."""
+    return abs(g / (2 + g)) * period_arcsec / (2 * math.pi)
+
+
+# ---- out of the catalogue
+
+
+def _one_sided_dead_zone(p: Programme, rng: np.random.Generator) -> Run:
+    t, applied, angle = _base(p)
+    lo, hi = 100.0, 220.0  # loading only: the output stalls while the torque rises through [lo, hi] N·m, then
+    rising = np.diff(applied, prepend=applied[0]) > 0  # catches up (a sticky spot on one flank of the teeth)
+    inside = rising & (applied > lo) & (applied < hi)
+    x = np.clip((applied - lo) / (hi - lo), 0.0, 1.0)
+    lag = np.where(inside, np.minimum(x * (hi - lo) / K_NM_PER_ARCSEC, 3.0 * np.sin(math.pi * x)), 0.0)
+    m, s = _read(p, rng, t, applied, angle - lag)
+    return Run(m, s, {}, {"torque_window_nm": (lo, hi), "direction": "loading"})
+
+
+def _stick_slip(p: Programme, rng: np.random.Generator) -> Run:
+    t, applied, angle = _base(p)
+    d = np.sign(np.diff(applied, prepend=applied[0]))
+    rev = np.flatnonzero((d[1:] != d[:-1]) & (d[1:] != 0)) + 1
+    extra = np.zeros(len(t))
+    for i in rev:  # sticks for 0.4 s after each reversal (up to 2″ behind), then slips back
+        k = (t >= t[i]) & (t < t[i] + 0.4)
+        extra[k] -= 2.0 * d[i] * np.sin(math.pi * (t[k] - t[i]) / 0.4)
+    m, s = _read(p, rng, t, applied, angle + extra)
+    return Run(m, s, {}, {"after_reversals": [float(t[i]) for i in rev]})
+
+
+def _loop_grows(p: Programme, rng: np.random.Generator) -> Run:
+    t, applied, _ = _base(p)
+    amplitude = np.maximum.accumulate(np.abs(applied))
+    width = DAHL_HALF_WIDTH_ARCSEC * (1 + 1.0 * amplitude / p.amplitude_nm)  # double the width at full amplitude
+    z = dahl_arcsec(applied, 1.0)
+    angle = spring_arcsec(applied) + width * z
+    m, s = _read(p, rng, t, applied, angle)
+    return Run(m, s, {}, {"loop_width": True})
+
+
+def _vibration(p: Programme, rng: np.random.Generator) -> Run:
+    t, applied, angle = _base(p)
+    period = 1.0 / 1.3
+    m, s = _read(p, rng, t, applied, angle + 0.4 * np.sin(2 * math.pi * t / period + rng.uniform(0, 6)))
+    return Run(m, s, {}, {"period_s": period})
+
+
+def _lost_counts(p: Programme, rng: np.random.Generator) -> Run:
+    t, applied, angle = _base(p)
+    at = np.sort(rng.uniform(0.15, 0.85, 3)) * t[-1]
+    steps = sum(1.2 * (t >= a) for a in at)
+    m, s = _read(p, rng, t, applied, angle + steps)
+    return Run(m, s, {}, {"steps_at_s": [float(a) for a in at]})
+
+
+def _stiffness_drift(p: Programme, rng: np.random.Generator) -> Run:
+    t, applied, _ = _base(p)
+    factor = 1.0 - 0.03 * t / t[-1]  # the stiffness falls by 3 % over the test as the reducer warms
+    angle = spring_arcsec(applied) / factor + dahl_arcsec(applied)
+    m, s = _read(p, rng, t, applied, angle)
+    return Run(m, s, {}, {"time_span_s": (0.0, float(t[-1])), "grows_with_time": True})
+
+
+FAMILIES: dict[str, Family] = {f.name: f for f in (
+    Family("null", "the reducer as modelled", _catalogue("", 0.0, lambda t, a, th: th), True),
+    Family("transport_delay", "the torque channel 20 ms late",
+           _catalogue(fx.TIME_SKEW, 0.02, lambda t, a, th: th, _delay(0.02)), True),
+    Family("temperature_ramp", "a frame warming 1.2 K/min at 1.5″/K",
+           _catalogue(fx.THERMAL_DRIFT, 1.5 * 1.2 / 60, lambda t, a, th: th + 1.5 * 1.2 / 60 * t), True),
+    Family("wrong_line_count", "an encoder with 0.8 % too many lines",
+           _catalogue(fx.SCALE_ERROR, 0.008, lambda t, a, th: th * 1.008), True),
+    Family("shaft_torsion", "a shaft of 400 N·m/″ between the measuring planes",
+           _catalogue(fx.TORSION_OFFSET, 1 / 400, lambda t, a, th: th + a / 400), True),
+    Family("bending", "bending of the measuring point, 2″ at 800 N·m, even in torque",
+           _catalogue(fx.BENDING_DEFORMATION, 2 / 800 ** 2, lambda t, a, th: th + 2 * (a / 800) ** 2), True),
+    Family("sincos_gain_imbalance", "a sin/cos encoder of 72″ signal period with a 6 % gain imbalance",
+           _catalogue(fx.INTERPOLATION_ERROR, _interp_amplitude(72.0, 0.06), _sincos_encoder(72.0, 0.06)), True),
+    Family("gear_mesh", "a 0.7″ error periodic in the angle at 95″",
+           _catalogue(fx.PERIODIC_ERROR, 0.7, lambda t, a, th: th + 0.7 * np.sin(2 * math.pi * th / 95 + 0.4)), True),
+    Family("play", "backlash: a 2.5″ play operator on the angle",
+           _catalogue(fx.BACKLASH, 2.5, lambda t, a, th: play(th, 2.5)), True),
+    Family("torque_reading_offset", "the torque reading 6 N·m high (the simulation run on the offset reading)",
+           _catalogue(fx.TORQUE_ZERO_OFFSET, 6.0, lambda t, a, th: th, lambda t, a: a + 6.0), True),
+    Family("one_sided_dead_zone", "a dead zone 100…220 N·m while loading only (stalls up to 3″, catches up)", _one_sided_dead_zone, False),
+    Family("stick_slip", "stick-slip: up to 2″ behind for 0.4 s after each reversal", _stick_slip, False),
+    Family("loop_grows_with_amplitude", "a friction loop twice as wide at full amplitude", _loop_grows, False),
+    Family("vibration_in_time", "a 0.4″ vibration at 1.3 Hz", _vibration, False),
+    Family("lost_counts", "three permanent 1.2″ steps (lost counts)", _lost_counts, False),
+    Family("stiffness_drift", "the stiffness falls 3 % over the test as the reducer warms", _stiffness_drift, False),
+)}
+
+
+def located(family: str, where: dict[str, Any], unexplained: dict[str, Any] | None) -> bool:
+    """Whether the ``unexplained`` block points at the hidden effect: its shape, period, time span or torque
+    window and direction."""
+    if not unexplained:
+        return False
+    shapes = [unexplained.get("shape_detail") or {}, *unexplained.get("shapes_considered", [])[:3]]
+    best = unexplained.get("shape")
+    if "period_s" in where:
+        return any(s.get("shape") == "periodic_in_time" and abs(s["period_s"] / where["period_s"] - 1) < 0.05
+                   for s in shapes)
+    if "steps_at_s" in where:  # every step located within 1 s
+        found = [x["at_time_s"] for s in unexplained.get("shapes_considered", []) if s.get("shape") == "step"
+                 for x in s.get("steps", [])]
+        return all(any(abs(f - a) < 1.0 for f in found) for a in where["steps_at_s"])
+    if "torque_window_nm" in where:  # a window in the right direction overlapping the dead zone, not the whole range
+        lo, hi = where["torque_window_nm"]
+        return any(w["direction"] == where["direction"] and w["torque_range_nm"][0] < hi + 40
+                   and w["torque_range_nm"][1] > lo - 40 and w["torque_range_nm"][1] - w["torque_range_nm"][0] < 600
+                   for w in unexplained.get("torque_windows", []))
+    if "after_reversals" in where:
+        return bool(best and best.startswith("transition_after_reversal")) or best == "spikes"
+    if where.get("loop_width"):
+        return best in ("loop_width_change", "transition_after_reversal_in_torque")
+    if where.get("grows_with_time"):
+        return best == "stiffness_change_in_time"
+    return False
+
+
+@dataclass
+class Outcome:
+    family: str
+    seed: int
+    in_catalogue: bool
+    verdict: str
+    named: list[str]
+    truth: dict[str, float]
+    errors: dict[str, float]  # relative error of each hidden primary parameter that was named
+    located: bool | None
+    seconds: float
+
+    @property
+    def extra_names(self) -> list[str]:
+        return sorted(set(self.named) - set(self.truth))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"family": self.family, "seed": self.seed, "verdict": self.verdict, "named": self.named,
+                "truth": self.truth, "errors": self.errors, "extra_names": self.extra_names,
+                "located": self.located, "seconds": self.seconds}
+
+
+def run_family(name: str, seed: int, programme: Programme = Programme()) -> Outcome:
+    from tcms_daq.discrepancy.workflow import run_discrepancy
+
+    family = FAMILIES[name]
+    run = family.make(programme, np.random.default_rng([seed, 2026]))
+    t0 = time.perf_counter()
+    result = run_discrepancy(run.measured, run.simulated)
+    seconds = time.perf_counter() - t0
+    found = {e.name: e.parameters for e in result.effects}
+    errors = {n: found[n][fx.REGISTRY[n].primary] / v - 1.0 for n, v in run.truth.items() if n in found}
+    loc = None if family.in_catalogue else located(name, run.where, result.verdict.unexplained)
+    return Outcome(name, seed, family.in_catalogue, result.verdict.verdict, result.names, run.truth, errors, loc,
+                   seconds)
+
+
+def summarise(outcomes: list[Outcome]) -> dict[str, dict[str, Any]]:
+    """Per family: runs, extra-name rate, named-right rate (hidden named, within 10 %), explained/located rates."""
+    out: dict[str, dict[str, Any]] = {}
+    for name in dict.fromkeys(o.family for o in outcomes):
+        runs = [o for o in outcomes if o.family == name]
+        row: dict[str, Any] = {"runs": len(runs), "extra_names": sum(bool(o.extra_names) for o in runs) / len(runs),
+                               "verdicts": {v: sum(o.verdict == v for o in runs) for v in
+                                            dict.fromkeys(o.verdict for o in runs)}}
+        if runs[0].in_catalogue and runs[0].truth:
+            row["named"] = sum(set(o.truth) <= set(o.named) for o in runs) / len(runs)
+            row["within_10_percent"] = sum(bool(o.errors) and all(abs(e) <= 0.10 for e in o.errors.values())
+                                           for o in runs) / len(runs)
+            row["errors"] = [round(e, 4) for o in runs for e in o.errors.values()]
+        if not runs[0].in_catalogue:
+            row["explained"] = sum(o.verdict == "explained" for o in runs) / len(runs)
+            row["located"] = sum(bool(o.located) for o in runs) / len(runs)
+        out[name] = row
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tcms_daq.sim.independent", description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--family", action="append", choices=sorted(FAMILIES))
+    parser.add_argument("--rate-hz", type=float, default=50.0)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    programme = Programme(rate_hz=args.rate_hz)
+    outcomes = []
+    for name in args.family or FAMILIES:
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
+            o = run_family(name, seed, programme)
+            outcomes.append(o)
+            if not args.json:
+                print(f"{name:26s} seed {seed}: {o.verdict:20s} named {o.named or '-'} "
+                      f"{' '.join(f'{k} {v:+.1%}' for k, v in o.errors.items())}"
+                      f"{'' if o.located is None else ' located' if o.located else ' NOT located'} "
+                      f"({o.seconds:.1f} s)", flush=True)
+    summary = summarise(outcomes)
+    if args.json:
+        print(json.dumps({"summary": summary, "runs": [o.to_dict() for o in outcomes]}, indent=1))
+    else:
+        for name, row in summary.items():
+            print(f"{name:26s} " + ", ".join(f"{k} {v:.0%}" if isinstance(v, float) else f"{k} {v}"
+                                             for k, v in row.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

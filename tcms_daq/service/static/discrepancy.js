@@ -1,0 +1,49 @@
+// TCMS-DAQ discrepancy on any stored run, shared by the dashboard and the fleet page: start an analysis
+// (POST /api/discrepancy), say what it found in words (with the experiment or run that would separate look-alikes),
+// and show the analyses' history (GET /api/discrepancy). Kept apart from the pages' own code.
+"use strict";
+const TcmsDiscrepancy = (() => {
+  const { withToken, escapeHtml } = TcmsSession;
+  const fmt = (v) => (typeof v === "number"
+    ? (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(4) : +v.toPrecision(6)) : String(v));
+  const rms = (v) => (typeof v === "number" ? v.toFixed(3) + "″" : "–");
+
+  async function api(method, path, body) { return (await TcmsSession.request(method, path, body)).data; }
+
+  function describe(d) {
+    const named = d.effects.length
+      ? "named: " + d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
+        .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ")
+      : "named: nothing (no catalogue effect improves the held-out error reliably)";
+    const aliases = d.aliases.map((a) => "; cannot be told apart: " + a.names.join(" / ") +
+      (a.separating_experiment ? " — to separate them: " + a.separating_experiment : "")).join("");
+    const verdict = d.verdict_words ? d.verdict.replace(/_/g, " ") + ": " + d.verdict_words + " " : "";
+    const provisional = d.names_provisional && d.effects.length ? " (provisional)" : "";
+    return `${verdict}${named}${provisional}${aliases}; held-out RMS ${rms(d.cv_rms_before_arcsec)} → ` +
+      `${rms(d.cv_rms_after_arcsec)}`;
+  }
+
+  // Start an analysis of a stored run; resolves to the analysis (the API's document).
+  function start(runId) { return api("POST", "/api/discrepancy", { run_id: runId }); }
+
+  // Fill a table body with the latest analyses (optionally of one run): when, run, model version, verdict, names.
+  async function history(tbody, runId, limit = 8) {
+    let items = [];
+    try { items = await api("GET", "/api/discrepancy?limit=" + (runId ? 1000 : limit)); } catch (e) { return []; }
+    if (runId) items = items.filter((a) => a.run_id === runId).slice(0, limit);
+    tbody.innerHTML = items.length ? "" : `<tr><td colspan="5" class="muted">no analysis yet</td></tr>`;
+    for (const a of items) {
+      const tr = document.createElement("tr");
+      tr.dataset.analysis = a.id;
+      const names = (a.effects || []).map((e) => (typeof e === "string" ? e : e.name)).join(", ") || "—";
+      tr.innerHTML = `<td>${escapeHtml((a.created_at || "").replace("T", " ").slice(0, 19))}</td>` +
+        `<td>${escapeHtml(a.run_id)}</td><td>v${escapeHtml(String(a.model_version))}</td>` +
+        `<td>${escapeHtml(String(a.verdict || "").replace(/_/g, " "))}</td><td>${escapeHtml(names)} ` +
+        `<a href="${escapeHtml(withToken("/api/discrepancy/" + encodeURIComponent(a.id) + "/report"))}" target="_blank">report</a></td>`;
+      tbody.appendChild(tr);
+    }
+    return items;
+  }
+
+  return { describe, start, history };
+})();

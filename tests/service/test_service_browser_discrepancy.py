@@ -1,0 +1,60 @@
+"""A discrepancy for any stored run, from the dashboard and from the fleet page, in headless Chromium: the run was
+made over the API before the page was opened (not in this page session); each page starts the analysis from the
+run's row and shows it in words and in the analyses' history."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from svc_helpers import TOKEN, serve, wait_for
+from test_service_browser import ARGS, CHROMIUM
+
+REQUEST = {"reducer": "RV-110E", "max_torque_nm": 400, "cycles": 1, "profile": "continuous", "rate_nm_per_s": 250}
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not os.path.exists(CHROMIUM), reason="needs Debian's chromium at /usr/bin/chromium"),
+]
+
+
+@pytest.mark.timeout(180)
+def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_config):
+    from playwright.sync_api import sync_playwright
+
+    settings = settings_factory(config_path=sim_config, sim_speed=20.0)
+    with serve(settings) as srv, srv.client() as c, sync_playwright() as pw:
+        run_id = c.post("/api/tests", json=REQUEST).json()["id"]
+        wait_for(lambda: c.get(f"/api/tests/{run_id}").json()["status"] == "completed", timeout_s=90)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1500, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(f"{srv.base}/?token={TOKEN}")
+            page.wait_for_selector(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
+            assert page.text_content("#discrepancy-history") .count("no analysis yet") == 1
+            page.click(f"#history button.find-effects[data-run='{run_id}']")
+            page.wait_for_selector("#discrepancy-link:not([hidden])", timeout=90_000)
+            said = page.text_content("#discrepancy-result")
+            assert said.startswith("consistent: Measurement and simulation agree"), said
+            assert "(against bench model v0)" in said
+            page.wait_for_selector(f"#discrepancy-history tr:has-text('{run_id}')", timeout=20_000)
+            assert "consistent" in page.text_content("#discrepancy-history")
+
+            fleet = browser.new_page(viewport={"width": 1500, "height": 900})
+            fleet.on("pageerror", lambda exc: errors.append(str(exc)))
+            fleet.goto(f"{srv.base}/fleet?token={TOKEN}")
+            button = f"#runs button.find-effects[data-run='{run_id}']"
+            fleet.wait_for_selector(button, timeout=20_000)
+            fleet.wait_for_selector(f"#discrepancy-history tr:has-text('{run_id}')", timeout=20_000)  # the history
+            fleet.click(button)
+            fleet.wait_for_function(
+                "document.querySelector('#discrepancy-result').textContent.includes('against bench model v0')",
+                timeout=90_000)
+            assert fleet.text_content("#discrepancy-result").startswith(f"run {run_id}: consistent")
+            fleet.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 2",
+                                    timeout=20_000)
+            assert errors == []
+        finally:
+            browser.close()
