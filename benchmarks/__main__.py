@@ -24,7 +24,14 @@ import traceback
 from pathlib import Path
 
 import benchmarks
-from benchmarks._report import readme_table, replace_readme_table, to_markdown
+from benchmarks._report import (
+    PLANT_BEGIN,
+    PLANT_END,
+    plant_scale_table,
+    readme_table,
+    replace_readme_table,
+    to_markdown,
+)
 
 HERE = Path(__file__).resolve().parent
 README = HERE.parent / "README.md"
@@ -68,9 +75,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     results_path = args.out / "results.json"
     if args.readme:
-        README.write_text(replace_readme_table(README.read_text(encoding="utf-8"),
-                                               readme_table(_load_results(results_path))), encoding="utf-8")
-        print(f"README.md: performance table rewritten from {results_path}")
+        results = _load_results(results_path)
+        text = replace_readme_table(README.read_text(encoding="utf-8"), readme_table(results))
+        text = replace_readme_table(text, plant_scale_table(results), (PLANT_BEGIN, PLANT_END))
+        README.write_text(text, encoding="utf-8")
+        print(f"README.md: performance and plant_scale tables rewritten from {results_path}")
         return 0
     names = args.only or discover()
     unknown = sorted(set(names) - set(discover()))

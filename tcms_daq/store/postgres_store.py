@@ -350,9 +350,11 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, People
         results reduced to :func:`~tcms_daq.store.base.brief_results` in the database)."""
         where, params = (query or RunQuery()).where("%s", "ILIKE")
         with self._connection() as conn:
+            # the page's ids first, then its columns: the rows an OFFSET skips are never read or reduced
             rows = conn.execute(
-                f"SELECT {_BRIEF_COLUMNS if brief else _LIST_COLUMNS} FROM runs {where} ORDER BY created_at DESC, id DESC "
-                "LIMIT %s OFFSET %s", (*params, limit, offset)).fetchall()
+                f"SELECT {_BRIEF_COLUMNS if brief else _LIST_COLUMNS} FROM runs JOIN (SELECT id AS page_id FROM runs "
+                f"{where} ORDER BY created_at DESC, id DESC LIMIT %s OFFSET %s) AS page ON runs.id = page.page_id "
+                "ORDER BY created_at DESC, id DESC", (*params, limit, offset)).fetchall()
         return [_record(r) for r in rows]
 
     def count_runs(self, query: RunQuery | None = None) -> int:

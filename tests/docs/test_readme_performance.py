@@ -8,7 +8,16 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks._report import README_BEGIN, README_END, readme_table, readme_table_in, replace_readme_table
+from benchmarks._report import (
+    PLANT_BEGIN,
+    PLANT_END,
+    README_BEGIN,
+    README_END,
+    plant_scale_table,
+    readme_table,
+    readme_table_in,
+    replace_readme_table,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -18,6 +27,8 @@ def test_the_readme_table_is_generated_from_results_json():
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     assert readme_table_in(readme) == readme_table(results), (
         "README.md's performance table differs from benchmarks/results.json: run `python -m benchmarks --readme`")
+    assert readme_table_in(readme, (PLANT_BEGIN, PLANT_END)) == plant_scale_table(results), (
+        "README.md's plant_scale table differs from benchmarks/results.json: run `python -m benchmarks --readme`")
 
 
 def test_the_table_gives_min_median_max_the_target_and_the_load():
