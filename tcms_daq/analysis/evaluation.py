@@ -6,8 +6,10 @@ Per full loop (a B↑ and a B↓ branch):
 - backlash (loop width at zero torque) = |θ_B↓(0) − θ_B↑(0)|;
 - midline m(T) = [θ_B↑(T) + θ_B↓(T)]/2; lost motion = m(+p·T_rated) − m(−p·T_rated);
 - torsional rigidity per direction = secant ΔT/Δm over [lo, hi]·T_test on that side, averaged over both sides;
-  the upper end is at most the torque the loop actually reached (its turning point, where the branches meet
-  and the midline is the tip angle), so a loop that stops a little short of T_test is still evaluated;
+  the upper end is the torque the loop actually reached (its turning point, where the branches meet and the
+  midline is the tip angle, estimated on the flanks: ``tcms_daq.analysis.tips``) when that is short of hi·T_test
+  or at most 2 % beyond it, so a loop that stops a little short of T_test is still evaluated and a torque scale
+  error moves the end smoothly;
 - optional Harmonic Drive K1/K2/K3: least-squares lines of the midline per region, per direction;
 - loop energy ∮T dθ (J per cycle): the loop width integrated over the torque range of both branches.
 Results are reported per loop, per direction and as mean ± std over the evaluated loops.
@@ -28,12 +30,14 @@ from tcms_daq.analysis import harmonic, plausibility
 from tcms_daq.analysis.interpolation import MAX_SPAN_FRACTION, angle_at_torque, fit_window
 from tcms_daq.analysis.noise import white_noise_std
 from tcms_daq.analysis.segmentation import TIP_VALID_FRACTION, Branch, Loop, segment_loops, turning_points
+from tcms_daq.analysis.tips import MIN_FLANK_SAMPLES, TipPoint, tip_point
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
 
 MIN_SAMPLES = 20
 CLIP_WARNING = 0.02  # warn when the rigidity interval had to end more than 2 % below what was asked
 SNAP_TO_RATED = 0.02  # a reached torque within 2 % of the rated torque is taken as a test at rated torque
+TO_THE_TIP = 0.02  # the rigidity interval ends at the turning point when that is at most 2 % beyond its end
 RATE_LEVELS = 0.4  # loading rate measured between ∓40 % of the test torque on each branch
 SCALE_PERCENTILE = 99.5
 MIN_SIGNAL_TO_NOISE = 20.0  # a torque excursion below 20 × the torque noise is not a test
@@ -307,6 +311,7 @@ class Conditioning:
     window: int  # samples per local fit
     max_span_nm: float  # no fit or smoothing spans more torque than this
     torque_smooth_nm: np.ndarray
+    flank_samples: int = MIN_FLANK_SAMPLES  # samples of a tip's flank fits: those spanning max_span_nm of torque
 
 
 @dataclass(frozen=True)
@@ -545,8 +550,10 @@ def _condition(torque: np.ndarray, angle: np.ndarray) -> Conditioning:
         np.median([(b.stop - b.start) / max(abs(b.stop_torque_nm - b.start_torque_nm), 1e-9) for b in pilot_branches])
     )
     max_span_nm = MAX_SPAN_FRACTION * scale
-    torque_smooth = _smooth(torque, min(window, max(1, int(max_span_nm * samples_per_nm))))
-    return Conditioning(scale, torque_noise, angle_noise, window, max_span_nm, torque_smooth)
+    span_samples = max(1, int(max_span_nm * samples_per_nm))
+    torque_smooth = _smooth(torque, min(window, span_samples))
+    return Conditioning(scale, torque_noise, angle_noise, window, max_span_nm, torque_smooth,
+                        max(MIN_FLANK_SAMPLES, span_samples))
 
 
 def _test_torque(evaluated: list[Loop], settings: EvaluationSettings) -> float:
@@ -610,10 +617,14 @@ def _loop_statistics(used: list[LoopResult], with_hd: bool
 
 
 def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext, warnings: list[str]) -> LoopResult:
-    """One full loop: both branches interpolated at the evaluation torque levels, then per side and per loop."""
-    his = _upper_ends(index, loop, ctx, warnings)
-    levels = _EvaluationLevels.build(loop, ctx, his)
+    """One full loop: both branches interpolated at the evaluation torque levels, then per side and per loop.
+    A level within the flank span of a tip (the rigidity interval's upper end when the loop reaches about the
+    test torque, or falls short of it) is read from the tip estimated on its flanks (``tcms_daq.analysis.tips``)."""
     cond = ctx.cond
+    tips = {i: tip_point(ctx.time_s, ctx.torque_nm, ctx.angle_arcsec, i, cond.flank_samples, cond.torque_noise_nm)
+            for i in (loop.first.start, loop.first.stop, loop.second.stop)}
+    his = _upper_ends(index, loop, ctx, warnings, tips)
+    levels = _EvaluationLevels.build(loop, ctx, his)
 
     def branch_angles(branch: Branch) -> np.ndarray:
         sl = branch.slice
@@ -622,6 +633,8 @@ def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext,
 
     up = branch_angles(loop.up)
     down = branch_angles(loop.down)
+    for branch, angles in ((loop.up, up), (loop.down, down)):
+        _read_at_tips(branch, angles, levels, tips, cond.max_span_nm)
     if np.isnan(up).any() or np.isnan(down).any():
         raise EvaluationError(f"loop {index}: a branch does not cover the evaluation torque levels")
     mid = 0.5 * (up + down)
@@ -653,21 +666,37 @@ def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext,
     )
 
 
-def _upper_ends(index: int, loop: Loop, ctx: LoopContext, warnings: list[str]) -> dict[int, float]:
+def _read_at_tips(branch: Branch, angles: np.ndarray, levels: _EvaluationLevels, tips: dict[int, TipPoint],
+                  max_span_nm: float) -> None:
+    """Angles of one branch at levels within the flank span of its tips, read from the tips' fits (in place): the
+    rigidity's upper ends at a sharp tip, and any level beyond what the smoothed branch reaches (NaN)."""
+    upper = {_EvaluationLevels.HI_POS, _EvaluationLevels.HI_NEG}
+    for tip_index, before in ((branch.stop, True), (branch.start, False)):  # into the tip it ends at, out of the other
+        tip = tips[tip_index]
+        near = np.flatnonzero(np.abs(levels.torque_nm - tip.torque_nm) <= max_span_nm)
+        for k in near:
+            if np.isnan(angles[k]) or (k in upper and tip.sharp(before)):
+                angles[k] = tip.angle_on_flank(float(levels.torque_nm[k]), before)
+
+
+def _upper_ends(index: int, loop: Loop, ctx: LoopContext, warnings: list[str], tips: dict[int, TipPoint]
+                ) -> dict[int, float]:
     """The upper end of the rigidity interval per side (sign → |T| in N·m): the asked one, or the torque the loop
-    reached when it stops short (a warning when more than 2 % short). A loop that does not pass the lower end or
-    the lost-motion level is not evaluable."""
+    reached (the smaller tip torque of that side, estimated on the flanks) when it stops short (a warning when
+    more than 2 % short). A loop that does not pass the lower end or the lost-motion level is not evaluable."""
     lo, lm_torque = ctx.lo_nm, ctx.settings.lost_motion_torque_nm
     his: dict[int, float] = {}
     for name, sign in SIDES:
-        reached = loop.reached_torque_nm(sign)
+        reached = min(abs(tp.torque_nm) for tp in tips.values() if tp.torque_nm * sign > 0.0)
         if reached <= lo or reached <= lm_torque:
             need = max(lo, lm_torque)
             raise EvaluationError(
                 f"torque never reaches the evaluation interval: loop {index} reaches {sign * reached:+.4g} Nm on "
                 f"the {name} side, the evaluation needs beyond {sign * need:+.4g} Nm"
             )
-        hi = min(ctx.hi_nm, reached)
+        # a loop that turns within 2 % beyond the asked end is evaluated to its turning point: the end does not
+        # jump from the tip to a level just short of it when a torque scale error moves the tip across it
+        hi = reached if reached <= ctx.hi_nm * (1.0 + TO_THE_TIP) else ctx.hi_nm
         if hi < ctx.hi_nm * (1.0 - CLIP_WARNING):
             warnings.append(
                 f"rigidity interval clipped on the {name} side: torque reached {reached:.4g} Nm, "

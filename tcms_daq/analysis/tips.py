@@ -1,0 +1,112 @@
+"""The turning point of a loop (the tip, where a branch ends and the next begins), estimated from the flanks on
+either side, not from the extreme sample.
+
+The largest sample of a noisy record overshoots the torque reached; a smoothed record undershoots it at a sharp
+(no-hold) tip, by a quarter of the torque the smoothing window spans; the sample nearest the tip misses it by up
+to half a sample step. Both bias a rigidity secant that ends at the tip. Here each flank (``n`` samples before
+and after the extreme of the smoothed torque) gets least-squares lines of torque and angle in time (time is
+exact, so noisy torque causes no errors-in-variables bias):
+- a sharp tip (torque rising into it and falling out of it by more than noise): the torque lines intersect at
+  the tip time t*; the tip torque is their value there and the tip angle the mean of the two angle lines at t*;
+- a held tip (a flank flat within its noise): the mean torque and angle of the flat flank(s).
+The compliance dθ/dT of each flank lets a branch be read a little below its tip (the other tip of a loop side).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MIN_FLANK_SAMPLES = 3
+QUADRATIC_FROM = 6  # flank angle fits are parabolas from this many samples on
+FLAT_NOISE_FACTOR = 4.0  # a flank whose torque changes by less than this × its fit's noise is a hold
+
+
+@dataclass(frozen=True)
+class TipPoint:
+    """A turning point: signed torque (N·m) and angle (arcsec) at the tip, dθ/dT (arcsec per N·m) of the
+    flank before and after it (NaN on a held flank)."""
+
+    index: int
+    torque_nm: float
+    angle_arcsec: float
+    compliance_before: float
+    compliance_after: float
+
+    def sharp(self, before: bool) -> bool:
+        """Whether the flank before (after) the tip moves, i.e. the tip is not held on that side."""
+        return bool(np.isfinite(self.compliance_before if before else self.compliance_after))
+
+    def angle_on_flank(self, level_nm: float, before: bool) -> float:
+        """θ (arcsec) at a torque ``level_nm`` a little short of the tip on one flank (linear in torque)."""
+        c = self.compliance_before if before else self.compliance_after
+        if not np.isfinite(c):
+            return self.angle_arcsec
+        return float(self.angle_arcsec + c * (level_nm - self.torque_nm))
+
+
+Flank = tuple[float, float, float, float, float, float, slice]  # torque a, b; angle a, b; change; noise; samples
+
+
+def _line(t: np.ndarray, y: np.ndarray, degree: int = 1) -> tuple[float, float, float]:
+    """Least-squares polynomial y = a + b·t (+ c·t²): (a, b, residual standard deviation); a and b are the value
+    and the slope at t = 0."""
+    design = np.column_stack([t**k for k in range(degree + 1)])
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    resid = y - design @ coef
+    dof = max(t.size - degree - 1, 1)
+    return float(coef[0]), float(coef[1]), float(np.sqrt(resid @ resid / dof))
+
+
+def _at(t: np.ndarray, y: np.ndarray, t_star: float) -> float:
+    """The flank's angle fit (a parabola from QUADRATIC_FROM samples on, else a line) at ``t_star``."""
+    degree = 2 if t.size >= QUADRATIC_FROM else 1
+    design = np.column_stack([t**k for k in range(degree + 1)])
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    return float(sum(c * t_star**k for k, c in enumerate(coef)))
+
+
+def tip_point(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, index: int, n: int,
+              torque_noise_nm: float) -> TipPoint:
+    """The tip at sample ``index`` (the extreme of the smoothed torque) from ``n`` samples on each flank."""
+    n = max(int(n), MIN_FLANK_SAMPLES)
+    size = torque_nm.size
+    lo, hi = max(0, index - n + 1), min(size, index + n)
+    t0 = float(time_s[index])
+    sign = 1.0 if torque_nm[index] >= 0.0 else -1.0
+    flanks: list[Flank | None] = []
+    for sl in (slice(lo, index + 1), slice(index, hi)):
+        t = time_s[sl] - t0
+        if t.size < 2:
+            flanks.append(None)
+            continue
+        a_t, b_t, s_t = _line(t, torque_nm[sl])
+        a_q, b_q, _ = _line(t, angle_arcsec[sl])
+        change = b_t * float(t[-1] - t[0])
+        # the floor keeps a noiseless hold (rounding-level slopes) flat
+        noise = max(s_t, torque_noise_nm, 1e-9 * abs(float(torque_nm[index]))) / np.sqrt(t.size)
+        flanks.append((a_t, b_t, a_q, b_q, change, noise, sl))
+    before, after = flanks
+
+    def moving(f: Flank | None, direction: float) -> bool:
+        return f is not None and direction * sign * f[4] > FLAT_NOISE_FACTOR * f[5]
+
+    def compliance(f: Flank | None, moves: bool) -> float:
+        return float(f[3] / f[1]) if f is not None and moves and f[1] != 0.0 else float("nan")
+
+    rising, falling = moving(before, 1.0), moving(after, -1.0)
+    if rising and falling and before is not None and after is not None:
+        a1, b1 = before[0], before[1]
+        a2, b2 = after[0], after[1]
+        t_star = (a2 - a1) / (b1 - b2)
+        t_star = float(np.clip(t_star, time_s[lo] - t0, time_s[hi - 1] - t0))
+        torque_tip = a1 + b1 * t_star
+        angle_tip = 0.5 * (_at(time_s[before[6]] - t0, angle_arcsec[before[6]], t_star)
+                           + _at(time_s[after[6]] - t0, angle_arcsec[after[6]], t_star))
+    else:
+        flat = [f for f, moves in ((before, rising), (after, falling)) if f is not None and not moves]
+        sel = np.concatenate([np.arange(size)[f[6]] for f in flat]) if flat else np.array([index])
+        torque_tip = float(np.mean(torque_nm[sel]))
+        angle_tip = float(np.mean(angle_arcsec[sel]))
+    return TipPoint(index, float(torque_tip), float(angle_tip), compliance(before, rising), compliance(after, falling))
