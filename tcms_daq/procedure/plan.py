@@ -8,16 +8,31 @@ starts with a :class:`Move` of the output, made at zero torque by the loader's p
 - single: one stage where the output is (the classic test);
 - positions: ``positions`` = N (N equally spaced over 360°, from 0°) or a list of degrees in [0, 360);
 - rates: ``rates`` = a list of loading rates (N·m/s), the same test at each, where the output is.
+
+A request becomes a plan in one place, :func:`plan_from_request` (the CLI, the service and saved plans call it).
+Its limit policy, checked there once:
+
+- the test torque T (the request's, else ``[procedure] max_torque_nm``, else the reducer's rated torque) must not
+  exceed the bench's ``[bench] max_torque_nm`` nor the catalogue's rated torque of the reducer under test (a
+  stiffness test never loads a reducer beyond its rating);
+- the loading rate, step, segments and duration keep the bench's bounds (:func:`check_test_bounds`, per stage,
+  then the whole plan against ``max_segments`` and ``max_test_duration_s``);
+- at run time the measured torque is watched by the torque interlock at the bench limit and at
+  ``REDUCER_TORQUE_HEADROOM`` × the rated torque (overshoot of the torque loop), and the loader's drive refuses a
+  setpoint beyond its own ``max_torque_nm`` (the last guard; the bench limit when the loader names none).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from tcms_daq.config.models import BenchSection, ReducerSpec, TestProfile
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, model_validator
+
+from tcms_daq.config.models import BenchConfig, BenchSection, DecisionRule, ReducerSpec, TestProfile
+from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.profiles import Profile, Segment, build_profile, check_test_bounds
 
 MAX_POSITIONS = 36
@@ -179,3 +194,125 @@ def build_plan(test: TestProfile, reducer: ReducerSpec | None, bench: BenchSecti
 def single_plan(profile: Profile) -> Plan:
     """The plan of one profile where the output is (no move)."""
     return Plan("single", (Stage(0, profile, None),))
+
+
+# ------------------------------------------------------------------------------------------ request -> plan
+
+#: the torque interlock's reducer limit, as a multiple of the rated torque: room for the torque loop's overshoot
+#: above a test torque at the rated torque (the request itself may not exceed the rated torque)
+REDUCER_TORQUE_HEADROOM = 1.1
+
+
+class PlanRejected(TcmsError):
+    """A test request the bench cannot run (unknown reducer, a torque or a bound exceeded): one line naming the
+    field and the limit."""
+
+
+class PlanRequest(BaseModel):
+    """What a test request asks for (the CLI's options, the service's ``POST /api/tests``, a saved plan). A field
+    left None takes the bench config's ``[procedure]`` value (the test torque: the reducer's rated torque)."""
+
+    __test__ = False  # not a pytest test class
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    reducer: str = Field(min_length=1, max_length=64)
+    max_torque_nm: float | None = Field(None, gt=0.0)
+    profile: Literal["continuous", "stepped"] | None = None
+    cycles: int | None = Field(None, ge=1)
+    conditioning_loops: int | None = Field(None, ge=1)
+    rate_nm_per_s: float | None = Field(None, gt=0.0)
+    step_nm: float | None = Field(None, gt=0.0)
+    dwell_s: float | None = Field(None, ge=0.0)
+    positions: StrictInt | list[float] | None = None
+    rates: list[float] | None = None
+    move_velocity_deg_per_s: float | None = Field(None, gt=0.0)
+    decision_rule: DecisionRule | None = None
+
+    @model_validator(mode="after")
+    def _plan_fields(self) -> PlanRequest:
+        if self.positions is not None and self.rates is not None:
+            raise ValueError("positions and rates cannot be combined in one test")
+        if self.positions is not None:
+            positions_from(self.positions)
+        if self.rates is not None:
+            rates_from(self.rates)
+            if self.rate_nm_per_s is not None:
+                raise ValueError("rate_nm_per_s and rates exclude each other")
+        if self.move_velocity_deg_per_s is not None and self.positions is None:
+            raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
+        return self
+
+
+@dataclass(frozen=True)
+class TestPlan:
+    """A request the bench can run: the reducer under test, the plan of its stages and the decision rule."""
+
+    __test__ = False  # not a pytest test class
+
+    request: PlanRequest
+    reducer: ReducerSpec
+    plan: Plan
+    decision_rule: DecisionRule
+
+    @property
+    def profile(self) -> Profile:
+        """The first stage's profile (a single test's only one)."""
+        return self.plan.first
+
+    @property
+    def reducer_torque_limit_nm(self) -> float:
+        """The torque interlock's limit for the reducer under test (measured torque, N·m)."""
+        return REDUCER_TORQUE_HEADROOM * self.reducer.rated_torque_nm
+
+    def summary(self) -> dict[str, Any]:
+        """The profile, the reducer and the plan's stages as a run records them."""
+        return {**self.profile.to_dict(), "reducer": self.reducer.name,
+                "rated_torque_nm": self.reducer.rated_torque_nm, "segments": len(self.plan.segments),
+                "decision_rule": self.decision_rule,
+                **(self.plan.to_dict() if self.plan.kind != "single" else {})}
+
+
+def _find_reducer(catalogue: Mapping[str, ReducerSpec], name: str) -> ReducerSpec:
+    spec = catalogue.get(name)
+    if spec is None:
+        folded = {k.casefold(): v for k, v in catalogue.items()}
+        spec = folded.get(name.casefold())
+    if spec is None:
+        raise PlanRejected(f"unknown reducer {name!r} (known: {', '.join(sorted(catalogue))})")
+    return spec
+
+
+def _one_line(exc: ValidationError) -> str:
+    err = exc.errors()[0]
+    where = ".".join(str(part) for part in err["loc"])
+    return f"{where}: {err['msg']}" if where else str(err["msg"])
+
+
+def plan_from_request(request: PlanRequest, bench: BenchConfig, catalogue: Mapping[str, ReducerSpec]) -> TestPlan:
+    """The plan of ``request`` on the bench ``bench`` configures, for a reducer of ``catalogue``: the request's
+    fields over the config's ``[procedure]``, checked against the limit policy of this module (once).
+    PlanRejected (one line naming the field and the limit) when the bench cannot run it."""
+    reducer = _find_reducer(catalogue, request.reducer)
+    defaults = bench.procedure
+    torque_nm = request.max_torque_nm or defaults.max_torque_nm or reducer.rated_torque_nm
+    if torque_nm > bench.bench.max_torque_nm:
+        raise PlanRejected(f"max_torque_nm {torque_nm:g} N·m exceeds the bench limit "
+                           f"{bench.bench.max_torque_nm:g} N·m")
+    if torque_nm > reducer.rated_torque_nm:
+        raise PlanRejected(f"max_torque_nm {torque_nm:g} N·m exceeds the rated torque "
+                           f"{reducer.rated_torque_nm:g} N·m of {reducer.name}")
+    asked = {"kind": request.profile, "cycles": request.cycles, "conditioning_loops": request.conditioning_loops,
+             "rate_nm_per_s": request.rate_nm_per_s, "step_nm": request.step_nm, "dwell_s": request.dwell_s}
+    try:
+        test = defaults.model_copy(update={"max_torque_nm": torque_nm,
+                                           **{k: v for k, v in asked.items() if v is not None}})
+        test = TestProfile.model_validate(test.model_dump())
+    except ValidationError as exc:
+        raise PlanRejected(_one_line(exc)) from None
+    try:
+        plan = build_plan(test, reducer, bench.bench, positions=request.positions, rates=request.rates,
+                          **({"move_velocity_deg_per_s": request.move_velocity_deg_per_s}
+                             if request.move_velocity_deg_per_s is not None else {}))
+    except ValueError as exc:
+        raise PlanRejected(str(exc).splitlines()[0]) from None
+    return TestPlan(request, reducer, plan, request.decision_rule or bench.bench.decision_rule)
