@@ -22,19 +22,24 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.analysis.gaps import exclude_gapped_loops
 from tcms_daq.cli.options import add_bench_config_options, add_decision_rule_option
-from tcms_daq.config import (
-    BenchConfig,
-    ReducerSpec,
-    get_reducer,
-    load_bench_config,
-    load_reducers_for,
-)
+from tcms_daq.config import BenchConfig, ReducerSpec, load_bench_config, load_reducers_for
 from tcms_daq.errors import TcmsError
-from tcms_daq.procedure import Profile, build_profile, check_test_bounds
-from tcms_daq.procedure.plan import MAX_POSITIONS, Plan, build_plan, single_plan
+from tcms_daq.procedure import Profile
+from tcms_daq.procedure.plan import (
+    MAX_POSITIONS,
+    REDUCER_TORQUE_HEADROOM,
+    Plan,
+    PlanRejected,
+    PlanRequest,
+    TestPlan,
+    plan_from_request,
+    single_plan,
+)
 from tcms_daq.samples import Samples, write_csv
 
 CSV_COLUMNS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec", "applied_torque_nm", "true_angle_arcsec",
@@ -189,7 +194,7 @@ def simulate(cfg: BenchConfig, reducer: ReducerSpec, profile: Profile | Plan, se
 
         subscribers.append(on_message)
     try:
-        run = TestRun(bench, plan if plan.kind != "single" else plan.first, reducer_torque_limit_nm=1.1 * reducer.rated_torque_nm,
+        run = TestRun(bench, plan if plan.kind != "single" else plan.first, reducer_torque_limit_nm=REDUCER_TORQUE_HEADROOM * reducer.rated_torque_nm,
                       subscribers=subscribers, profile_info={"reducer": reducer.name})
     except ProfileRejected as exc:
         raise TcmsError(str(exc)) from None
@@ -278,58 +283,27 @@ def evaluate_plan_run(result: SimulatedRun, rule: str | None = None) -> dict[str
     return out
 
 
-def _plan_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Plan:
-    """The profile of the options (``_profile_from_args``) at each position or rate they ask for."""
-    profile = _profile_from_args(cfg, reducer, args)
-    positions = getattr(args, "positions", None)
-    rates = getattr(args, "rates", None)
-    if positions is None and rates is None:
-        return single_plan(profile)
-    if rates is not None and args.rate is not None:
+def _plan_from_args(cfg: BenchConfig, catalogue: dict[str, ReducerSpec], args: argparse.Namespace) -> TestPlan:
+    """The test the options ask for (``plan_from_request``: the one limit policy), over the config's
+    ``[procedure]`` and ``[sim] reducer``."""
+    if args.dwell is not None and args.dwell < 0:
+        raise TcmsError(f"--dwell must be >= 0 s, got {args.dwell}")
+    if args.rates is not None and args.rate is not None:
         raise TcmsError("--rate and --rates exclude each other")
-    from tcms_daq.config import load_test_profile
-
-    data = cfg.procedure.model_dump()
-    data.update({"kind": profile.kind, "max_torque_nm": profile.test_torque_nm, "cycles": profile.cycles,
-                 "conditioning_loops": profile.conditioning_loops, "rate_nm_per_s": profile.rate_nm_per_s,
-                 "step_nm": profile.step_nm or data["step_nm"], "dwell_s": profile.dwell_s})
-    test = load_test_profile(data, source=cfg.source_path or "<config>")
-    velocity = getattr(args, "move_velocity", None)
     try:
-        return build_plan(test, reducer, cfg.bench, positions=positions, rates=rates,
-                          **({"move_velocity_deg_per_s": velocity} if velocity is not None else {}))
-    except ValueError as exc:
-        raise TcmsError(f"{exc} ([bench] in {cfg.source_path or 'the config'})") from None
-
-
-def _profile_from_args(cfg: BenchConfig, reducer: ReducerSpec, args: argparse.Namespace) -> Profile:
-    overrides = {
-        "kind": args.profile,
-        "max_torque_nm": args.max_torque,
-        "cycles": args.cycles,
-        "conditioning_loops": args.conditioning,
-        "rate_nm_per_s": args.rate,
-        "step_nm": args.step,
-        "dwell_s": args.dwell,
-    }
-    data = cfg.procedure.model_dump()
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    if data["dwell_s"] < 0:
-        raise TcmsError(f"--dwell must be >= 0 s, got {data['dwell_s']}")
-    from tcms_daq.config import load_test_profile
-
-    test = load_test_profile(data, source=cfg.source_path or "<config>")
+        request = PlanRequest(
+            reducer=args.reducer or cfg.sim.reducer, max_torque_nm=args.max_torque, profile=args.profile,
+            cycles=args.cycles, conditioning_loops=args.conditioning, rate_nm_per_s=args.rate, step_nm=args.step,
+            dwell_s=args.dwell, positions=args.positions, rates=args.rates,
+            move_velocity_deg_per_s=args.move_velocity, decision_rule=args.decision_rule)
+    except ValidationError as exc:
+        raise TcmsError(str(exc.errors()[0]["msg"]).removeprefix("Value error, ")) from None
     try:
-        check_test_bounds(test, test.max_torque_nm or reducer.rated_torque_nm, cfg.bench)
-    except ValueError as exc:
-        raise TcmsError(f"{exc} ([bench] in {cfg.source_path or 'the config'})") from None
-    profile = build_profile(test, reducer)
-    if profile.test_torque_nm > cfg.bench.max_torque_nm:
-        raise TcmsError(
-            f"test torque {profile.test_torque_nm:g} N·m exceeds the bench limit {cfg.bench.max_torque_nm:g} N·m "
-            f"([bench] max_torque_nm in {cfg.source_path})"
-        )
-    return profile
+        return plan_from_request(request, cfg, catalogue)
+    except PlanRejected as exc:
+        where = cfg.source_path or "the config"
+        source = cfg.resolve(cfg.bench.reducers) if str(exc).startswith("unknown reducer") else f"[bench] in {where}"
+        raise TcmsError(f"{exc} ({source})") from None
 
 
 def _analyze_hint(path: Path, result: SimulatedRun) -> str:
@@ -376,9 +350,8 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.parent.is_dir():  # fail before the test, not after it
         raise TcmsError(f"{args.out}: cannot write (no directory {args.out.parent})")
     cfg = load_bench_config(args.config, args.overrides)
-    catalogue = load_reducers_for(cfg)
-    reducer = get_reducer(catalogue, args.reducer or cfg.sim.reducer, cfg.resolve(cfg.bench.reducers))
-    plan = _plan_from_args(cfg, reducer, args)
+    test = _plan_from_args(cfg, load_reducers_for(cfg), args)
+    reducer, plan = test.reducer, test.plan
 
     bar = None
     progress = None
@@ -415,8 +388,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    evaluation = evaluate_run(result, args.decision_rule) if plan.kind == "single" else None
-    ev = evaluation.to_dict() if evaluation is not None else evaluate_plan_run(result, args.decision_rule)
+    evaluation = evaluate_run(result, test.decision_rule) if plan.kind == "single" else None
+    ev = evaluation.to_dict() if evaluation is not None else evaluate_plan_run(result, test.decision_rule)
 
     if args.out is not None:
         _write_samples(args.out, result.evaluated)

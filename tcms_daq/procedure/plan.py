@@ -12,9 +12,9 @@ starts with a :class:`Move` of the output, made at zero torque by the loader's p
 A request becomes a plan in one place, :func:`plan_from_request` (the CLI, the service and saved plans call it).
 Its limit policy, checked there once:
 
-- the test torque T (the request's, else ``[procedure] max_torque_nm``, else the reducer's rated torque) must not
-  exceed the bench's ``[bench] max_torque_nm`` nor the catalogue's rated torque of the reducer under test (a
-  stiffness test never loads a reducer beyond its rating);
+- the test torque T (the request's, else ``[procedure] max_torque_nm``, else the reducer's rated torque) must lie
+  between the bench's ``[bench] min_test_torque_nm`` and ``max_torque_nm`` and not exceed the catalogue's rated
+  torque of the reducer under test (a stiffness test never loads a reducer beyond its rating);
 - the loading rate, step, segments and duration keep the bench's bounds (:func:`check_test_bounds`, per stage,
   then the whole plan against ``max_segments`` and ``max_test_duration_s``);
 - at run time the measured torque is watched by the torque interlock at the bench limit and at
@@ -278,7 +278,7 @@ def _find_reducer(catalogue: Mapping[str, ReducerSpec], name: str) -> ReducerSpe
         folded = {k.casefold(): v for k, v in catalogue.items()}
         spec = folded.get(name.casefold())
     if spec is None:
-        raise PlanRejected(f"unknown reducer {name!r} (known: {', '.join(sorted(catalogue))})")
+        raise PlanRejected(f"unknown reducer {name!r} (known: {', '.join(catalogue)})")
     return spec
 
 
@@ -295,6 +295,10 @@ def plan_from_request(request: PlanRequest, bench: BenchConfig, catalogue: Mappi
     reducer = _find_reducer(catalogue, request.reducer)
     defaults = bench.procedure
     torque_nm = request.max_torque_nm or defaults.max_torque_nm or reducer.rated_torque_nm
+    smallest = bench.bench.min_test_torque_nm
+    if torque_nm < smallest:
+        raise PlanRejected(f"max_torque_nm {torque_nm:g} N·m is below the bench's minimum test torque "
+                           f"{smallest:g} N·m ([bench] min_test_torque_nm)")
     if torque_nm > bench.bench.max_torque_nm:
         raise PlanRejected(f"max_torque_nm {torque_nm:g} N·m exceeds the bench limit "
                            f"{bench.bench.max_torque_nm:g} N·m")

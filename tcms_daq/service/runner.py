@@ -18,9 +18,11 @@ import numpy as np
 
 from tcms_daq.config.models import CompensationChecks
 from tcms_daq.errors import TcmsError
+from tcms_daq.procedure.plan import PlanRequest, TestPlan
 from tcms_daq.service.schemas import TestRequest
 
 Columns = Mapping[str, np.ndarray]
+_PLAN_FIELDS = set(PlanRequest.model_fields)  # what of a TestRequest the plan is made of (the rest documents the test)
 BatchSink = Callable[[Columns], None]
 
 # Channels recorded for every run (the canonical columns plus the raw encoder angle).
@@ -32,8 +34,9 @@ class RequestRejected(TcmsError):
 
 
 @dataclass
-class TestPlan:
-    """A validated request: the profile summary stored with the run, and the runner's own plan object."""
+class AcceptedTest:
+    """A validated request: the profile summary stored with the run, and the runner's own plan object (the
+    bench runner's: a :class:`tcms_daq.procedure.plan.TestPlan`)."""
 
     request: TestRequest
     profile_summary: dict[str, Any]
@@ -64,25 +67,17 @@ class Runner(Protocol):
 
     def compensation_checks(self) -> CompensationChecks: ...
 
-    def plan(self, request: TestRequest) -> TestPlan: ...
+    def plan(self, request: TestRequest) -> AcceptedTest: ...
 
     def execute(
         self,
-        plan: TestPlan,
+        plan: AcceptedTest,
         *,
         run_id: str,
         record: BatchSink,
         on_phase: Callable[..., None],
         abort: threading.Event,
     ) -> RunOutcome: ...
-
-
-@dataclass
-class _Plan:
-    profile: Any  # tcms_daq.procedure.Profile
-    reducer: Any  # tcms_daq.config.ReducerSpec
-    decision_rule: str = "guarded"  # ISO 14253-1: the request's, else the bench config's
-    stages: Any = None  # tcms_daq.procedure.plan.Plan of a test at several positions or rates
 
 
 def _columns(samples: Any) -> dict[str, np.ndarray]:
@@ -323,61 +318,21 @@ class BenchRunner:
         return checks
 
     # -- tests -----------------------------------------------------------------------------------------------
-    def plan(self, request: TestRequest) -> TestPlan:
-        from tcms_daq.config.models import TestProfile
-        from tcms_daq.procedure import build_profile, check_test_bounds
-
-        spec = self.reducers.get(request.reducer)
-        if spec is None:
-            raise RequestRejected(f"unknown reducer {request.reducer!r} (known: {', '.join(self.reducers)})")
-        torque = request.max_torque_nm
-        smallest = self.config.bench.min_test_torque_nm
-        if torque < smallest:
-            raise RequestRejected(f"max_torque_nm {torque:g} N·m is below the bench's minimum test torque "
-                                  f"{smallest:g} N·m ([bench] min_test_torque_nm)")
-        if torque > self.bench.max_torque_nm:
-            raise RequestRejected(
-                f"max_torque_nm {torque:g} N·m exceeds the bench limit {self.bench.max_torque_nm:g} N·m"
-            )
-        if torque > spec.rated_torque_nm:
-            raise RequestRejected(
-                f"max_torque_nm {torque:g} N·m exceeds the rated torque {spec.rated_torque_nm:g} N·m of {spec.name}"
-            )
-        defaults = self.config.procedure
-        fields: dict[str, Any] = {
-            "kind": request.profile,
-            "max_torque_nm": torque,
-            "rate_nm_per_s": request.rate_nm_per_s,
-            "cycles": request.cycles,
-            "conditioning_loops": defaults.conditioning_loops,
-            "tip_dwell_s": defaults.tip_dwell_s,
-            "start": defaults.start,
-            "step_nm": request.step_nm if request.step_nm is not None else defaults.step_nm,
-            "dwell_s": request.dwell_s if request.dwell_s is not None else defaults.dwell_s,
-        }
-        from tcms_daq.procedure.plan import build_plan
+    def plan(self, request: TestRequest) -> AcceptedTest:
+        """The request's plan (``plan_from_request``: the one limit policy); RequestRejected (422) naming what is
+        out of bounds, or when positions are asked of a loader that cannot turn the output."""
+        from tcms_daq.procedure.plan import PlanRejected, PlanRequest, plan_from_request
 
         try:
-            test = TestProfile(**fields)
-            check_test_bounds(test, torque, self.config.bench)
-            profile = build_profile(test, spec)
-            stages = None
-            if request.positions is not None or request.rates is not None:
-                stages = build_plan(test, spec, self.config.bench, positions=request.positions, rates=request.rates,
-                                    **({"move_velocity_deg_per_s": request.move_velocity_deg_per_s}
-                                       if request.move_velocity_deg_per_s is not None else {}))
-        except ValueError as exc:
-            raise RequestRejected(str(exc).splitlines()[0]) from None
-        if stages is not None and stages.kind == "positions" and not callable(getattr(self.bench.loader, "move_to",
-                                                                                      None)):
+            planned = plan_from_request(PlanRequest.model_validate(request.model_dump(include=_PLAN_FIELDS)),
+                                        self.config, self.reducers)
+        except PlanRejected as exc:
+            raise RequestRejected(str(exc)) from None
+        if planned.plan.kind == "positions" and not callable(getattr(self.bench.loader, "move_to", None)):
             raise RequestRejected(f"positions: the loader {self.bench.loader.name} cannot turn the output")
-        rule = request.decision_rule or self.config.bench.decision_rule
-        summary = {**profile.to_dict(), "reducer": spec.name, "rated_torque_nm": spec.rated_torque_nm,
-                   "segments": len(profile.segments) if stages is None else len(stages.segments),
-                   "decision_rule": rule, **(stages.to_dict() if stages is not None else {})}
-        return TestPlan(request, summary, _Plan(profile, spec, rule, stages))
+        return AcceptedTest(request, planned.summary(), planned)
 
-    def _evaluator(self, plan: _Plan) -> Callable[[Any], dict[str, Any]]:
+    def _evaluator(self, plan: TestPlan) -> Callable[[Any], dict[str, Any]]:
         from tcms_daq.procedure.evaluation import evaluate_for_reducer, evaluate_plan
 
         chain = self.config.chain_uncertainty()
@@ -386,17 +341,17 @@ class BenchRunner:
         def run(samples: Any) -> dict[str, Any]:
             # TestRun hands over the evaluated loops only (loop_index >= 1: conditioning removed)
             options = {"chain": chain, "rule": plan.decision_rule, "no_chain_basis": without}
-            if plan.stages is not None:
-                return evaluate_plan(samples, plan.stages, plan.reducer, **options)
+            if plan.plan.kind != "single":
+                return evaluate_plan(samples, plan.plan, plan.reducer, **options)
             return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm, **options).to_dict()
 
         return run
 
-    def execute(self, plan: TestPlan, *, run_id: str, record: BatchSink, on_phase: Callable[..., None],
+    def execute(self, plan: AcceptedTest, *, run_id: str, record: BatchSink, on_phase: Callable[..., None],
                 abort: threading.Event) -> RunOutcome:
         from tcms_daq.acquisition import DataMessage, EventMessage, ProcedureOptions, ProfileRejected, TestRun
 
-        payload: _Plan = plan.payload
+        payload: TestPlan = plan.payload
         if self.acq is None:
             raise TcmsError("the bench is not open")
 
@@ -419,8 +374,8 @@ class BenchRunner:
                 on_phase("specimen", reducer=payload.reducer.name)
             try:
                 run = TestRun(
-                    self.bench, payload.stages if payload.stages is not None else payload.profile,
-                    reducer_torque_limit_nm=1.1 * payload.reducer.rated_torque_nm,
+                    self.bench, payload.plan if payload.plan.kind != "single" else payload.profile,
+                    reducer_torque_limit_nm=payload.reducer_torque_limit_nm,
                     evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
                     run_id=run_id, profile_info={"reducer": payload.reducer.name},
                     # the store records every channel as it arrives: the run keeps in memory what it evaluates

@@ -56,6 +56,7 @@ def test_a_torque_above_the_bench_limit_is_refused(cfg, catalogue):
 
 @pytest.mark.parametrize(("fields", "message"), [
     ({"reducer": "RV-999X"}, "unknown reducer 'RV-999X'"),
+    ({"max_torque_nm": 0.5}, "below the bench's minimum test torque 1 N·m"),
     ({"rate_nm_per_s": 1e-3}, "below the bench's slowest rate"),
     ({"profile": "stepped", "step_nm": 1e-3}, "below the bench's smallest step"),
     ({"cycles": 100000}, "cycles: Input should be less than or equal to 1000"),

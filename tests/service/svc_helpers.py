@@ -24,7 +24,7 @@ import uvicorn
 from tcms_daq.sim.instruments.child import stop_process
 
 from tcms_daq.service.app import ServiceSettings, create_app
-from tcms_daq.service.runner import RUN_CHANNELS, RequestRejected, RunOutcome, TestPlan
+from tcms_daq.service.runner import RUN_CHANNELS, AcceptedTest, RequestRejected, RunOutcome
 
 TOKEN = "test-token-123"
 
@@ -104,14 +104,14 @@ class ScriptedRunner:
 
         return CompensationChecks()
 
-    def plan(self, request) -> TestPlan:
+    def plan(self, request) -> AcceptedTest:
         if request.reducer != "RV-110E":
             raise RequestRejected(f"unknown reducer {request.reducer!r} (known: RV-110E)")
         if request.max_torque_nm > 1000.0:
             raise RequestRejected(f"max_torque_nm {request.max_torque_nm:g} exceeds the bench limit 1000 N·m")
         rate = request.rate_nm_per_s or 200.0
         legs = [-1.0, 1.0] * request.cycles + [-1.0]
-        return TestPlan(request, {"kind": request.profile, "legs": len(legs)}, (rate, legs))
+        return AcceptedTest(request, {"kind": request.profile, "legs": len(legs)}, (rate, legs))
 
     def execute(self, plan, *, run_id, record, on_phase, abort) -> RunOutcome:
         rate, legs = plan.payload
