@@ -52,12 +52,20 @@ def test_simulated_clock_runs_the_same_run_deterministically(make_bench, profile
     np.testing.assert_array_equal(a.samples.angle_arcsec, b.samples.angle_arcsec)
 
 
-def test_profile_above_the_bench_limit_is_rejected_before_anything_moves(make_bench, make_profile):
+def test_a_setpoint_beyond_the_drive_limit_is_refused_by_the_drive(make_bench, make_profile):
+    """The request's limits are plan_from_request's; a profile handed to TestRun directly meets the drive's own
+    limit (the bench limit when the loader names none) as the last guard: nothing beyond it is ever applied."""
     bench = make_bench(max_torque_nm=200.0)
-    with pytest.raises(ProfileRejected, match="bench limit 200"):
-        TestRun(bench, make_profile(peak_nm=300.0))
-    with pytest.raises(ProfileRejected, match="reducer limit 250"):
-        TestRun(make_bench(), make_profile(peak_nm=300.0), reducer_torque_limit_nm=250.0)
+    record = TestRun(bench, make_profile(peak_nm=300.0)).run()
+    assert record.state == "aborted" and "outside ±200" in record.reason
+    assert record.loader_final["state"] == "SWITCH ON DISABLED"
+    assert np.abs(record.samples.torque_nm).max() < 0.1 * 200.0
+
+
+def test_a_profile_that_is_not_numbers_is_rejected_before_anything_moves(make_bench):
+    bench = make_bench()
+    with pytest.raises(ProfileRejected, match="segment 0: invalid target nan"):
+        TestRun(bench, [{"target_nm": float("nan"), "slope_nm_per_s": 100.0}])
     assert bench.loader.commands == []
 
 
