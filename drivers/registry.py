@@ -6,14 +6,32 @@ only when a bench names it, so a bench imports only the libraries it uses and ``
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Any
+from pathlib import Path
 
+from tcms_daq.config.models import BenchConfig
 from tcms_daq.errors import ConfigError
 
 ENTRY_POINT_GROUP = "tcms_daq.drivers"
 
 _LOADED: dict[str, type] = {}
+
+
+@dataclass
+class CompositionContext:
+    """What the bench composer hands to a driver's ``from_config(kind, options, context)``: the validated bench
+    config, the folder its files are relative to, the bench's torque limit (N·m), the real-time clock instruments
+    simulated on real time follow, how to build simulated physics from the config (tests inject one), and
+    ``shared``: state the instruments of one driver family share (by the family's key)."""
+
+    config: BenchConfig
+    config_dir: Path | None = None
+    bench_max_torque_nm: float = float("inf")
+    real_time_clock: Callable[[], float] | None = None
+    physics_factory: Callable[[BenchConfig], object] | None = None
+    shared: dict[str, object] = field(default_factory=dict)
 
 
 def names() -> list[str]:
@@ -29,8 +47,3 @@ def driver_class(name: str) -> type:
             raise ConfigError(f"unknown driver {name!r} (known: {', '.join(names()) or 'none'})")
         _LOADED[name] = found[0].load()
     return _LOADED[name]
-
-
-def create(name: str, **options: Any) -> Any:
-    """Instantiate driver ``name`` with keyword options from config (url, timeouts, limits …)."""
-    return driver_class(name)(**options)

@@ -38,7 +38,7 @@ from tcms_daq.sim.physics import (
 from tcms_daq.sim.reducer_model import RichReducerModel, RichState
 from tcms_daq.sim.sensors import EncoderModel, TorqueSensorModel
 
-from tcms_daq.config.loader import get_reducer, load_reducers_for, validate
+from tcms_daq.config.loader import get_reducer, load_reducers_for
 from tcms_daq.config.models import BenchConfig, ReducerSpec, SimConfig
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import Samples
@@ -53,7 +53,7 @@ class SimulatedBench:
 
     def __init__(
         self,
-        physics: ReducerPhysics | SimConfig | BenchConfig | Mapping[str, Any] | None = None,
+        physics: ReducerPhysics | SimConfig | BenchConfig | None = None,
         *,
         reducer: ReducerSpec | None = None,
         catalogue: Mapping[str, ReducerSpec] | None = None,
@@ -71,8 +71,8 @@ class SimulatedBench:
         measuring_chain: MeasuringChain | None = None,
         effects: Effects | None = None,
     ):
-        """``physics``: forward-model parameters, or a config ([sim] table as SimConfig/mapping, or a whole
-        BenchConfig/mapping), or None (defaults: the [sim] defaults and the catalogue's ``sim.reducer``).
+        """``physics``: forward-model parameters, or a validated config (the [sim] table, or a whole bench config),
+        or None (defaults: the [sim] defaults and the catalogue's ``sim.reducer``).
 
         Keyword arguments left at None come from the config ([sim] and [bench] max_torque_nm); with a
         ReducerPhysics and no config they come from the SimConfig defaults (config/bench-sim.toml has the same).
@@ -135,7 +135,7 @@ class SimulatedBench:
     @classmethod
     def from_config(
         cls,
-        cfg: BenchConfig | Mapping[str, Any],
+        cfg: BenchConfig,
         reducer: ReducerSpec | None = None,
         *,
         seed: int | None = None,
@@ -143,12 +143,12 @@ class SimulatedBench:
         effects: Effects | None = None,
         config_dir: str | Path | None = None,
     ) -> SimulatedBench:
-        """The one simulated-bench factory: a bench from a bench config ([sim], [bench]; a validated model or a
-        plain mapping) and a catalogue reducer (default: ``sim.reducer``). Files the config names (``[sim]
-        geometry``, the catalogue) are relative to the config file, or to ``config_dir`` for a mapping."""
-        bench_cfg = _as_bench_config(cfg)
-        if bench_cfg.source_path is None and config_dir is not None:
-            bench_cfg.source_path = str(Path(config_dir) / "<bench config>")
+        """The one simulated-bench factory: a bench from a validated bench config ([sim], [bench]) and a catalogue
+        reducer (default: ``sim.reducer``). Files the config names (``[sim] geometry``, the catalogue) are relative
+        to the config file, or to ``config_dir`` for a config not read from a file."""
+        bench_cfg = cfg
+        if cfg.source_path is None and config_dir is not None:
+            bench_cfg = cfg.model_copy(update={"source_path": str(Path(config_dir) / "<bench config>")})
         return cls(bench_cfg, reducer=reducer, seed=seed, measuring_chain=measuring_chain, effects=effects)
 
     def set_specimen(self, reducer: ReducerSpec) -> None:
@@ -354,18 +354,12 @@ def _empty_samples() -> Samples:
     return Samples(e, e, e, {"applied_torque_nm": e, "true_angle_arcsec": e, "demand_nm": e})
 
 
-def _as_bench_config(cfg: SimConfig | BenchConfig | Mapping[str, Any] | None) -> BenchConfig:
+def _as_bench_config(cfg: SimConfig | BenchConfig | None) -> BenchConfig:
     if cfg is None:
         return BenchConfig()
-    if isinstance(cfg, BenchConfig):
-        return cfg
     if isinstance(cfg, SimConfig):
         return BenchConfig(sim=cfg)
-    if isinstance(cfg, Mapping):
-        if {"sim", "bench", "instruments", "procedure"} & set(cfg):
-            return validate(BenchConfig, dict(cfg), "<bench config>")
-        return BenchConfig(sim=validate(SimConfig, dict(cfg), "<sim config>", prefix="sim"))
-    raise TypeError(f"SimulatedBench: cannot build from {type(cfg).__name__}")
+    return cfg
 
 
 def _measuring_chain_from_geometry(path: str) -> MeasuringChain:

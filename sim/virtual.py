@@ -27,7 +27,8 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
 from urllib.parse import parse_qs, urlparse
 
 import numpy as np
@@ -39,9 +40,12 @@ from tcms_daq.drivers.base import (
     LoaderStatus,
     concat_common_columns,
 )
+from tcms_daq.drivers.registry import CompositionContext
 from tcms_daq.sim.bench import SimulatedBench
 
+from tcms_daq.config.models import BenchConfig
 from tcms_daq.errors import ConfigError
+from tcms_daq.samples import Samples
 
 # Bound on buffered samples per channel when nobody reads (oldest dropped): 10 min at 1 kHz.
 MAX_BUFFERED_SAMPLES = 600_000
@@ -106,6 +110,35 @@ class _ChannelBuffer:
         self.take()
 
 
+@runtime_checkable
+class BenchPhysics(Protocol):
+    """What a virtual bench drives: :class:`~tcms_daq.sim.bench.SimulatedBench`, or a test double
+    (``sim.testing.SpringBench``). A physics that can turn the output also has ``move_output(deg, deg/s)``,
+    ``output_position_deg`` and ``output_moving``; one that can change its reducer, ``set_specimen(reducer)``."""
+
+    @property
+    def now_s(self) -> float: ...
+
+    def advance(self, duration_s: float) -> Samples: ...
+
+    def set_drive_enabled(self, enabled: bool) -> None: ...
+
+    def set_torque_target(self, target_nm: float, slope_nm_per_s: float) -> None: ...
+
+
+@runtime_checkable
+class PositioningPhysics(BenchPhysics, Protocol):
+    """A bench physics whose output the loader can turn (profile position mode)."""
+
+    @property
+    def output_position_deg(self) -> float: ...
+
+    @property
+    def output_moving(self) -> bool: ...
+
+    def move_output(self, target_deg: float, velocity_deg_per_s: float) -> None: ...
+
+
 class VirtualBench:
     """One simulated bench shared by the virtual drivers: physics, simulated clock, per-channel buffers.
 
@@ -114,7 +147,8 @@ class VirtualBench:
     ``now`` (s, real time): the physics follows it (:meth:`catch_up`), time stamps are on it.
     """
 
-    def __init__(self, physics: Any, name: str = "sim", real_time_clock: Callable[[], float] | None = None):
+    def __init__(self, physics: BenchPhysics, name: str = "sim",
+                 real_time_clock: Callable[[], float] | None = None):
         self.name = name
         self.physics = physics
         self.real_time_clock = real_time_clock
@@ -223,13 +257,15 @@ class VirtualBench:
     def move_output(self, position_deg: float, velocity_deg_per_s: float) -> None:
         """Turn the output (the drive's profile position mode) with the torque demand at zero."""
         with self._lock:
+            if not isinstance(self.physics, PositioningPhysics):
+                raise CommandRejected(self.name, "this bench's physics cannot turn the output")
             self.physics.set_torque_target(0.0, 1e9)
             self.physics.move_output(float(position_deg), float(velocity_deg_per_s))
 
     def output_position(self) -> tuple[float | None, bool]:
         """(the output's position in deg or None when the physics has none, moving)."""
         with self._lock:
-            if not hasattr(self.physics, "move_output"):
+            if not isinstance(self.physics, PositioningPhysics):
                 return None, False
             return float(self.physics.output_position_deg), bool(self.physics.output_moving)
 
@@ -257,26 +293,27 @@ class VirtualBench:
             self.inject_drive_fault(0x8130)
 
 
-PhysicsFactory = Callable[[Any], Any]
+PhysicsFactory = Callable[[BenchConfig], object]
 
 
 @dataclass
 class VirtualContext:
-    """What the bench composer hands to virtual drivers: the bench config, the shared benches (by name) and
-    how to build the physics of one (``physics_factory(bench_config)``)."""
+    """What the virtual drivers of one composition share: the bench config, the shared benches (by name) and
+    how to build the physics of one (``physics_factory(bench_config)``, default the simulated bench)."""
 
-    config: Any = None
+    config: BenchConfig = field(default_factory=BenchConfig)
     physics_factory: PhysicsFactory | None = None
-    config_dir: Any = None
+    config_dir: Path | None = None
     real_time_clock: Callable[[], float] = time.monotonic  # the bench's real-time clock (its ``now``)
     benches: dict[str, VirtualBench] = field(default_factory=dict)
 
     def bench(self, name: str, *, real_time: bool = False) -> VirtualBench:
         if name not in self.benches:
-            if self.physics_factory is not None:
-                physics = self.physics_factory(self.config)
-            else:
-                physics = SimulatedBench.from_config(self.config, config_dir=self.config_dir)
+            physics = (self.physics_factory(self.config) if self.physics_factory is not None
+                       else SimulatedBench.from_config(self.config, config_dir=self.config_dir))
+            if not isinstance(physics, BenchPhysics):
+                raise ConfigError(f"virtual://{name}: the physics factory made a {type(physics).__name__}, not a "
+                                  "bench physics (now_s, advance, set_drive_enabled, set_torque_target)")
             self.benches[name] = VirtualBench(physics, name=name,
                                               real_time_clock=self.real_time_clock if real_time else None)
         bench = self.benches[name]
@@ -482,8 +519,12 @@ class VirtualDriver:
     instruments of ``virtual://sim`` drive one physics object and one clock.
     """
 
-    def __new__(cls, *, kind: str, url: str = "virtual://sim", context: VirtualContext | None = None,
-                **options: Any):
+    @staticmethod
+    def build(*, kind: str, url: str = "virtual://sim", context: VirtualContext | None = None,
+              rated_torque_nm: float | None = None, max_torque_nm: float | None = None
+              ) -> VirtualAngleSource | VirtualTorqueSource | VirtualLoader:
+        """The instrument ``kind`` of the bench ``url`` names; a loader's rated torque (N·m, 0x6076 of a real
+        drive; default its ``max_torque_nm``, else 2000) and limit (N·m; default its rated torque)."""
         ctx = context or VirtualContext()
         bench = ctx.bench(parse_virtual_url(url), real_time=virtual_url_on_real_time(url))
         if kind == "angle":
@@ -491,21 +532,23 @@ class VirtualDriver:
         if kind == "torque":
             return VirtualTorqueSource(bench)
         if kind == "loader":
-            rated = float(options.get("rated_torque_nm", options.get("max_torque_nm", 2000.0)))
-            return VirtualLoader(bench, rated, options.get("max_torque_nm"))
+            rated = rated_torque_nm if rated_torque_nm is not None else max_torque_nm
+            return VirtualLoader(bench, float(rated if rated is not None else 2000.0), max_torque_nm)
         raise ConfigError(f"virtual driver: unknown instrument kind {kind!r} (angle, torque, loader)")
 
     @classmethod
-    def from_config(cls, kind: str, options: Mapping[str, Any], context: dict[str, Any]):
+    def from_config(cls, kind: str, options: Mapping[str, object], context: CompositionContext
+                    ) -> VirtualAngleSource | VirtualTorqueSource | VirtualLoader:
         """Called by the bench composer with the context its instruments share; a loader without
-        ``max_torque_nm`` takes the bench's limit."""
-        ctx = context.get("virtual")
-        if ctx is None:
-            ctx = context["virtual"] = VirtualContext(context.get("config"), context.get("physics_factory"),
-                                                      context.get("config_dir"),
-                                                      context.get("real_time_clock", time.monotonic))
+        ``max_torque_nm`` takes the bench's limit. Options other than ``url``, ``rated_torque_nm`` and
+        ``max_torque_nm`` are a TypeError naming the key (the composer makes it a ConfigError)."""
+        ctx = context.shared.get("virtual")
+        if not isinstance(ctx, VirtualContext):
+            ctx = VirtualContext(context.config, context.physics_factory, context.config_dir,
+                                 context.real_time_clock or time.monotonic)
+            context.shared["virtual"] = ctx
         opts = dict(options)
         if kind == "loader":
-            bench_max_nm = float(context.get("bench_max_torque_nm", math.inf))
+            bench_max_nm = context.bench_max_torque_nm
             opts.setdefault("max_torque_nm", bench_max_nm if math.isfinite(bench_max_nm) else 2000.0)
-        return cls(kind=kind, context=ctx, **opts)
+        return cls.build(kind=kind, context=ctx, **opts)  # type: ignore[arg-type]  # typed by build's signature

@@ -21,17 +21,24 @@ import inspect
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from tcms_daq.acquisition.clock import Clock, MonotonicClock, SimulatedClock
-from tcms_daq.acquisition.interlocks import InterlockLimits
+from tcms_daq.compensation import Compensator
+from tcms_daq.config.models import (
+    BenchConfig,
+    InstrumentConfig,
+    InterlocksSection,
+    LoaderInstrumentConfig,
+    ReducerSpec,
+)
 from tcms_daq.drivers import registry
-from tcms_daq.drivers.base import InstrumentError
+from tcms_daq.drivers.base import AngleSource, InstrumentError, Loader, TorqueSource
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.cia402 import POWERED_STATES
 
@@ -43,6 +50,15 @@ KINDS = ("angle", "torque", "loader")
 # [instruments.loader] fields of the drive's communication watchdog (config.models.LoaderInstrumentConfig): each goes
 # to the loader driver only when it takes it (the CANopen and the Modbus drive take different ones)
 WATCHDOG_FIELDS = ("comm_timeout_ms", "abort_connection_option", "master_heartbeat_ms", "drive_consumer_timeout_ms")
+#: the methods of each kind's protocol (tcms_daq.drivers.base: AngleSource, TorqueSource, Loader)
+METHODS = {"angle": ("connect", "close", "read"), "torque": ("connect", "close", "read", "tare"),
+           "loader": ("connect", "close", "enable", "disable", "set_torque", "status", "fault_reset")}
+
+
+#: a correction of the angle reading: (angle arcsec, torque N·m, time s) -> corrected angle arcsec
+AngleCorrection = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+#: what corrects a bench's angle readings: a compensator (its ``apply``) or a plain correction
+Compensation = Compensator | AngleCorrection
 
 
 def identity_compensator(angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
@@ -88,15 +104,15 @@ class Bench:
     ``tcms_daq.compensation.Compensator``) or a plain callable with the same signature.
     """
 
-    angle: Any
-    torque: Any
-    loader: Any
+    angle: AngleSource
+    torque: TorqueSource
+    loader: Loader
     clock: Clock
-    compensator: Any = identity_compensator
+    compensator: Compensation = identity_compensator
     name: str = "bench"
     max_torque_nm: float = math.inf
     description: dict[str, Any] = field(default_factory=dict)
-    interlocks: dict[str, Any] = field(default_factory=dict)  # [interlocks] of the config: InterlockLimits fields
+    interlocks: InterlocksSection = field(default_factory=InterlocksSection)  # [interlocks]: limits it replaces
     connected: bool = False
     safe_start: SafeStart | None = None  # what connect() found on the loader and did about it
 
@@ -108,15 +124,14 @@ class Bench:
         return DEFAULT_SAFE_TORQUE_NM
 
     def compensate(self, angle_arcsec: np.ndarray, torque_nm: np.ndarray, time_s: np.ndarray) -> np.ndarray:
-        apply = getattr(self.compensator, "apply", None)
-        if apply is not None:
-            return apply(angle_arcsec, torque_nm, time_s)
+        if isinstance(self.compensator, Compensator):
+            return self.compensator.apply(angle_arcsec, torque_nm, time_s)
         return self.compensator(angle_arcsec, torque_nm, time_s)
 
-    def instruments(self) -> dict[str, Any]:
+    def instruments(self) -> dict[str, AngleSource | TorqueSource | Loader]:
         return {"angle": self.angle, "torque": self.torque, "loader": self.loader}
 
-    def set_specimen(self, reducer: Any) -> bool:
+    def set_specimen(self, reducer: ReducerSpec) -> bool:
         """Tell a simulated bench which reducer is mounted (its physics follows the request); a real bench has
         whatever is mounted and ignores it. True when an instrument took it (``set_specimen`` on a driver)."""
         taken = False
@@ -201,24 +216,7 @@ class Bench:
         self.close()
 
 
-def _section(config: Any, key: str) -> Any:
-    if isinstance(config, Mapping):
-        return config.get(key)
-    return getattr(config, key, None)
-
-
-def _as_dict(obj: Any) -> dict[str, Any]:
-    if obj is None:
-        return {}
-    if isinstance(obj, Mapping):
-        return dict(obj)
-    dump = getattr(obj, "model_dump", None)
-    if dump is not None:
-        return dict(dump())
-    return dict(vars(obj))
-
-
-def load_compensator(path: str | Path) -> Any:
+def load_compensator(path: str | Path) -> Compensator:
     """The compensator of a compensator or geometry TOML (``tcms_daq.compensation.load_compensator``);
     ConfigError when unusable."""
     from tcms_daq.compensation import load_compensator as load
@@ -229,7 +227,7 @@ def load_compensator(path: str | Path) -> Any:
     return load(path)
 
 
-def _accepts(cls: Any, name: str) -> bool:
+def _accepts(cls: type, name: str) -> bool:
     try:
         params = inspect.signature(cls).parameters
     except (TypeError, ValueError):
@@ -237,7 +235,7 @@ def _accepts(cls: Any, name: str) -> bool:
     return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
-def _takes(cls: Any, name: str) -> bool:
+def _takes(cls: type, name: str) -> bool:
     """``cls(...)`` has a parameter ``name`` (by name: a driver taking ``**options`` does not take them all)."""
     try:
         return name in inspect.signature(cls).parameters
@@ -245,9 +243,21 @@ def _takes(cls: Any, name: str) -> bool:
         return False
 
 
-def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: float | None = None,
-                  physics_factory: Callable[[Any], Any] | None = None, compensator: Any = None) -> Bench:
-    """Build a :class:`Bench` (not yet connected) from a bench config (mapping or the core's config model).
+def _driver_options(instrument: InstrumentConfig, cls: type) -> dict[str, object]:
+    """What a driver is built with: the table's ``url``, the loader's watchdog fields the driver takes, and the
+    driver's own keys (not its name, its calibration or its declared uncertainty: the certificate's and the
+    evaluation's)."""
+    declared: dict[str, object] = {}
+    if isinstance(instrument, LoaderInstrumentConfig):
+        declared = {k: getattr(instrument, k) for k in WATCHDOG_FIELDS if _takes(cls, k)}
+    extra = instrument.model_extra or {}
+    return {k: v for k, v in {"url": instrument.url, **declared, **extra}.items() if v is not None}
+
+
+def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, speed: float | None = None,
+                  physics_factory: Callable[[BenchConfig], object] | None = None,
+                  compensator: Compensation | None = None) -> Bench:
+    """Build a :class:`Bench` (not yet connected) from a validated bench config.
 
     speed: on a simulated clock, simulated seconds per real second (default inf: as fast as possible); on real
     time, the speed of the protocol simulators' physics (default 1; real instruments: 1). Drivers that take a
@@ -255,39 +265,19 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
     physics_factory: builds the simulated physics from the bench config (tests inject one).
     compensator: overrides the ``bench.compensation`` file.
     """
-    bench_cfg = _as_dict(_section(config, "bench"))
-    instruments = _section(config, "instruments")
-    if instruments is None:
-        raise ConfigError("bench config: missing [instruments] (angle, torque, loader)")
-    max_torque_nm = float(bench_cfg.get("max_torque_nm", math.inf))
-    interlocks = _as_dict(_section(config, "interlocks"))
-    unknown = sorted(set(interlocks) - set(InterlockLimits.__dataclass_fields__))
-    if unknown:
-        raise ConfigError(f"bench config: unknown key {unknown[0]!r} in [interlocks] "
-                          f"(known: {', '.join(InterlockLimits.__dataclass_fields__)})")
+    section = config.bench
     real_clock = MonotonicClock(1.0 if speed is None or not math.isfinite(speed) else speed)
-    context: dict[str, Any] = {
-        "config": config,
-        "physics_factory": physics_factory,
-        "bench_max_torque_nm": max_torque_nm,
-        "config_dir": config_dir,
-        "real_time_clock": real_clock.now,  # instruments simulated on real time follow this clock
-    }
-    drivers: dict[str, Any] = {}
+    context = registry.CompositionContext(
+        config=config, config_dir=Path(config_dir) if config_dir is not None else None,
+        bench_max_torque_nm=section.max_torque_nm, real_time_clock=real_clock.now,
+        physics_factory=physics_factory)
+    drivers: dict[str, object] = {}
     description: dict[str, Any] = {}
     for kind in KINDS:
-        opts = _as_dict(_section(instruments, kind))
-        if not opts:
-            raise ConfigError(f"bench config: missing [instruments.{kind}]")
-        driver_name = opts.pop("driver", None)
-        opts.pop("calibration", None)  # for the certificate, not the driver
-        if not driver_name:
-            raise ConfigError(f"bench config: [instruments.{kind}] has no 'driver'")
-        opts.pop("uncertainty", None)  # the declared uncertainty of its reading: the evaluation's, not the driver's
-        opts = {k: v for k, v in opts.items() if v is not None}
+        instrument: InstrumentConfig = getattr(config.instruments, kind)
+        driver_name = instrument.driver
         cls = registry.driver_class(driver_name)
-        if kind == "loader":
-            opts = {k: v for k, v in opts.items() if k not in WATCHDOG_FIELDS or _takes(cls, k)}
+        opts = _driver_options(instrument, cls)
         from_config = getattr(cls, "from_config", None)
         if from_config is None and "clock" not in opts and _accepts(cls, "clock"):
             opts["clock"] = real_clock.now
@@ -295,6 +285,10 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
             drivers[kind] = from_config(kind, opts, context) if from_config else cls(**opts)
         except TypeError as exc:
             raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r}: {exc}") from None
+        missing = [m for m in METHODS[kind] if not callable(inspect.getattr_static(drivers[kind], m, None))]
+        if missing:
+            raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r} is not a {kind} driver "
+                              f"(no {', '.join(missing)})")
         description[kind] = {"driver": driver_name, **{k: v for k, v in opts.items() if k != "clock"}}
 
     sources = [getattr(d, "time_source", None) for d in drivers.values()]
@@ -310,9 +304,8 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
 
     comp_source = "identity"
     if compensator is None:
-        comp_file = bench_cfg.get("compensation")
-        if comp_file:
-            path = Path(comp_file)
+        if section.compensation:
+            path = Path(section.compensation)
             if not path.is_absolute() and config_dir is not None:
                 path = Path(config_dir) / path
             compensator = load_compensator(path)
@@ -322,18 +315,23 @@ def compose_bench(config: Any, *, config_dir: str | Path | None = None, speed: f
     else:
         comp_source = type(compensator).__name__
     description["compensation"] = comp_source
-    return Bench(drivers["angle"], drivers["torque"], drivers["loader"], clock, compensator,
-                 name=str(bench_cfg.get("name", "bench")), max_torque_nm=max_torque_nm, description=description,
-                 interlocks=interlocks)
+    return Bench(cast(AngleSource, drivers["angle"]), cast(TorqueSource, drivers["torque"]),
+                 cast(Loader, drivers["loader"]), clock, compensator,
+                 name=section.name, max_torque_nm=section.max_torque_nm, description=description,
+                 interlocks=config.interlocks)
 
 
-def read_bench_config(path: str | Path) -> Any:
+def read_bench_config(path: str | Path) -> BenchConfig:
     """A validated bench config from TOML (``tcms_daq.config.load_bench_config``)."""
     from tcms_daq.config import load_bench_config
 
     return load_bench_config(Path(path))
 
 
-def bench_from_file(path: str | Path, **kwargs: Any) -> Bench:
+def bench_from_file(path: str | Path, *, speed: float | None = None,
+                    physics_factory: Callable[[BenchConfig], object] | None = None,
+                    compensator: Compensation | None = None) -> Bench:
+    """The bench of a config file (files it names relative to it)."""
     path = Path(path)
-    return compose_bench(read_bench_config(path), config_dir=path.parent, **kwargs)
+    return compose_bench(read_bench_config(path), config_dir=path.parent, speed=speed,
+                         physics_factory=physics_factory, compensator=compensator)

@@ -47,7 +47,7 @@ from tcms_daq.acquisition.record import (
     empty_samples,
 )
 from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops
-from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus
+from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus, Positioner
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
 from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment
@@ -155,7 +155,7 @@ def default_limits(bench: Bench, profile: Any, reducer_torque_limit_nm: float | 
         "reducer_torque_limit_nm": reducer_torque_limit_nm,
         "torque_rate_limit_nm_per_s": 2.0 * slope + 0.05 * peak,
     }
-    for table in (getattr(bench, "interlocks", None) or {}, overrides):
+    for table in (bench.interlocks.replacements(), overrides):
         values.update({k: v for k, v in table.items() if k in InterlockLimits.__dataclass_fields__})
     return InterlockLimits(**values)
 
@@ -425,7 +425,7 @@ class TestRun:
         """Turn the output to the stage's position: only at zero torque (the profile before it ended at zero;
         the loader refuses a move under torque too), then back to profile torque at zero."""
         loader = self.bench.loader
-        if not callable(getattr(loader, "move_to", None)):
+        if not isinstance(loader, Positioner):
             raise ProcedureError(f"{loader.name} cannot turn the output (no profile position mode): a test at "
                                  "several positions needs a loader with move_to")
         measured = acq.latest_torque_nm()

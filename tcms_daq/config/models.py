@@ -328,6 +328,26 @@ class InstrumentsConfig(BaseModel):
     loader: LoaderInstrumentConfig = Field(default_factory=LoaderInstrumentConfig)
 
 
+class InterlocksSection(BaseModel):
+    """[interlocks]: replaces a run's interlock limits (``tcms_daq.acquisition.interlocks.InterlockLimits``, whose
+    fields these are; a key left out keeps the run's default). Torques in N·m, angles in arcsec, times in s."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    bench_torque_limit_nm: float | None = Field(None, gt=0.0)
+    reducer_torque_limit_nm: float | None = Field(None, gt=0.0)
+    angle_min_arcsec: float | None = None
+    angle_max_arcsec: float | None = None
+    torque_rate_limit_nm_per_s: float | None = Field(None, gt=0.0)
+    rate_window_s: float | None = Field(None, gt=0.0)
+    stale_timeout_s: float | None = Field(None, gt=0.0)
+    max_consecutive_errors: int | None = Field(None, ge=1)
+
+    def replacements(self) -> dict[str, float | int | None]:
+        """The limits this table sets (the keys the file names)."""
+        return {k: getattr(self, k) for k in self.model_fields_set}
+
+
 class BenchSection(BaseModel):
     """[bench]: id and name, torque limit, compensation and catalogue files, and the bounds a test request must keep
     (``tcms_daq.procedure.profiles.check_test_bounds``): loading rates, the smallest step, the longest test.
@@ -557,6 +577,7 @@ class BenchConfig(BaseModel):
     sim: SimConfig = Field(default_factory=SimConfig)
     procedure: TestProfile = Field(default_factory=TestProfile)
     uncertainty: BenchUncertainty = Field(default_factory=BenchUncertainty)
+    interlocks: InterlocksSection = Field(default_factory=InterlocksSection)
     certificate: CertificateSection = Field(default_factory=CertificateSection)
     opcua: OpcUaSection = Field(default_factory=OpcUaSection)
     compensation_checks: CompensationChecks = Field(default_factory=CompensationChecks)

@@ -12,14 +12,17 @@ import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from tcms_daq.config.models import CompensationChecks
+from tcms_daq.config.models import BenchConfig, CompensationChecks, ReducerSpec
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import PlanRequest, TestPlan
 from tcms_daq.service.schemas import TestRequest
+
+if TYPE_CHECKING:  # the acquisition is imported when the bench is composed, not when the service starts
+    from tcms_daq.acquisition.bench import Bench, Compensation
 
 Columns = Mapping[str, np.ndarray]
 _PLAN_FIELDS = set(PlanRequest.model_fields)  # what of a TestRequest the plan is made of (the rest documents the test)
@@ -106,7 +109,7 @@ class BenchRunner:
 
     channels = RUN_CHANNELS
 
-    def __init__(self, config: Any, config_path: Path, bench: Any, reducers: Mapping[str, Any],
+    def __init__(self, config: BenchConfig, config_path: Path, bench: Bench, reducers: Mapping[str, ReducerSpec],
                  sim_speed: float = 1.0, idle_step_s: float | None = None):
         self.config = config
         self.config_path = config_path
@@ -123,10 +126,12 @@ class BenchRunner:
 
     @classmethod
     def from_config(cls, config_path: Path | str | None = None, sim_speed: float = 1.0,
-                    overrides: list[str] | tuple[str, ...] = (), **bench_kwargs: Any) -> BenchRunner:
+                    overrides: list[str] | tuple[str, ...] = (), *,
+                    physics_factory: Callable[[BenchConfig], object] | None = None,
+                    compensator: Compensation | None = None) -> BenchRunner:
         """Compose the bench of a config file (default: the packaged ``bench-sim.toml``; ``overrides`` as
-        ``tcms serve --set``); ``bench_kwargs`` go to :func:`~tcms_daq.acquisition.compose_bench` (e.g.
-        ``compensator``, ``physics_factory``)."""
+        ``tcms serve --set``); ``physics_factory`` and ``compensator`` go to
+        :func:`~tcms_daq.acquisition.compose_bench`."""
         from tcms_daq.acquisition import compose_bench
         from tcms_daq.config import load_bench_config, load_reducers_for
         from tcms_daq.config.loader import default_bench_config_path
@@ -134,7 +139,8 @@ class BenchRunner:
         config = load_bench_config(config_path, overrides)
         path = Path(config.source_path or default_bench_config_path())
         reducers = load_reducers_for(config)
-        bench = compose_bench(config, config_dir=path.parent, speed=sim_speed, **bench_kwargs)
+        bench = compose_bench(config, config_dir=path.parent, speed=sim_speed, physics_factory=physics_factory,
+                              compensator=compensator)
         return cls(config, path, bench, reducers, sim_speed=sim_speed)
 
     # -- life cycle ------------------------------------------------------------------------------------------
@@ -340,10 +346,11 @@ class BenchRunner:
 
         def run(samples: Any) -> dict[str, Any]:
             # TestRun hands over the evaluated loops only (loop_index >= 1: conditioning removed)
-            options = {"chain": chain, "rule": plan.decision_rule, "no_chain_basis": without}
             if plan.plan.kind != "single":
-                return evaluate_plan(samples, plan.plan, plan.reducer, **options)
-            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm, **options).to_dict()
+                return evaluate_plan(samples, plan.plan, plan.reducer, chain=chain, rule=plan.decision_rule,
+                                     no_chain_basis=without)
+            return evaluate_for_reducer(samples, plan.reducer, plan.profile.test_torque_nm, chain=chain,
+                                        rule=plan.decision_rule, no_chain_basis=without).to_dict()
 
         return run
 

@@ -9,6 +9,7 @@ import pytest
 from tcms_daq.sim.testing import SpringBench
 
 from tcms_daq.acquisition import compose_bench
+from tcms_daq.config import BenchConfig
 from tcms_daq.procedure.profiles import continuous_profile
 
 RIGIDITY_NM_PER_ARCMIN = 300.0
@@ -23,10 +24,10 @@ def spring_with_backlash(seed: int = 0, rate_hz: float = 1000.0, tau_s: float = 
                        angle_noise_arcsec=angle_noise_arcsec, seed=seed)
 
 
-def virtual_config(max_torque_nm: float = 2000.0) -> dict:
+def virtual_config(max_torque_nm: float = 2000.0) -> BenchConfig:
     inst = {"driver": "virtual", "url": "virtual://sim"}
-    return {"bench": {"name": "test bench", "max_torque_nm": max_torque_nm},
-            "instruments": {"angle": dict(inst), "torque": dict(inst), "loader": dict(inst)}}
+    return BenchConfig.model_validate({"bench": {"name": "test bench", "max_torque_nm": max_torque_nm},
+                                       "instruments": {"angle": inst, "torque": inst, "loader": inst}})
 
 
 @pytest.fixture
@@ -77,13 +78,13 @@ class ProtocolBench:
         self.ports = self.sims.start()
         self.physics.start(speed)
 
-    def bench_config(self) -> dict:
-        cfg = self.config.model_dump()
-        inst = cfg["instruments"]
-        inst["angle"]["url"] = f"socket://127.0.0.1:{self.ports['nd287']}"
-        inst["torque"]["url"] = f"socket://127.0.0.1:{self.ports['aed']}"
-        inst["loader"]["url"] = f"tcp://127.0.0.1:{self.ports['modbus']}"
-        return cfg
+    def bench_config(self) -> BenchConfig:
+        inst = self.config.instruments
+        urls = {"angle": f"socket://127.0.0.1:{self.ports['nd287']}", "torque": f"socket://127.0.0.1:{self.ports['aed']}",
+                "loader": f"tcp://127.0.0.1:{self.ports['modbus']}"}
+        instruments = inst.model_copy(update={k: getattr(inst, k).model_copy(update={"url": url})
+                                              for k, url in urls.items()})
+        return self.config.model_copy(update={"instruments": instruments})
 
     def compose(self):
         return compose_bench(self.bench_config(), config_dir=LOOPBACK_MODBUS.parent, speed=self.speed)

@@ -12,15 +12,17 @@ from tcms_daq.sim.virtual import VirtualBench, VirtualLoader, parse_virtual_url
 
 from tcms_daq.acquisition import MonotonicClock, SimulatedClock, compose_bench
 from tcms_daq.acquisition.bench import read_bench_config
+from tcms_daq.config import BenchConfig
+from tcms_daq.config.loader import validate
 from tcms_daq.errors import ConfigError
 
 VIRTUAL = {"driver": "virtual", "url": "virtual://sim"}
 
 
-def config(**instruments):
+def config(**instruments) -> BenchConfig:
     inst = {"angle": dict(VIRTUAL), "torque": dict(VIRTUAL), "loader": dict(VIRTUAL)}
     inst.update(instruments)
-    return {"bench": {"name": "b", "max_torque_nm": 500.0}, "instruments": inst}
+    return validate(BenchConfig, {"bench": {"name": "b", "max_torque_nm": 500.0}, "instruments": inst}, "<test>")
 
 
 def test_virtual_instruments_share_one_bench_and_its_simulated_clock(make_spring):
@@ -40,10 +42,8 @@ def test_virtual_instruments_share_one_bench_and_its_simulated_clock(make_spring
 def test_composition_errors_are_one_line(make_spring):
     with pytest.raises(ConfigError, match="unknown driver 'nd999'"):
         compose_bench(config(angle={"driver": "nd999", "url": "x"}))
-    with pytest.raises(ConfigError, match=r"missing \[instruments\.torque\]"):
-        cfg = config()
-        del cfg["instruments"]["torque"]
-        compose_bench(cfg)
+    with pytest.raises(ConfigError, match=r"\[instruments.loader\] driver 'virtual': .*'gain'"):
+        compose_bench(config(loader={**VIRTUAL, "gain": 2.0}))  # an option the driver does not take
     with pytest.raises(ConfigError, match="cannot mix simulated"):
         compose_bench(config(angle={"driver": "nd287", "url": "socket://127.0.0.1:1"}),
                       physics_factory=lambda _c: make_spring())

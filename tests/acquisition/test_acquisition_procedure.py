@@ -97,16 +97,23 @@ def test_abort_request_ramps_down_and_keeps_data(make_bench, profile):
 
 def test_interlocks_table_of_the_config_sets_the_limits(profile, make_spring):
     from tcms_daq.acquisition import compose_bench
+    from tcms_daq.acquisition.interlocks import InterlockLimits
+    from tcms_daq.config import BenchConfig
+    from tcms_daq.config.loader import validate
+    from tcms_daq.config.models import InterlocksSection
     from tcms_daq.errors import ConfigError
 
     inst = {"driver": "virtual", "url": "virtual://sim"}
-    cfg = {"bench": {"max_torque_nm": 2000.0}, "instruments": {"angle": inst, "torque": inst, "loader": inst},
-           "interlocks": {"angle_max_arcsec": 40.0, "stale_timeout_s": 0.5}}
-    bench = compose_bench(cfg, physics_factory=lambda _c: make_spring())
+    data = {"bench": {"max_torque_nm": 2000.0}, "instruments": {"angle": inst, "torque": inst, "loader": inst},
+            "interlocks": {"angle_max_arcsec": 40.0, "stale_timeout_s": 0.5}}
+    bench = compose_bench(validate(BenchConfig, data, "bench.toml"), physics_factory=lambda _c: make_spring())
     run = TestRun(bench, profile)
     assert run.limits.angle_max_arcsec == 40.0 and run.limits.stale_timeout_s == 0.5
+    assert run.limits.rate_window_s == InterlockLimits.rate_window_s  # a key left out keeps the default
     record = run.run()
     assert record.state == "aborted" and "outside the window" in record.reason
-    cfg["interlocks"] = {"angle_maximum": 1.0}
-    with pytest.raises(ConfigError, match="unknown key 'angle_maximum' in \\[interlocks\\]"):
-        compose_bench(cfg, physics_factory=lambda _c: None)
+    data["interlocks"] = {"angle_maximum": 1.0}
+    with pytest.raises(ConfigError, match=r"bench.toml: .*interlocks.angle_maximum"):
+        validate(BenchConfig, data, "bench.toml")  # checked once, where the file is read
+    # the table's keys are the limits' fields
+    assert set(InterlocksSection.model_fields) == set(InterlockLimits.__dataclass_fields__)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from tcms_daq.acquisition import TestRun, compose_bench
 from tcms_daq.acquisition.procedure import analysis_evaluator
+from tcms_daq.config import InstrumentsConfig
 from tcms_daq.procedure.profiles import continuous_profile
 
 SPEED = 4.0
@@ -35,9 +36,9 @@ def evaluator_with_u(pb, profile):
 
 def in_process_reference(pb, profile, evaluate=None):
     cfg = pb.bench_config()
-    for kind in ("angle", "torque", "loader"):
-        cfg["instruments"][kind] = {"driver": "virtual", "url": "virtual://sim"}
-    bench = compose_bench(cfg, config_dir=LOOPBACK_DIR)
+    virtual = InstrumentsConfig.model_validate({kind: {"driver": "virtual", "url": "virtual://sim"}
+                                                for kind in ("angle", "torque", "loader")})
+    bench = compose_bench(cfg.model_copy(update={"instruments": virtual}), config_dir=LOOPBACK_DIR)
     return TestRun(bench, profile, evaluate=evaluate or analysis_evaluator(1078.0)).run()
 
 

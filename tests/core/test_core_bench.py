@@ -9,6 +9,7 @@ import pytest
 from tcms_daq.sim.bench import SimulatedBench
 from tcms_daq.sim.physics import ReducerPhysics, physics_from_spec
 
+from tcms_daq.config import SimConfig
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import Samples
 
@@ -141,14 +142,12 @@ def test_built_from_config(bench_config, catalogue, write, bench_text):
     bench = SimulatedBench(bench_config)  # what sim/virtual.py does with the whole config
     assert bench.reducer.name == "RV-110E" and bench.sample_rate_hz == 500.0 and bench.max_torque_nm == 2000.0
     assert SimulatedBench().reducer.name == "RV-110E"
-    b2 = SimulatedBench({"reducer": "RV-60N", "seed": 4})
+    b2 = SimulatedBench(SimConfig(reducer="RV-60N", seed=4))
     assert b2.reducer.name == "RV-60N" and b2.seed == 4
     b3 = SimulatedBench.from_config(bench_config, catalogue["HFUC-32-100"], seed=9)
     assert b3.physics.hd_breakpoints_nm == (29.0, 108.0) and b3.seed == 9
     with pytest.raises(ConfigError, match="unknown reducer 'XYZ'"):
-        SimulatedBench({"reducer": "XYZ"})
-    with pytest.raises(ConfigError, match=r"sim\.torque_noise_nm"):
-        SimulatedBench({"torque_noise_nm": -1})
+        SimulatedBench(SimConfig(reducer="XYZ"))
 
 
 def test_truth_and_snapshot(catalogue):
