@@ -50,7 +50,7 @@ from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapLimits, exclude_ga
 from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus, Positioner
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
-from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Segment
+from tcms_daq.procedure.profiles import OUTSIDE_LOOPS, Profile, Segment
 from tcms_daq.runstate import RunState
 from tcms_daq.samples import Samples
 
@@ -110,39 +110,24 @@ def stop_ramp(measured_torque_nm: float, least_slope_nm_per_s: float, max_stop_s
     return slope, torque / slope
 
 
-def _get(obj: Any, *names: str, default: Any = None) -> Any:
-    for name in names:
-        if isinstance(obj, dict) and name in obj:
-            return obj[name]
-        if hasattr(obj, name):
-            return getattr(obj, name)
-    return default
+#: what a run works through: a profile, a plan of stages (positions, rates), or bare segments (tests, tools)
+RunProfile = Profile | Plan | Sequence[Segment]
 
 
-def as_segments(profile: Any) -> list[Segment]:
-    """Profile segments (``tcms_daq.procedure.profiles.Segment``) from a ``Profile`` (its ``segments``) or a
-    sequence of segments or mappings with ``target_nm``, ``slope_nm_per_s`` (or ``rate_nm_per_s``), optional
-    ``dwell_s`` and ``loop_index`` (default 1: evaluated)."""
-    seq = _get(profile, "segments")
-    if seq is not None:
-        profile = seq() if callable(seq) else seq
-    out = []
-    for i, seg in enumerate(profile):
-        if isinstance(seg, Segment):
-            out.append(seg)
-            continue
-        target = _get(seg, "target_nm")
-        slope = _get(seg, "slope_nm_per_s", "rate_nm_per_s")
-        if target is None or slope is None:
-            raise ProfileRejected(f"profile segment {i}: needs target_nm and slope_nm_per_s")
-        out.append(Segment(float(target), float(slope), float(_get(seg, "dwell_s", default=0.0) or 0.0),
-                           int(_get(seg, "loop_index", default=1))))
+def as_segments(profile: RunProfile) -> list[Segment]:
+    """The torque segments of a profile, of every stage of a plan, or the segments themselves."""
+    if isinstance(profile, Profile):
+        out = list(profile.segments)
+    elif isinstance(profile, Plan):
+        out = profile.segments
+    else:
+        out = list(profile)
     if not out:
         raise ProfileRejected("profile has no segments")
     return out
 
 
-def default_limits(bench: Bench, profile: Any, reducer_torque_limit_nm: float | None = None,
+def default_limits(bench: Bench, profile: RunProfile, reducer_torque_limit_nm: float | None = None,
                    **overrides: Any) -> InterlockLimits:
     """Interlock limits for a run: bench and reducer torque, a rate limit of twice the steepest profile slope
     (+5 % of the peak per second for sensor noise); the bench config's ``[interlocks]`` table, then
@@ -202,7 +187,7 @@ class TestRun:
 
     __test__ = False  # not a pytest test class
 
-    def __init__(self, bench: Bench, profile: Any, *, limits: InterlockLimits | None = None,
+    def __init__(self, bench: Bench, profile: RunProfile, *, limits: InterlockLimits | None = None,
                  reducer_torque_limit_nm: float | None = None, evaluate: Evaluator | None = None,
                  options: ProcedureOptions | None = None, subscribers: Iterable[Callable[[Message], Any]] = (),
                  subscriber_queue: int = 256, acquisition: AcquisitionLoop | None = None,
@@ -223,7 +208,7 @@ class TestRun:
         peak = max(abs(s.target_nm) for s in self.segments)
         self.tolerance_nm = (self.options.tolerance_nm if self.options.tolerance_nm is not None
                              else max(0.02 * peak, 1.0))
-        info = profile.to_dict() if hasattr(profile, "to_dict") else {}
+        info = profile.to_dict() if isinstance(profile, Profile | Plan) else {}
         if self.plan is not None:
             info = {**self.plan.first.to_dict(), **info}
         self.record = RunRecord(run_id or uuid.uuid4().hex[:12], bench_name=bench.name,

@@ -7,6 +7,7 @@ import pytest
 
 from tcms_daq.acquisition import ProfileRejected, TestRun
 from tcms_daq.acquisition.record import TRANSITIONS
+from tcms_daq.procedure.profiles import Segment
 
 
 def secant_rigidity(samples, peak_nm: float) -> float:
@@ -65,7 +66,7 @@ def test_a_setpoint_beyond_the_drive_limit_is_refused_by_the_drive(make_bench, m
 def test_a_profile_that_is_not_numbers_is_rejected_before_anything_moves(make_bench):
     bench = make_bench()
     with pytest.raises(ProfileRejected, match="segment 0: invalid target nan"):
-        TestRun(bench, [{"target_nm": float("nan"), "slope_nm_per_s": 100.0}])
+        TestRun(bench, [Segment(float("nan"), 100.0, 0.0, 1)])
     assert bench.loader.commands == []
 
 
