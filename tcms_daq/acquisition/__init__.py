@@ -13,7 +13,8 @@ from tcms_daq.acquisition.clock import Clock, MonotonicClock, SimulatedClock
 from tcms_daq.acquisition.fanout import DataMessage, EventMessage, FanOut, Subscription
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip
 from tcms_daq.acquisition.loop import AbortRequested, AcquisitionLoop, InterlockTripped
-from tcms_daq.acquisition.procedure import (
+from tcms_daq.acquisition.record import FINAL_STATES, RunRecord, StateChange
+from tcms_daq.acquisition.testrun import (
     ProcedureError,
     ProcedureOptions,
     ProfileRejected,
@@ -21,7 +22,6 @@ from tcms_daq.acquisition.procedure import (
     TestRun,
     run_test,
 )
-from tcms_daq.acquisition.record import FINAL_STATES, RunRecord, StateChange
 
 __all__ = [
     "AbortRequested",

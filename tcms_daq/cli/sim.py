@@ -17,7 +17,6 @@ nd287, aed, modbus, socketcand, canopen, drive — a drive fault is an EMCY code
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import signal
 import threading
@@ -26,7 +25,6 @@ from typing import Any
 
 from tcms_daq.cli.options import add_bench_config_options, write_sim_urls
 from tcms_daq.errors import ConfigError, TcmsError
-from tcms_daq.sim.instruments.tcp import TcpServer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -106,6 +104,7 @@ DRIVER_URLS = {"nd287": "angle", "aed": "torque", "cia402-canopen": "loader_cano
 def _serve(args: argparse.Namespace) -> int:
     from tcms_daq.config import load_bench_config
     from tcms_daq.sim.bench import SimulatedBench
+    from tcms_daq.sim.instruments.control import ControlServer
     from tcms_daq.sim.instruments.physics import SharedPhysics
     from tcms_daq.sim.instruments.serve import InstrumentSimulators
 
@@ -144,61 +143,3 @@ def _serve(args: argparse.Namespace) -> int:
         physics.stop()
         sims.stop()
     return 0
-
-
-CONTROL_LINE_LIMIT = 2**16  # asyncio's default stream limit: one JSON request per line stays far below it
-
-
-class ControlServer(TcpServer):
-    """Line-based JSON control channel (fault injection, restarts, status) on the simulators' event loop."""
-
-    name = "control channel"
-
-    def __init__(self, sims, host: str = "127.0.0.1", port: int = 0):
-        super().__init__(host, port)
-        self.sims = sims
-
-    async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        while True:
-            try:
-                line = await reader.readline()
-            except ValueError:  # asyncio's LimitOverrunError, wrapped: a line beyond the stream limit
-                reply = {"ok": False, "error": f"request line longer than {CONTROL_LINE_LIMIT} bytes: "
-                         "connection closed"}
-                writer.write((json.dumps(reply) + "\n").encode())
-                await writer.drain()
-                return
-            if not line:
-                return
-            try:
-                reply = await asyncio.to_thread(self.execute, json.loads(line))
-            except Exception as exc:  # noqa: BLE001 - every failure is answered, the channel stays up
-                reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-            writer.write((json.dumps(reply) + "\n").encode())
-            await writer.drain()
-
-    def execute(self, request: dict[str, Any]) -> dict[str, Any]:
-        cmd = request.get("cmd")
-        sims = self.sims
-        if cmd == "inject":
-            sims.inject(request["instrument"], request.get("fault"))
-            return {"ok": True}
-        if cmd == "restart":
-            sims.restart(request["instrument"])  # runs in a worker thread; server restarts hop onto the loop
-            return {"ok": True}
-        if cmd == "status":
-            latest = sims.physics.latest()
-            drive = sims.drive
-            return {
-                "ok": True,
-                "time_s": latest.time_s,
-                "torque_nm": latest.torque_nm,
-                "angle_arcsec": latest.angle_arcsec,
-                "applied_torque_nm": latest.applied_torque_nm,
-                "drive": None if drive is None else {
-                    "state": drive.state.label, "statusword": drive.statusword(), "error_code": drive.error_code,
-                    "comm_timeout_ms": drive.comm_timeout_ms, "abort_connection_option": drive.abort_connection_option,
-                },
-                "watchdog_reactions": sims.watchdog_reactions(),
-            }
-        raise ValueError(f"unknown command {cmd!r} (inject, restart, status)")

@@ -16,7 +16,7 @@ from tcms_daq.acquisition.interlocks import (
     check_loader_status,
     check_torque_limit,
 )
-from tcms_daq.acquisition.procedure import default_limits
+from tcms_daq.acquisition.testrun import default_limits
 
 FAULT_AT_S = 1.8  # while loading from 0 towards +300 N·m (see the timeline of gb_profile)
 

@@ -10,7 +10,7 @@ import threading
 from pathlib import Path
 
 from tcms_daq.acquisition import TestRun, compose_bench
-from tcms_daq.acquisition.procedure import analysis_evaluator
+from tcms_daq.acquisition.testrun import analysis_evaluator
 from tcms_daq.config import InstrumentsConfig
 from tcms_daq.procedure.profiles import continuous_profile
 

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from tcms_daq.acquisition import TestRun
-from tcms_daq.acquisition.procedure import ProcedureOptions, stop_ramp
+from tcms_daq.acquisition.testrun import ProcedureOptions, stop_ramp
 from tcms_daq.cli import main
 from tcms_daq.config.models import BenchSection, TestProfile
 from tcms_daq.procedure import check_test_bounds
