@@ -302,19 +302,14 @@ class BenchRunner:
         return Compensator.identity().to_toml()
 
     def set_compensator_toml(self, text: str) -> None:
-        """Replace the compensator (compensator TOML or geometry TOML). RequestRejected when it does not load."""
-        from tcms_daq.compensation import Compensator
-        from tcms_daq.compensation.plausibility import plausibility_problems
+        """Replace the compensator (compensator TOML or geometry TOML). RequestRejected when it does not load or
+        is not plausible (``tcms_daq.store.compensation.checked_compensator``)."""
+        from tcms_daq.store.compensation import CompensationRejected, checked_compensator
 
         try:
-            compensator = Compensator.loads(text, source="body")
-        except (TcmsError, RecursionError, TypeError, ValueError) as exc:
-            raise RequestRejected(f"compensation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-                                  ) from None
-        problems = plausibility_problems(compensator, self.compensation_checks())
-        if problems:
-            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-            raise RequestRejected(f"compensation not plausible: {problems[0]}{more}")
+            compensator = checked_compensator(text, checks=self.compensation_checks())
+        except CompensationRejected as exc:
+            raise RequestRejected(str(exc)) from None
         self.bench.compensator = compensator  # one attribute swap: the next batch uses it
         self.bench.description["compensation"] = "uploaded (PUT /api/compensation)"
 

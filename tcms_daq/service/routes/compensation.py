@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from dataclasses import replace
+from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request
@@ -23,6 +23,14 @@ from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import CompensationDryRun, CompensationVersion
 from tcms_daq.service.testruns import Conflict, UnknownRun
 from tcms_daq.service.users import audit
+from tcms_daq.store.base import CompensationVersion as StoredVersion
+from tcms_daq.store.compensation import (
+    Apply,
+    CompensationRejected,
+    CompensationVersions,
+    FromModel,
+    UnknownVersion,
+)
 
 router = APIRouter(prefix="/api/compensation", tags=["compensation"])
 
@@ -43,21 +51,30 @@ def get_compensation(bench: Bench) -> PlainTextResponse:
     return PlainTextResponse(bench.compensator_toml(), media_type="application/toml")
 
 
-async def _activate(bench: Bench, manager: Manager, store: Store, events: Events, text: str, note: str,
-                    who: Principal, action: str, rollback_of: int | None = None) -> PlainTextResponse:
-    """Check, apply and keep a compensation as the next version (422 implausible; 409 during a test); audited
-    as ``action`` with the version and hash before and after."""
+async def _activate(bench: Bench, manager: Manager, store: Store, events: Events,
+                    change: Callable[[Apply], StoredVersion], who: Principal, action: str) -> PlainTextResponse:
+    """Make a compensation version (``change``, :class:`CompensationVersions`), applied to the bench first
+    (422 implausible, 404 unknown version, 409 during a test); audited as ``action`` with the version and hash
+    before and after."""
     if manager.active_id is not None:
         raise Conflict(f"test {manager.active_id} is running; change the compensation after it")
     previous = store.compensation()
-    await asyncio.to_thread(bench.set_compensator_toml, text)
-    applied = bench.compensator_toml()
-    version = await asyncio.to_thread(store.add_compensation, applied, note, rollback_of)
-    events.publish("compensation_changed", version=version.version, note=note)
+
+    def apply(text: str) -> str:
+        bench.set_compensator_toml(text)
+        return bench.compensator_toml()
+
+    try:
+        version = await asyncio.to_thread(change, apply)
+    except CompensationRejected as exc:
+        raise RequestRejected(str(exc)) from None
+    except UnknownVersion as exc:
+        raise UnknownRun(str(exc)) from None
+    events.publish("compensation_changed", version=version.version, note=version.note)
     audit(store, who, action, target="compensation",
           before=None if previous is None else f"v{previous[0].version} sha256 {previous[0].sha256[:16]}",
-          after=f"v{version.version} sha256 {version.sha256[:16]}", detail=note or None)
-    return PlainTextResponse(applied, media_type="application/toml",
+          after=f"v{version.version} sha256 {version.sha256[:16]}", detail=version.note or None)
+    return PlainTextResponse(bench.compensator_toml(), media_type="application/toml",
                              headers={"X-Compensation-Version": str(version.version)})
 
 
@@ -92,7 +109,9 @@ async def put_compensation(request: Request, bench: Bench, manager: Manager, sto
         return JSONResponse(body.model_dump(), status_code=202)
     if judgement.refused and not force:
         raise RequestRejected(judgement.refused)
-    return await _activate(bench, manager, store, events, text, note, who, "compensation.upload")
+    return await _activate(bench, manager, store, events,
+                           lambda apply: CompensationVersions(store).upload(text, note, apply=apply), who,
+                           "compensation.upload")
 
 
 def _judge(bench: Bench, store: Store, text: str) -> UploadJudgement:
@@ -116,7 +135,7 @@ def _judge(bench: Bench, store: Store, text: str) -> UploadJudgement:
 @router.get("/history", response_model=list[CompensationVersion])
 def compensation_history(store: Store) -> list[dict]:
     """Every accepted compensation, newest first (the first is in use): version, time, note, sha256."""
-    return [v.summary() for v in store.compensation_history()]
+    return [v.summary() for v in CompensationVersions(store).history()]
 
 
 @router.post("/rollback/{version}", response_class=PlainTextResponse,
@@ -126,11 +145,9 @@ async def rollback_compensation(version: Annotated[int, PathParam(ge=1, le=2**31
                                 who: Annotated[Principal, Depends(require("compensation.edit"))]
                                 ) -> PlainTextResponse:
     """Use an earlier version again (kept as a new version that names it; 404 unknown version)."""
-    found = store.compensation(version)
-    if found is None:
-        raise UnknownRun(f"no compensation version {version}")
-    return await _activate(bench, manager, store, events, found[1], f"rollback to version {version}", who,
-                           "compensation.rollback", version)
+    return await _activate(bench, manager, store, events,
+                           lambda apply: CompensationVersions(store).rollback(version, apply=apply), who,
+                           "compensation.rollback")
 
 
 @router.post("/from-model", response_class=PlainTextResponse,
@@ -141,27 +158,15 @@ async def compensation_from_model(bench: Bench, manager: Manager, store: Store, 
     """The bench model's measuring-chain effects (scale, torsion) added to the compensator in use, kept as a new
     compensation version (an explicit step; the effects that cannot be compensator terms stay in the bench
     model and are named in the version's note). 422 when the bench model has none; 409 during a test."""
-    from tcms_daq.compensation.compensator import Compensator
-    from tcms_daq.discrepancy.to_compensation import compensator_terms
-    from tcms_daq.store.discrepancy import bench_model
+    moved: list[FromModel] = []
 
-    version, model = bench_model(store)
-    terms, left = compensator_terms(model)
-    if not terms:
-        raise RequestRejected(f"bench model version {version} has no measuring-chain effect a compensator term "
-                              f"can take (left in the model: {', '.join(left) or 'nothing'})")
-    current = Compensator.loads(bench.compensator_toml(), "the compensation in use")
-    note = (f"added {', '.join(t.type_name for t in terms)} from bench model version {version}"
-            + (f"; left in the model: {', '.join(left)}" if left else ""))
-    answer = await _activate(bench, manager, store, events, current.with_terms(*terms).to_toml(), note[:200], who,
-                             "compensation.from_model")
-    # the moved effects are corrected in the measurement from now on: the bench model must not add them again
-    kept = replace(model, terms=[t for t in model.terms if t.name in left])
-    moved = await asyncio.to_thread(
-        store.add_bench_model, kept.to_toml(),
-        f"moved {', '.join(sorted(set(t.name for t in model.terms) - set(left)))} to compensation version "
-        f"{answer.headers['X-Compensation-Version']}")
-    events.publish("bench_model", version=moved.version)
-    audit(store, who, "bench_model.move", target="bench model", before=f"v{version}", after=f"v{moved.version}",
-          detail=moved.note)
+    def change(apply: Apply) -> StoredVersion:
+        moved.append(CompensationVersions(store).from_model(bench.compensator_toml(), apply=apply))
+        return moved[0].compensation
+
+    answer = await _activate(bench, manager, store, events, change, who, "compensation.from_model")
+    done = moved[0].bench_model
+    events.publish("bench_model", version=done.version)
+    audit(store, who, "bench_model.move", target="bench model", before=f"v{done.version - 1}",
+          after=f"v{done.version}", detail=done.note)
     return answer
