@@ -10,7 +10,7 @@ import threading
 import pytest
 
 from tcms_daq.acquisition import TestRun
-from tcms_daq.acquisition.procedure import analysis_evaluator
+from tcms_daq.acquisition.testrun import analysis_evaluator
 from tcms_daq.procedure.profiles import continuous_profile
 
 SPEED = 4.0
