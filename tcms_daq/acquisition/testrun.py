@@ -24,7 +24,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,7 @@ from tcms_daq.acquisition.bench import Bench
 from tcms_daq.acquisition.fanout import Message
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip
 from tcms_daq.acquisition.loop import AbortRequested, AcquisitionLoop, InterlockTripped
+from tcms_daq.acquisition.progress import RunProgress
 from tcms_daq.acquisition.record import (
     ABORTED,
     COMPLETED,
@@ -217,8 +218,6 @@ class TestRun:
                                 limits=self.limits.to_dict())
         # (clock time a step was commanded, its loop index, its stage index)
         self._marks: list[tuple[float, int, int]] = []
-        self._t_start: float | None = None
-        self._step_durations_s: list[float] = []
         self._thread: threading.Thread | None = None
         self._done = threading.Event()
         self._setpoint_nm = 0.0
@@ -284,20 +283,18 @@ class TestRun:
             acq.start()
             self._prepare(acq)
             self._transition(LOADING)
-            t_start = self._t_start = acq.clock.now()
+            t_start = acq.clock.now()
             steps: list[tuple[int, Move | Segment]] = (self.plan.steps() if self.plan is not None
                                                        else [(0, seg) for seg in self.segments])
-            self._step_durations_s = (self._plan_from_here().step_durations_s() if self.plan is not None else
-                                      [seg.duration_s(prev.target_nm if prev is not None else 0.0)
-                                       for prev, seg in zip([None, *self.segments[:-1]], self.segments, strict=True)])
+            progress = RunProgress(self.run_id, self.plan, self.segments, t_start, self._start_position_deg)
             for number, (stage, step) in enumerate(steps):
-                self._publish_progress(acq, number, stage, step)
+                progress.publish(acq.fanout, acq.clock.now(), number, stage, step)
                 if isinstance(step, Move):
                     self._run_move(acq, step, stage)
                 else:
                     self._run_segment(acq, step, stage)
             self.record.loading_window_s = (t_start, acq.clock.now())
-            self._publish_progress(acq, len(steps), -1, None)
+            progress.publish(acq.fanout, acq.clock.now(), len(steps), -1, None)
             self._safe_stop(acq)
             self._transition(EVALUATING)
             self._collect(buffer)
@@ -370,41 +367,6 @@ class TestRun:
         acq.drive_fault_armed = True
         self._setpoint_nm = 0.0
         acq.wait(opts.settle_s, abort_event=self.abort_event)
-
-    def _plan_from_here(self) -> Plan:
-        """The plan, its time estimate starting where the output is (a drive that reports no position: 0°)."""
-        assert self.plan is not None
-        if self._start_position_deg is None:
-            return self.plan
-        return replace(self.plan, start_position_deg=self._start_position_deg)
-
-    def _publish_progress(self, acq: AcquisitionLoop, number: int, stage: int, step: Move | Segment | None) -> None:
-        """A ``progress`` event before step ``number`` (and one after the last, ``step`` None): the loop (0 the
-        conditioning, −1 outside the loops or moving) of ``loops`` evaluated ones, the position (1-based) of
-        ``positions``, the stage of ``stages``, the elapsed clock time and an ETA (clock s): the planned time
-        left, scaled by how much longer than planned the steps so far took."""
-        now = acq.clock.now()
-        elapsed = now - (self._t_start if self._t_start is not None else now)
-        planned_done = sum(self._step_durations_s[:number])
-        left = sum(self._step_durations_s[number:])
-        pace = min(max(elapsed / planned_done, 1.0), 3.0) if planned_done > 1.0 else 1.0
-        stages = self.plan.stages if self.plan is not None else ()
-        current = stages[stage] if 0 <= stage < len(stages) else None
-        positional = self.plan is not None and self.plan.kind == "positions"
-        profile = current.profile if current is not None else (self.plan.first if self.plan is not None else None)
-        acq.fanout.publish_event(
-            "progress", now, run_id=self.run_id,
-            step=number, steps=len(self._step_durations_s),
-            loop=(OUTSIDE_LOOPS if step is None or isinstance(step, Move) else step.loop_index),
-            loops=profile.cycles if profile is not None else max((s.loop_index for s in self.segments), default=0),
-            moving=isinstance(step, Move),
-            position=(stage + 1 if positional and stage >= 0 else (len(stages) if positional else 1)),
-            positions=len(stages) if positional else 1,
-            position_deg=(current.position_deg if current is not None else None),
-            stage=stage + 1 if stage >= 0 else max(len(stages), 1), stages=max(len(stages), 1),
-            rate_nm_per_s=current.rate_nm_per_s if current is not None else None,
-            elapsed_s=elapsed, eta_s=left * pace,
-        )
 
     def _run_move(self, acq: AcquisitionLoop, move: Move, stage: int) -> None:
         """Turn the output to the stage's position: only at zero torque (the profile before it ended at zero;
