@@ -5,8 +5,8 @@ form); ``format_evaluation`` renders it as a table; ``Limits`` carries a reducer
 """
 
 from tcms_daq.analysis.evaluation import DirectionResult, Evaluation, Limits, LoopResult, evaluate
+from tcms_daq.analysis.harmonic import hd_torsion_angle_rad
 from tcms_daq.analysis.report import format_evaluation
-from tcms_daq.config.curves import hd_torsion_angle_rad
 
 __all__ = [
     "DirectionResult",

@@ -135,7 +135,8 @@ class ReducerSpec(BaseModel):
 
 def hd_twist_arcsec(torque_nm: float, spec: ReducerSpec) -> float:
     """Harmonic Drive catalogue twist (one direction, from zero torque) in arcsec; odd in the torque."""
-    from tcms_daq.config.curves import hd_torsion_angle_rad
+    # imported here: the analysis package pulls in scipy, which loading a config does not need
+    from tcms_daq.analysis.harmonic import hd_torsion_angle_rad
 
     t1, t2, k1, k2, k3 = spec.t1_nm, spec.t2_nm, spec.k1_nm_per_rad, spec.k2_nm_per_rad, spec.k3_nm_per_rad
     if t1 is None or t2 is None or k1 is None or k2 is None or k3 is None:
