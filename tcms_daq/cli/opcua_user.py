@@ -26,7 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _password() -> str:
+def read_password() -> str:
+    """A password asked twice on a terminal, or one line of stdin when it is not one."""
     if not sys.stdin.isatty():
         return sys.stdin.readline().rstrip("\r\n")
     first = getpass.getpass("password: ")
@@ -40,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not NAME.match(args.name):
         raise ConfigError(f"user name {args.name!r}: letters, digits, '.', '_', '@', '-' only (at most 64)")
-    password = _password()
+    password = read_password()
     if len(password) < 8:
         raise ConfigError("the password needs at least 8 characters")
     print(f"{json.dumps(args.name)} = {json.dumps(hash_password(password))}")

@@ -6,10 +6,10 @@ from __future__ import annotations
 import argparse
 import getpass
 import os
-import sys
 from pathlib import Path
 
-from tcms_daq.errors import ConfigError, DataFormatError
+from tcms_daq.cli.opcua_user import read_password
+from tcms_daq.errors import DataFormatError
 from tcms_daq.settings import DEFAULT_DATA_DIR, read_settings
 from tcms_daq.store.people import ROLES
 
@@ -38,15 +38,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _password() -> str:
-    if not sys.stdin.isatty():
-        return sys.stdin.readline().rstrip("\r\n")
-    first = getpass.getpass("password: ")
-    if getpass.getpass("again: ") != first:
-        raise ConfigError("the two passwords differ")
-    return first
-
-
 def _who() -> str:
     try:
         return "cli:" + getpass.getuser()
@@ -70,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{user.name:<24} {user.role:<9} {'disabled' if user.disabled else 'enabled'}")
             return 0
         if command == "add":
-            hashed = hash_password(_password())
+            hashed = hash_password(read_password())
             user = store.add_user(args.name, args.role, hashed)
             audit(store, _who(), "user.add", target=user.name, after=f"role {user.role}")
             print(f"added {user.name} ({user.role}) to {store.describe()}")

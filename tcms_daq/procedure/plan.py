@@ -208,6 +208,22 @@ class PlanRejected(TcmsError):
     field and the limit."""
 
 
+def check_plan_fields(positions: int | list[float] | None, rates: list[float] | None, rate_nm_per_s: float | None,
+                      move_velocity_deg_per_s: float | None) -> None:
+    """Raise ValueError when a request's positions, rates, rate and move velocity do not make one test (the check
+    every request model runs: the service's TestRequest and the procedure's PlanRequest)."""
+    if positions is not None and rates is not None:
+        raise ValueError("positions and rates cannot be combined in one test")
+    if positions is not None:
+        positions_from(positions)
+    if rates is not None:
+        rates_from(rates)
+        if rate_nm_per_s is not None:
+            raise ValueError("rate_nm_per_s and rates exclude each other")
+    if move_velocity_deg_per_s is not None and positions is None:
+        raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
+
+
 class PlanRequest(BaseModel):
     """What a test request asks for (the CLI's options, the service's ``POST /api/tests``, a saved plan). A field
     left None takes the bench config's ``[procedure]`` value (the test torque: the reducer's rated torque)."""
@@ -230,16 +246,7 @@ class PlanRequest(BaseModel):
 
     @model_validator(mode="after")
     def _plan_fields(self) -> PlanRequest:
-        if self.positions is not None and self.rates is not None:
-            raise ValueError("positions and rates cannot be combined in one test")
-        if self.positions is not None:
-            positions_from(self.positions)
-        if self.rates is not None:
-            rates_from(self.rates)
-            if self.rate_nm_per_s is not None:
-                raise ValueError("rate_nm_per_s and rates exclude each other")
-        if self.move_velocity_deg_per_s is not None and self.positions is None:
-            raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
+        check_plan_fields(self.positions, self.rates, self.rate_nm_per_s, self.move_velocity_deg_per_s)
         return self
 
 

@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
-from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, positions_from, rates_from
+from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, check_plan_fields
 from tcms_daq.runstate import RunState
 
 
@@ -88,16 +88,7 @@ class TestRequest(TestDocumentation):
 
     @model_validator(mode="after")
     def _plan_fields(self) -> TestRequest:
-        if self.positions is not None and self.rates is not None:
-            raise ValueError("positions and rates cannot be combined in one test")
-        if self.positions is not None:
-            positions_from(self.positions)
-        if self.rates is not None:
-            rates_from(self.rates)
-            if self.rate_nm_per_s is not None:
-                raise ValueError("rate_nm_per_s and rates exclude each other")
-        if self.move_velocity_deg_per_s is not None and self.positions is None:
-            raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
+        check_plan_fields(self.positions, self.rates, self.rate_nm_per_s, self.move_velocity_deg_per_s)
         return self
 
     @model_validator(mode="after")

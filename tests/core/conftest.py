@@ -1,39 +1,12 @@
-"""Fixtures for the core tests: the catalogue, the default bench config, and TOML files to break."""
+"""Fixtures for the core tests (the catalogue, the bench config and ``write`` are the suite's, tests/conftest.py)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
-from tcms_daq.config import load_bench_config, load_reducer_catalogue, packaged_config_dir
-
-
-@pytest.fixture(scope="session")
-def catalogue():
-    return load_reducer_catalogue()
-
-
-@pytest.fixture(scope="session")
-def bench_config():
-    return load_bench_config()
+from tcms_daq.config import packaged_config_dir
 
 
 @pytest.fixture
 def reducers_text() -> str:
     return (packaged_config_dir() / "reducers.toml").read_text(encoding="utf-8")
-
-
-@pytest.fixture
-def bench_text() -> str:
-    return (packaged_config_dir() / "bench-sim.toml").read_text(encoding="utf-8")
-
-
-@pytest.fixture
-def write(tmp_path: Path):
-    def _write(name: str, text: str) -> Path:
-        path = tmp_path / name
-        path.write_text(text, encoding="utf-8")
-        return path
-
-    return _write
