@@ -89,7 +89,7 @@ def test_fleet_page_searches_links_overlays_and_charts(settings_factory, tmp_pat
             page.check("#runs tbody tr[data-id='run-03'] .pick")
             page.check("#runs tbody tr[data-id='run-10'] .pick")
             page.wait_for_function("document.querySelector('#plot-overlay canvas') !== null")
-            page.wait_for_function(f"({COUNT_PIXELS})(['#plot-overlay canvas', 31, 95, 168]) > 200")
+            page.wait_for_function(f"({COUNT_PIXELS})(['#plot-overlay canvas', 31, 95, 168]) > 200", timeout=120_000)
             page.wait_for_function(f"({COUNT_PIXELS})(['#plot-overlay canvas', 217, 119, 30]) > 200")
             assert page.inner_text("#overlay-ids") == "run-03 vs run-10"
 

@@ -33,7 +33,7 @@ def test_the_service_measures_the_requested_reducer_like_the_cli(tmp_path, capsy
     # the config's [sim] reducer is the RV-110E (294 N·m/arcmin): the HFUC-32-100 is ~37
     assert served == pytest.approx(cli["rigidity_nm_per_arcmin"], rel=0.05)
     assert served < 60.0
-    assert done["results"]["verdict"]["passed"] is True
+    assert done["results"]["verdict"]["passed"] is True, done["results"]["verdict"]
 
 
 def test_a_rigidity_outside_the_catalogue_tolerance_fails_the_verdict():

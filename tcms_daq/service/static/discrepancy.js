@@ -31,7 +31,8 @@ const TcmsDiscrepancy = (() => {
     let items = [];
     try { items = await api("GET", "/api/discrepancy?limit=" + (runId ? 1000 : limit)); } catch (e) { return []; }
     if (runId) items = items.filter((a) => a.run_id === runId).slice(0, limit);
-    tbody.innerHTML = items.length ? "" : `<tr><td colspan="5" class="muted">no analysis yet</td></tr>`;
+    tbody.innerHTML = "";
+    tbody.closest("table").hidden = !items.length;  // no empty table taking room beside the results
     for (const a of items) {
       const tr = document.createElement("tr");
       tr.dataset.analysis = a.id;
