@@ -204,6 +204,15 @@ def _json_default(obj: Any) -> Any:
 
 
 # -- the query of GET /api/tests -----------------------------------------------------------------------------
+def check_time_window(since: float | None, until: float | None) -> None:
+    """Raise StoreError unless ``since`` and ``until`` (epoch s, None: open) are finite and in order."""
+    for name, value in (("since", since), ("until", until)):
+        if value is not None and not math.isfinite(value):
+            raise StoreError(f"{name} must be a finite time")
+    if since is not None and until is not None and since > until:
+        raise StoreError(f"since ({iso(since)}) is after until ({iso(until)})")
+
+
 @dataclass(frozen=True)
 class RunQuery:
     """Which runs to list. Every field narrows the list; None leaves it open. ``bench`` matches a bench's id or
@@ -225,12 +234,7 @@ class RunQuery:
             raise StoreError(f"unknown status {self.status!r} (known: {', '.join(RUN_STATUSES)})")
         if self.verdict is not None and self.verdict not in VERDICTS:
             raise StoreError(f"unknown verdict {self.verdict!r} (known: {', '.join(VERDICTS)})")
-        for name in ("since", "until"):
-            value = getattr(self, name)
-            if value is not None and not math.isfinite(value):
-                raise StoreError(f"{name} must be a finite time")
-        if self.since is not None and self.until is not None and self.since > self.until:
-            raise StoreError(f"since ({iso(self.since)}) is after until ({iso(self.until)})")
+        check_time_window(self.since, self.until)
 
     def where(self, placeholder: str, like: str) -> tuple[str, list[Any]]:
         """(``WHERE …`` or ``""``, parameters) for a backend's placeholder (``?``/``%s``) and its

@@ -14,14 +14,13 @@ as their SHA-256 (they are random 256-bit strings, so a fast hash suffices).
 from __future__ import annotations
 
 import json
-import math
 import re
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tcms_daq.store.base import StoreError, iso, text_sha256
+from tcms_daq.store.base import StoreError, check_time_window, iso, text_sha256
 
 #: the roles of people, each with the rights of those before it (an engineer may do what an operator may)
 ROLES: tuple[str, ...] = ("operator", "engineer", "admin")
@@ -177,12 +176,7 @@ class AuditQuery:
     until: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("since", "until"):
-            value = getattr(self, name)
-            if value is not None and not math.isfinite(value):
-                raise StoreError(f"{name} must be a finite time")
-        if self.since is not None and self.until is not None and self.since > self.until:
-            raise StoreError(f"since ({iso(self.since)}) is after until ({iso(self.until)})")
+        check_time_window(self.since, self.until)
 
     def where(self) -> tuple[str, list[Any]]:
         clauses: list[str] = []
