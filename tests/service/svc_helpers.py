@@ -15,14 +15,19 @@ import subprocess
 import sys
 import threading
 import time
+import tomllib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
+import tomli_w
 import uvicorn
 from tcms_daq.sim.instruments.child import stop_process
 
+from tcms_daq.config.loader import resolve_config_path
 from tcms_daq.service.app import ServiceSettings, create_app
 from tcms_daq.service.runner import RUN_CHANNELS, AcceptedTest, RequestRejected, RunOutcome
 
@@ -252,3 +257,19 @@ def results_with_uncertainty(decision: str = "pass") -> dict:
                                        "passed": decision == "pass", "decision": decision, "guard_band": 0.82}}},
         "warnings": [],
     }
+
+
+def loopback_config_with_loader(path: Path, loader: str, urls: dict[str, str], **loader_options: Any) -> Path:
+    """Write to ``path`` the packaged loopback bench with its loader table replaced by the CANopen or the Modbus TCP
+    drive at ``urls`` (``tcms sim serve``'s), plus ``loader_options``; returns ``path``."""
+    packaged = resolve_config_path("bench-loopback.toml")
+    cfg = tomllib.loads(packaged.read_text(encoding="utf-8"))
+    for key in ("compensation", "reducers"):
+        cfg["bench"][key] = str(packaged.parent / cfg["bench"][key])
+    cfg["sim"]["geometry"] = str(packaged.parent / cfg["sim"]["geometry"])
+    cfg["instruments"]["loader"] = ({**cfg["instruments"]["loader"], "url": urls["loader_canopen"]}
+                                    if loader == "canopen" else
+                                    {"driver": "cia402-modbus", "url": urls["loader_modbus"]})
+    cfg["instruments"]["loader"].update(loader_options)
+    path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
+    return path

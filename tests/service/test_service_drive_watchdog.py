@@ -23,7 +23,7 @@ from pathlib import Path
 import httpx
 import pytest
 import tomli_w
-from svc_helpers import TOKEN, stop_process, wait_for
+from svc_helpers import TOKEN, loopback_config_with_loader, stop_process, wait_for
 from tcms_daq.sim.instruments.child import start_simulators
 
 from tcms_daq.config.loader import resolve_config_path
@@ -44,24 +44,6 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def _config(directory: Path, loader: str, urls: dict[str, str], *, watchdog: bool) -> Path:
-    """The packaged loopback bench with the CANopen or the Modbus TCP loader; ``watchdog=False``: the drive's
-    communication watchdog off on both sides (driver and the simulated drive's factory setting)."""
-    packaged = resolve_config_path("bench-loopback.toml")
-    cfg = tomllib.loads(packaged.read_text(encoding="utf-8"))
-    for key in ("compensation", "reducers"):
-        cfg["bench"][key] = str(packaged.parent / cfg["bench"][key])
-    cfg["sim"]["geometry"] = str(packaged.parent / cfg["sim"]["geometry"])
-    cfg["instruments"]["loader"] = ({**cfg["instruments"]["loader"], "url": urls["loader_canopen"]}
-                                    if loader == "canopen" else
-                                    {"driver": "cia402-modbus", "url": urls["loader_modbus"]})
-    if not watchdog:
-        cfg["instruments"]["loader"]["comm_timeout_ms"] = 0
-    path = directory / f"bench-{loader}-{'wd' if watchdog else 'nowd'}.toml"
-    path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
-    return path
-
-
 class ProtocolBench:
     """The simulators (own process) and the service (own process, restartable) on loopback."""
 
@@ -80,7 +62,9 @@ class ProtocolBench:
         self.sim, info = start_simulators("--config", str(sim_config), "--speed", str(SPEED), ports=self.ports,
                                           timeout_s=STARTUP_CEILING_S)
         self.urls = info["urls"]
-        self.config = _config(data_dir, loader, self.urls, watchdog=watchdog)
+        # watchdog=False: the drive's communication watchdog off on both sides (driver and the simulated drive)
+        self.config = loopback_config_with_loader(data_dir / f"bench-{loader}-{'wd' if watchdog else 'nowd'}.toml",
+                                                  loader, self.urls, **({} if watchdog else {"comm_timeout_ms": 0}))
         self.service: subprocess.Popen | None = None
         self.output: list[str] = []
         self.client: httpx.Client | None = None

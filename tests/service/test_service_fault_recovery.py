@@ -10,16 +10,11 @@ import json
 import socket
 import subprocess
 import time
-import tomllib
-from pathlib import Path
 
 import httpx
 import pytest
-import tomli_w
-from svc_helpers import TOKEN, start_serve_process, stop_process, wait_for
+from svc_helpers import TOKEN, loopback_config_with_loader, start_serve_process, stop_process, wait_for
 from tcms_daq.sim.instruments.child import start_simulators
-
-from tcms_daq.config.loader import resolve_config_path
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 400, "cycles": 1, "rate_nm_per_s": 400}
 FAULT_AFTER_S = 1.0  # real seconds into the test (speed 4: well inside the loading)
@@ -58,21 +53,6 @@ def _start_sim(ports: dict[str, int]) -> tuple[subprocess.Popen, dict]:
     return start_simulators("--config", "bench-loopback.toml", "--speed", "4", ports=ports)
 
 
-def _config_with_loader(directory: Path, loader: str, urls: dict[str, str]) -> Path:
-    """The packaged loopback config with its loader table replaced by the CANopen or the Modbus TCP drive."""
-    packaged = resolve_config_path("bench-loopback.toml")
-    cfg = tomllib.loads(packaged.read_text(encoding="utf-8"))
-    for key in ("compensation", "reducers"):
-        cfg["bench"][key] = str(packaged.parent / cfg["bench"][key])
-    cfg["sim"]["geometry"] = str(packaged.parent / cfg["sim"]["geometry"])
-    cfg["instruments"]["loader"] = ({**cfg["instruments"]["loader"], "url": urls["loader_canopen"]}
-                                    if loader == "canopen" else
-                                    {"driver": "cia402-modbus", "url": urls["loader_modbus"]})
-    path = directory / f"bench-{loader}.toml"
-    path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
-    return path
-
-
 class Bench:
     """`tcms sim serve` on fixed loopback ports and `tcms serve` over its protocols; the simulator can be killed
     and started again on the same ports."""
@@ -81,7 +61,7 @@ class Bench:
         self.ports = {name: _free_port() for name in ("nd287", "aed", "modbus", "socketcand", "control")}
         self.sim, info = _start_sim(self.ports)
         urls = info["urls"]
-        config = _config_with_loader(data_dir, loader, urls)
+        config = loopback_config_with_loader(data_dir / f"bench-{loader}.toml", loader, urls)
         self.service, base = start_serve_process([
             "--config", str(config), "--port", "0", "--sim-speed", "4", "--data-dir", str(data_dir),
             "--set", f"instruments.angle.url={urls['angle']}", "--set", f"instruments.torque.url={urls['torque']}"])
