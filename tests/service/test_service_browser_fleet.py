@@ -69,6 +69,8 @@ def test_fleet_page_searches_links_overlays_and_charts(settings_factory, tmp_pat
             page = browser.new_page(viewport={"width": 1500, "height": 1100})
             errors: list[str] = []
             page.on("pageerror", lambda exc: errors.append(str(exc)))
+            console: list[str] = []
+            page.on("console", lambda msg: console.append(f"{msg.type}: {msg.text}"))
             page.goto(f"{srv.base}/fleet?token={TOKEN}")
             page.wait_for_function("document.querySelectorAll('#runs tbody tr[data-id]').length === 12")
             assert page.inner_text("#total") == "12"
@@ -89,8 +91,22 @@ def test_fleet_page_searches_links_overlays_and_charts(settings_factory, tmp_pat
             page.check("#runs tbody tr[data-id='run-03'] .pick")
             page.check("#runs tbody tr[data-id='run-10'] .pick")
             page.wait_for_function("document.querySelector('#plot-overlay canvas') !== null")
-            page.wait_for_function(f"({COUNT_PIXELS})(['#plot-overlay canvas', 31, 95, 168]) > 200", timeout=120_000)
-            page.wait_for_function(f"({COUNT_PIXELS})(['#plot-overlay canvas', 217, 119, 30]) > 200")
+            blue, orange = "['#plot-overlay canvas', 31, 95, 168]", "['#plot-overlay canvas', 217, 119, 30]"
+            try:
+                # run-10 (orange, line-b, 2 N·m/arcmin stiffer) is drawn over run-03 (blue) and hides most of it:
+                # hiding run-10 in the legend shows run-03's whole loop
+                page.wait_for_function(f"({COUNT_PIXELS})({orange}) > 200", timeout=120_000)
+                page.click("#plot-overlay .u-legend >> text=run-10")
+                page.wait_for_function(f"({COUNT_PIXELS})({blue}) > 200 && ({COUNT_PIXELS})({orange}) < 20")
+            except Exception as exc:  # say what the page shows instead of a bare timeout
+                state = page.evaluate(f"""() => ({{
+                    ids: document.querySelector('#overlay-ids').textContent,
+                    message: document.querySelector('#message').textContent,
+                    canvases: document.querySelectorAll('#plot-overlay canvas').length,
+                    blue: ({COUNT_PIXELS})(['#plot-overlay canvas', 31, 95, 168]),
+                    orange: ({COUNT_PIXELS})(['#plot-overlay canvas', 217, 119, 30]),
+                    legend: document.querySelector('#plot-overlay').innerText }})""")
+                raise AssertionError(f"overlay not drawn: {state}, console {console}, page errors {errors}") from exc
             assert page.inner_text("#overlay-ids") == "run-03 vs run-10"
 
             page.fill("#s-reducer", "RV-110E")

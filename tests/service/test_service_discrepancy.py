@@ -56,9 +56,10 @@ def test_discrepancy_of_a_stored_run_over_http(settings_factory, sim_config, tmp
         doc = r.json()
         assert r.headers["location"] == f"/api/discrepancy/{doc['id']}" and doc["run_id"] == run_id
         assert doc["options"] == {"signal_period_arcsec": 72.0, "effects": None}
-        # no hidden effect on the default bench: nothing is named, the residual is the encoder noise (0.2″)
+        # no hidden effect on the default bench: nothing is named, the residual is the encoder noise (0.2″, less
+        # after the workflow's resampling); the lower bound only rules out a run compared with itself
         assert doc["effects"] == [] and doc["aliases"] == [], doc
-        assert 0.15 < doc["rms_before_arcsec"] < 0.3 and doc["cv_rms_after_arcsec"] < 0.3
+        assert 0.05 < doc["rms_before_arcsec"] < 0.3 and doc["cv_rms_after_arcsec"] < 0.3
         assert doc["verdict"] == "consistent" and doc["unexplained"] is None, doc["verdict_words"]
         assert doc["verdict_words"].startswith("Measurement and simulation agree")
         assert c.get(f"/api/discrepancy/{doc['id']}").json() == doc

@@ -94,13 +94,15 @@
 
   // ---- overlay of two loops ----
   const COLORS = ["#1f5fa8", "#d9771e"];
-  let overlayPlot = null;
+  let overlayPlot = null, overlayRequest = 0;
   async function overlay() {
     const ids = state.selected.slice();
+    const request = ++overlayRequest;  // two quick picks: only the newest selection is drawn, whatever answers last
     $("overlay-ids").textContent = ids.length ? ids.join(" vs ") : t("fleet.select_two");
     let loops = [];
     try { loops = await Promise.all(ids.map((id) => api(`/api/tests/${encodeURIComponent(id)}/loop?max_points=3000`).then((a) => a.data))); }
-    catch (e) { message(e.message, true); return; }
+    catch (e) { if (request === overlayRequest) message(e.message, true); return; }
+    if (request !== overlayRequest) return;
     if (overlayPlot) { overlayPlot.destroy(); overlayPlot = null; }
     if (!loops.length) return;
     const label = (l) => { const r = state.runs.get(l.id) || { request: {} }; return `${l.id} · ${r.bench_id || ""} · ${r.request.serial_number || ""}`; };
