@@ -20,7 +20,13 @@ from __future__ import annotations
 import time
 
 import serial
-from tcms_daq.drivers.base import Clock, CommandRejected, DeviceFault, MalformedReply
+from tcms_daq.drivers.base import (
+    Clock,
+    CommandRejected,
+    DeviceFault,
+    MalformedReply,
+    ReinitialisedOnReconnect,
+)
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
@@ -44,7 +50,7 @@ def parse_msv(reply: bytes, instrument: str = "AED") -> int:
     return value
 
 
-class AED(SerialInstrument):
+class AED(ReinitialisedOnReconnect, SerialInstrument):
     """TorqueSource over the AED ASCII command set. ``read()`` returns one reading (N·m) per call."""
 
     def __init__(
@@ -72,7 +78,6 @@ class AED(SerialInstrument):
                          bytesize=serial.EIGHTBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_ONE)
         self.nominal_torque_nm = float(nominal_torque_nm)
         self.nominal_output = nominal_output
-        self._configured_epoch: int | None = None
         self._tare_counts: int | None = None  # the amplifier's tare value after our last TAR (restored on restart)
 
     @property
@@ -80,27 +85,22 @@ class AED(SerialInstrument):
         nov = self.nominal_output or FACTORY_NOMINAL_OUTPUT
         return self.nominal_torque_nm / nov
 
-    # -- connection and configuration -------------------------------------------------------------------
+    # -- connection and configuration (re-sent after a power cycle: ReinitialisedOnReconnect) --------------
 
     def connect(self) -> None:
         super().connect()
-        self._configure()
+        self.configure()
 
     def close(self) -> None:
         super().close()
-        self._configured_epoch = None
+        self.forget_configuration()
 
-    def _configure(self) -> None:
-        for _ in range(2):  # once more if the link was re-opened half-way through
-            epoch = self.link.reconnects
-            self.link.send(b";")  # clear whatever half command the amplifier holds
-            self._setting(b"COF3;")
-            self._setting(b"NOV%d;" % self.nominal_output)
-            if self._tare_counts is not None:
-                self._setting(b"TAV%+d;" % self._tare_counts)
-            if epoch == self.link.reconnects:
-                break
-        self._configured_epoch = self.link.reconnects
+    def reinitialise(self) -> None:
+        self.link.send(b";")  # clear whatever half command the amplifier holds
+        self._setting(b"COF3;")
+        self._setting(b"NOV%d;" % self.nominal_output)
+        if self._tare_counts is not None:
+            self._setting(b"TAV%+d;" % self._tare_counts)
 
     def _setting(self, command: bytes) -> None:
         reply = self.request(command, _read_line)
@@ -110,34 +110,18 @@ class AED(SerialInstrument):
             raise CommandRejected(self.name, f"amplifier rejected {command.decode('ascii')!r}")
         raise MalformedReply(self.name, f"reply {reply!r} to {command.decode('ascii')!r} is neither '0' nor '?'")
 
-    def _ensure_configured(self) -> None:
-        """Configure (again) when the link was opened or re-opened since the last configuration."""
-        if self._configured_epoch != self.link.reconnects:
-            self._configure()
-
-    def _query(self, command: bytes) -> bytes:
-        """A query on a configured link; re-configures and repeats once if the link was re-opened meanwhile."""
-        self._ensure_configured()
-        epoch = self.link.reconnects
-        reply = self.link.exchange(command, _read_line)
-        if epoch != self.link.reconnects:
-            self._configure()
-            reply = self.link.exchange(command, _read_line)
-        return require_terminated(self.name, reply)
-
     # -- TorqueSource ------------------------------------------------------------------------------------
 
     def read_one(self) -> tuple[float, float]:
         """One ``MSV?;`` exchange -> (time_s at request, torque_nm)."""
-        time_s = self.clock()
-        value = parse_msv(self._query(b"MSV?;"), self.name)
-        return time_s, value * self.nm_per_count
+        time_s, reply = self.query_stamped(b"MSV?;", _read_line)
+        return time_s, parse_msv(require_terminated(self.name, reply), self.name) * self.nm_per_count
 
     def tare(self) -> None:
         """Zero the amplifier at the present load and keep its tare value, to restore it after a restart."""
-        self._ensure_configured()
+        self.ensure_configured()
         self._setting(b"TAR;")
-        reply = self._query(b"TAV?;")
+        reply = require_terminated(self.name, self.query_stamped(b"TAV?;", _read_line)[1])
         try:
             self._tare_counts = int(reply.strip())
         except ValueError:

@@ -12,15 +12,21 @@ torque in N·m, times in s.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from tcms_daq.errors import TcmsError
 
+if TYPE_CHECKING:  # the mixin below runs on a SerialInstrument's link (transport imports this module)
+    from tcms_daq.drivers.transport import SerialLink
+
 Clock = Callable[[], float]
+
+log = logging.getLogger(__name__)
 
 
 class InstrumentError(TcmsError):
@@ -57,10 +63,12 @@ class CommandRejected(InstrumentError):
 
 @dataclass(frozen=True)
 class Batch:
-    """Readings of one channel: ``time_s`` stamped at the driver, ``value`` in the channel's unit."""
+    """Readings of one channel: ``time_s`` stamped at the driver, ``value`` in the channel's unit, and ``extra``
+    per-reading columns the acquisition carries into the samples (e.g. the ND 287's ``angle_datum``)."""
 
     time_s: np.ndarray
     value: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
     @staticmethod
     def empty() -> Batch:
@@ -77,6 +85,60 @@ def concat_common_columns(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str
         return {}
     keys = set(parts[0]).intersection(*parts[1:])
     return {k: np.concatenate([p[k] for p in parts]) for k in sorted(keys)}
+
+
+class ReinitialisedOnReconnect:
+    """Mixin of a polled instrument that comes back from a power cycle with its power-on settings (the AED's
+    format, scaling and tare; the ND 287's datum): the subclass's ``reinitialise()`` runs when the link was opened
+    or re-opened, before the next reply counts. A re-open is the link's ``reconnects`` moving; a query that crossed
+    one is re-initialised and repeated (``query_stamped``). ``power_cycles`` counts the re-initialisations after
+    a re-open of a configured link: power cycles of the instrument, as far as the driver can tell (a link that
+    drops and comes back is taken for one: the driver cannot tell a pulled cable from a power cycle)."""
+
+    name: str
+    clock: Clock
+    link: SerialLink
+    _configured_epoch: int | None = None
+    power_cycles: int = 0
+
+    def reinitialise(self) -> None:
+        """Send the instrument's settings (the subclass's); raises InstrumentError when it refuses them."""
+        raise NotImplementedError
+
+    def configure(self) -> None:
+        """Re-initialise now (again if the link was re-opened half-way through) and note the link's epoch."""
+        if self._configured_epoch is not None and self._configured_epoch != self.link.reconnects:
+            self.power_cycles += 1
+            log.warning("%s: link re-opened (power cycle %d as far as the driver can tell): re-initialising",
+                        self.name, self.power_cycles)
+        for _ in range(2):
+            epoch = self.link.reconnects
+            self.reinitialise()
+            if epoch == self.link.reconnects:
+                break
+        self._configured_epoch = self.link.reconnects
+
+    def forget_configuration(self) -> None:
+        """The link was closed on purpose: the next connect configures afresh (not counted as a power cycle)."""
+        self._configured_epoch = None
+
+    def ensure_configured(self) -> None:
+        """Configure (again) when the link was opened or re-opened since the last configuration."""
+        if self._configured_epoch != self.link.reconnects:
+            self.configure()
+
+    def query_stamped(self, command: bytes, reader: Callable[[Any], bytes]) -> tuple[float, bytes]:
+        """(clock time at the request, raw reply) on a configured link; a query that crossed a re-open is
+        re-initialised and repeated, and stamped at the repeated request."""
+        self.ensure_configured()
+        epoch = self.link.reconnects
+        time_s = self.clock()
+        reply = self.link.exchange(command, reader)
+        if epoch != self.link.reconnects:
+            self.configure()
+            time_s = self.clock()
+            reply = self.link.exchange(command, reader)
+        return time_s, reply
 
 
 @dataclass(frozen=True)

@@ -13,18 +13,31 @@ direction of positive torque (the display's counting direction is set up on the 
 Serial format 7 data bits, even parity, 2 stop bits (ND 281B/287 default), baud configurable (9600 … 115 200).
 The reading's time stamp is the driver clock at the moment the request byte is written (the display latches
 the value when it receives STX; its delay t1 ≤ 1 ms is neglected).
+
+Power cycles: with an incremental encoder the display loses its datum when it loses power: it counts from the
+position it was switched on at until the reference marks are traversed again, and comes back with its power-on
+settings. The driver cannot restore the datum (the shaft may have moved meanwhile), so after the link was
+re-opened (``ReinitialisedOnReconnect``: a link that drops and comes back is taken for a power cycle) it
+re-initialises the display (DC1: output released; ENQ: its error text, logged) and counts a new datum: every
+reading carries the ``angle_datum`` column (the number of power cycles the driver noticed), and the acquisition
+never evaluates a loop that joins readings of two datums (``tcms_daq.analysis.gaps``).
 """
 
 from __future__ import annotations
 
+import logging
 import time
 
+import numpy as np
 import serial
-from tcms_daq.drivers.base import Clock, DeviceFault, MalformedReply
+from tcms_daq.drivers.base import Batch, Clock, DeviceFault, MalformedReply, ReinitialisedOnReconnect
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
-from tcms_daq.drivers.transport import SerialInstrument, open_serial_url
+from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
-from tcms_daq.protocols.nd287 import FRAME_LENGTH, FRAME_RE, STX, value_to_arcsec
+from tcms_daq.analysis.gaps import ANGLE_DATUM_COLUMN
+from tcms_daq.protocols.nd287 import DC1, ENQ, FRAME_LENGTH, FRAME_RE, STX, value_to_arcsec
+
+log = logging.getLogger(__name__)
 
 
 def parse_frame(frame: bytes, instrument: str = "ND 287") -> float:
@@ -51,8 +64,13 @@ def _read_frame(port: serial.SerialBase) -> bytes:
     return port.read_until(b"\r\n", FRAME_LENGTH + 8)
 
 
-class ND287(SerialInstrument):
-    """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls ``readings_per_read`` times (arcsec)."""
+def _read_line(port: serial.SerialBase) -> bytes:
+    return port.read_until(b"\r\n", 32)
+
+
+class ND287(ReinitialisedOnReconnect, SerialInstrument):
+    """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls ``readings_per_read`` times (arcsec), each
+    reading with its datum (``angle_datum``: power cycles noticed so far)."""
 
     def __init__(
         self,
@@ -76,7 +94,38 @@ class ND287(SerialInstrument):
                          bytesize=serial.SEVENBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO)
         self.readings_per_read = int(readings_per_read)
 
+    def connect(self) -> None:
+        super().connect()
+        self.configure()
+
+    def close(self) -> None:
+        super().close()
+        self.forget_configuration()
+
+    def reinitialise(self) -> None:
+        """Output released (DC1: a display that was told to hold answers again) and its error text read (ENQ):
+        a display that reports an error after its power-up says so in the log."""
+        self.link.send(DC1)
+        reply = require_terminated(self.name, self.link.exchange(ENQ, _read_line))
+        text = reply.strip(b"\x02\r\n").decode("ascii", errors="replace").strip()
+        if text:
+            log.warning("%s reports %r after (re)connecting", self.name, text)
+
+    @property
+    def datum(self) -> int:
+        """The datum the readings count from: the power cycles noticed since connecting."""
+        return self.power_cycles
+
     def read_one(self) -> tuple[float, float]:
         """One Ctrl-B exchange -> (time_s at request, angle_arcsec)."""
-        time_s = self.clock()
-        return time_s, parse_frame(self.request(STX, _read_frame), self.name)
+        time_s, reply = self.query_stamped(STX, _read_frame)
+        return time_s, parse_frame(require_terminated(self.name, reply), self.name)
+
+    def read(self) -> Batch:
+        """``readings_per_read`` readings, each with the datum it counts from."""
+        n = self.readings_per_read
+        time_s, value, datum = np.empty(n), np.empty(n), np.empty(n)
+        for i in range(n):
+            time_s[i], value[i] = self.read_one()
+            datum[i] = self.datum
+        return Batch(time_s, value, {ANGLE_DATUM_COLUMN: datum})

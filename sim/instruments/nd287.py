@@ -5,6 +5,15 @@ Frame: sign + value (10 chars, leading blanks) + ' ' + unit + sorting + series +
 Units: 'G' degrees (default), 'R' radians, 'M' packed D.MMSS; an encoder fault answers with unit '?'.
 DC3 (0x13) holds output, DC1 (0x11) releases it (requests received meanwhile are answered on release);
 ENQ (0x05) answers STX + a 13-character error text + CR LF. Other bytes are ignored.
+
+Power cycles (``start()`` after a ``stop()``: the control channel's ``restart``, or ``power_cycle()`` alone for
+a display that is switched off and on while its serial link stays open): a real ND 287 on an incremental
+encoder (the RON 786 has one reference mark or distance-coded ones, ``/work/shared/reference/protocols.md``
+§1.1) loses its datum with its power: it counts from the position it is switched on at until the reference marks
+are traversed again, and it comes back with its power-on settings (``docs/hardware.md``: "a display offset or
+reference mark set on the ND 287 is part of the reading"). The simulator reads 0 at the position it is powered
+on at (a new offset, ``datum_offset_arcsec``, against the datum it had), and its unit and decimals are the
+power-on ones again. The first start keeps the datum (the bench was set up with its reference mark traversed).
 """
 
 from __future__ import annotations
@@ -37,13 +46,28 @@ class ND287Server(TcpInstrumentServer):
         super().__init__(host, port, reply_delay_s)
         format_frame(0.0, unit=unit, decimals=decimals)  # validate the display settings now
         self.angle_arcsec = angle_arcsec
-        self.unit = unit
-        self.decimals = int(decimals)
+        self.power_on_unit, self.power_on_decimals = unit, int(decimals)
+        self.unit, self.decimals = unit, int(decimals)
+        self.datum_offset_arcsec = 0.0  # added to the encoder's angle: 0 until the first power cycle
+        self.power_cycles = 0
+        self._started_before = False
+
+    def power_cycle(self) -> None:
+        """Switched off and on: the count restarts at 0 where the encoder is now, the settings are the power-on
+        ones (the serial connections are left as they are: ``stop()``/``start()`` drop them)."""
+        self.datum_offset_arcsec = -self.angle_arcsec()
+        self.unit, self.decimals = self.power_on_unit, self.power_on_decimals
+        self.power_cycles += 1
+
+    async def start(self) -> int:
+        if self._started_before and not self.running:
+            self.power_cycle()
+        self._started_before = True
+        return await super().start()
 
     def frame(self) -> bytes:
-        return format_frame(
-            self.angle_arcsec(), unit=self.unit, decimals=self.decimals, fault=self.fault == "encoder_fault"
-        )
+        return format_frame(self.angle_arcsec() + self.datum_offset_arcsec, unit=self.unit, decimals=self.decimals,
+                            fault=self.fault == "encoder_fault")
 
     async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         held = False

@@ -225,7 +225,8 @@ class InstrumentSimulators:
         return obj
 
     def restart(self, instrument: str) -> None:
-        """Stop and re-start one server on the same port (the instrument was power-cycled).
+        """Stop and re-start one server on the same port (the instrument was power-cycled: the ND 287 comes back
+        without its datum and with its power-on settings, the AED with its power-on settings).
         ``canopen`` power-cycles the drive and its CAN node (the socketcand hub keeps running)."""
         if instrument == "canopen":
             self._require(self.canopen, "CANopen drive").restart()

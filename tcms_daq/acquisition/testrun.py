@@ -47,7 +47,7 @@ from tcms_daq.acquisition.record import (
     StateChange,
     empty_samples,
 )
-from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops
+from tcms_daq.analysis.gaps import ANGLE_DATUM_COLUMN, TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops
 from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus, Positioner
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
@@ -81,8 +81,8 @@ class ProcedureOptions:
     max_stop_s: every exit disables the loader within this time, whatever the profile: the ramp from the
     *measured* torque is steepened so that it takes at most RAMP_SHARE_OF_STOP of it;
     kept_columns: the sample columns the run record keeps in memory (None: every column; the service keeps the
-    canonical three, since its store records the channels as they arrive; the torque interval is kept for the gap
-    check whatever this says);
+    canonical three, since its store records the channels as they arrive; the torque interval and the angle datum
+    are kept for the gap check whatever this says);
     gaps: what a gap in the data is and how many loops must be left without one (``tcms_daq.analysis.gaps``).
     """
 
@@ -276,7 +276,8 @@ class TestRun:
             acq.drive_fault_armed = False  # until _prepare has reset a fault an earlier run left
             acq.set_limits(self.limits)
             kept = self.options.kept_columns
-            buffer = SampleBuffer(None if kept is None else (*kept, TORQUE_INTERVAL_COLUMN))  # every batch, copied in by the acquisition thread: the run's samples
+            # every batch, copied in by the acquisition thread: the run's samples (with what the gap check needs)
+            buffer = SampleBuffer(None if kept is None else (*kept, TORQUE_INTERVAL_COLUMN, ANGLE_DATUM_COLUMN))
             acq.fanout.add_sink(buffer.append)
             subs = [acq.fanout.subscribe_callback(cb, maxsize=self.subscriber_queue) for cb in self.subscribers]
             self._publish_state()

@@ -4,7 +4,9 @@ An instrument that is power-cycled, a link that drops and reconnects, a stalled 
 has a stretch where one channel has no readings of its own. The angle channel is the time base, so an angle gap is
 a long step in ``time_s``; the torque is interpolated onto the angle stamps (``tcms_daq.acquisition.align``), so a
 torque gap is only visible in the interval between the two torque readings that bracketed each angle reading
-(the ``torque_interval_s`` column the aligner adds). A stretch longer than the limit is a gap.
+(the ``torque_interval_s`` column the aligner adds). A stretch longer than the limit is a gap. A change of the
+angle's datum (the ``angle_datum`` column: the ND 287 was power-cycled and counts from a new zero) is a break in
+the angle channel whatever its length: the angles on its two sides are not comparable.
 
 Pure functions: ``find_gaps`` (the gaps of a record), ``exclude_gapped_loops`` (the record without the loops that
 hold a gap, the warnings naming each gap, and the reason when too few loops are left). The loops are the
@@ -20,10 +22,13 @@ import numpy as np
 
 from tcms_daq.samples import Samples
 
-__all__ = ["TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops", "find_gaps"]
+__all__ = ["ANGLE_DATUM_COLUMN", "TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops",
+           "find_gaps"]
 
 #: per aligned sample: time between the torque readings that bracket it (s); 0 when a reading has its stamp
 TORQUE_INTERVAL_COLUMN = "torque_interval_s"
+#: per angle reading: the datum it counts from (the power cycles of the angle display its driver noticed)
+ANGLE_DATUM_COLUMN = "angle_datum"
 
 
 @dataclass(frozen=True)
@@ -59,15 +64,20 @@ class Gap:
     end_s: float
     torque_lo_nm: float
     torque_hi_nm: float
+    #: "no readings" (a gap), "new datum" (the readings after it count from another zero)
+    kind: str = "no readings"
 
     @property
     def duration_s(self) -> float:
         return self.end_s - self.start_s
 
     def describe(self) -> str:
-        return (f"{self.channel} channel: no readings for {self.duration_s:.2f} s "
-                f"(t = {self.start_s:.2f} … {self.end_s:.2f} s, torque {self.torque_lo_nm:.0f} … "
-                f"{self.torque_hi_nm:.0f} N·m)")
+        where = (f"t = {self.start_s:.2f} … {self.end_s:.2f} s, torque {self.torque_lo_nm:.0f} … "
+                 f"{self.torque_hi_nm:.0f} N·m")
+        if self.kind == "new datum":
+            return (f"{self.channel} channel: new datum (the display was power-cycled and counts from another "
+                    f"zero) between two readings {self.duration_s:.2f} s apart ({where})")
+        return f"{self.channel} channel: no readings for {self.duration_s:.2f} s ({where})"
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -77,10 +87,12 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
 
 
 def find_gaps(time_s: np.ndarray, torque_nm: np.ndarray, torque_interval_s: np.ndarray | None = None,
-              settings: GapLimits = GapLimits(), contiguous: np.ndarray | None = None) -> list[Gap]:
+              settings: GapLimits = GapLimits(), contiguous: np.ndarray | None = None,
+              angle_datum: np.ndarray | None = None) -> list[Gap]:
     """The gaps of an aligned record (angle stamps ``time_s``, torque ``torque_nm``), in time order.
     ``contiguous`` (one per step between samples): False where the record was cut on purpose (the move between
-    two stages of a test was not kept): no gap there."""
+    two stages of a test was not kept): no gap there. ``angle_datum`` (per sample): a change between two joined
+    samples is a "new datum" break of the angle channel, however short."""
     t = np.asarray(time_s, dtype=float)
     torque = np.asarray(torque_nm, dtype=float)
     gaps: list[Gap] = []
@@ -88,9 +100,14 @@ def find_gaps(time_s: np.ndarray, torque_nm: np.ndarray, torque_interval_s: np.n
         steps = np.diff(t)
         joined = np.ones(steps.size, dtype=bool) if contiguous is None else np.asarray(contiguous, dtype=bool)
         limit = settings.limit_for(steps[joined])
-        for i in np.flatnonzero((steps > limit) & joined):
+        new_datum = np.zeros(steps.size, dtype=bool)
+        if angle_datum is not None:
+            change = np.diff(np.asarray(angle_datum, dtype=float))
+            new_datum = np.isfinite(change) & (change != 0)  # NaN: a sample without the column, no change known
+        for i in np.flatnonzero(((steps > limit) | new_datum) & joined):
             pair = torque[i:i + 2]
-            gaps.append(Gap("angle", float(t[i]), float(t[i + 1]), float(pair.min()), float(pair.max())))
+            gaps.append(Gap("angle", float(t[i]), float(t[i + 1]), float(pair.min()), float(pair.max()),
+                            "new datum" if new_datum[i] else "no readings"))
     if torque_interval_s is not None and t.size:
         interval = np.asarray(torque_interval_s, dtype=float)
         limit = settings.limit_for(interval)
@@ -125,7 +142,8 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
         stage_of = np.asarray(samples.extra.get("stage_index", np.zeros(len(loop))), dtype=float)
         step = np.diff(np.asarray(loop, dtype=float))
         contiguous = (np.diff(stage_of) == 0) & ((step == 0) | (step == 1))
-    gaps = find_gaps(samples.time_s, samples.torque_nm, interval, settings, contiguous)
+    gaps = find_gaps(samples.time_s, samples.torque_nm, interval, settings, contiguous,
+                     samples.extra.get(ANGLE_DATUM_COLUMN))
     if not gaps:
         return GapExclusion(samples)
     t = samples.time_s
@@ -159,4 +177,29 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
             reason = (f"{left} of {total} loops{where} left after leaving out the loops with a gap "
                       f"(at least {settings.min_loops} needed): {warnings[0]}")
             break
-    return GapExclusion(samples.select(~drop), gaps, warnings, sorted(held), reason)
+    kept, notes = _join_datums(samples.select(~drop))
+    return GapExclusion(kept, gaps, warnings + notes, sorted(held), reason)
+
+
+def _join_datums(samples: Samples) -> tuple[Samples, list[str]]:
+    """The kept loops with the angles of each later datum shifted to continue the earlier one where two kept loops
+    join (a turning point: the loops that held the datum change are left out, so the loops on its two sides meet
+    at the tip between them); a warning per shift. Within a stage only: stages are evaluated apart."""
+    datum = samples.extra.get(ANGLE_DATUM_COLUMN)
+    if datum is None or len(samples) < 2:
+        return samples, []
+    stage = np.asarray(samples.extra.get("stage_index", np.zeros(len(samples))), dtype=float)
+    change = np.diff(np.asarray(datum, dtype=float))
+    joins = np.flatnonzero(np.isfinite(change) & (change != 0) & (np.diff(stage) == 0))
+    if not joins.size:
+        return samples, []
+    angle = np.array(samples.angle_arcsec, dtype=float)
+    notes = []
+    for j in joins:
+        shift = angle[j] - angle[j + 1]
+        same_stage = stage == stage[j]
+        angle[j + 1:][same_stage[j + 1:]] += shift
+        notes.append(f"angle channel: the loops from t = {samples.time_s[j + 1]:.2f} s count from a new datum; "
+                     f"their angles are joined to the earlier loops at the turning point where they meet "
+                     f"(torque {samples.torque_nm[j]:.0f} N·m, shifted by {shift:+.1f}″)")
+    return Samples(samples.time_s, samples.torque_nm, angle, dict(samples.extra)), notes

@@ -14,7 +14,9 @@ import re
 
 from tcms_daq.units import ARCSEC_PER_DEG, ARCSEC_PER_RAD
 
-STX = b"\x02"
+STX = b"\x02"  # measured value retrieval (Ctrl-B)
+DC1 = b"\x11"  # continue output (after DC3)
+ENQ = b"\x05"  # error message enquiry: STX + 13-character error text + CR LF
 FRAME_LENGTH = 17
 FRAME_RE = re.compile(rb"^([+-])([ 0-9.]{10}) (.)(.)(.)\r\n$")
 ANGLE_UNITS = ("G", "R", "M")

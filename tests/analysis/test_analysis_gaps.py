@@ -9,7 +9,13 @@ import pytest
 
 from tcms_daq.acquisition.align import Aligner
 from tcms_daq.analysis import evaluate
-from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops, find_gaps
+from tcms_daq.analysis.gaps import (
+    ANGLE_DATUM_COLUMN,
+    TORQUE_INTERVAL_COLUMN,
+    GapLimits,
+    exclude_gapped_loops,
+    find_gaps,
+)
 from tcms_daq.samples import Samples
 
 RATE_HZ = 500.0
@@ -55,6 +61,40 @@ def test_an_angle_gap_is_named_and_its_loop_left_out():
     assert ev.n_loops == 2  # the two loops joined at their turning point, no loop made across the cut
     assert ev.rigidity_nm_per_arcmin == pytest.approx(reference.rigidity_nm_per_arcmin, rel=5e-3)
     assert ev.lost_motion_arcsec == pytest.approx(reference.lost_motion_arcsec, abs=0.5)
+
+
+def with_new_datum(samples: Samples, at_s: float) -> Samples:
+    """The angle display power-cycled at ``at_s`` with no gap in its readings: from there it counts from 0 where it
+    was switched on (its datum lost), and each reading carries the datum it counts from."""
+    after = samples.time_s >= at_s
+    offset = -samples.angle_arcsec[np.argmax(after)]
+    angle = np.where(after, samples.angle_arcsec + offset, samples.angle_arcsec)
+    return Samples(samples.time_s, samples.torque_nm, angle,
+                   {**samples.extra, ANGLE_DATUM_COLUMN: after.astype(float)})
+
+
+def test_a_new_datum_is_a_break_however_short_and_its_loop_is_left_out():
+    record = with_new_datum(loops_record(3), 12.6)  # in loop 2, on the way up at 300 N·m, no reading missing
+    gaps = find_gaps(record.time_s, record.torque_nm, angle_datum=record.extra[ANGLE_DATUM_COLUMN])
+    assert len(gaps) == 1 and gaps[0].kind == "new datum" and gaps[0].channel == "angle"
+    assert gaps[0].start_s == pytest.approx(12.6, abs=0.01) and gaps[0].duration_s < 0.01
+    assert gaps[0].torque_lo_nm == pytest.approx(300, abs=2) and gaps[0].torque_hi_nm == pytest.approx(300, abs=2)
+    evaluated = record.select(record.extra["loop_index"] >= 1)
+    out = exclude_gapped_loops(evaluated)
+    assert out.reason is None and out.excluded == [(0, 2)]
+    assert "loop 2 left out" in out.warnings[0] and "angle channel: new datum" in out.warnings[0]
+    assert "t = 12.60 … 12.60 s" in out.warnings[0]
+    assert len(out.warnings) == 2 and "count from a new datum" in out.warnings[1]  # loops 1 and 3 joined at −T
+    # the loop after it counts from the new datum throughout: evaluated, and the rigidity is the clean one's
+    ev = evaluate(out.samples.time_s, out.samples.torque_nm, out.samples.angle_arcsec, rated_torque_nm=T_MAX)
+    clean = loops_record(3)
+    clean = clean.select(clean.extra["loop_index"] >= 1)
+    reference = evaluate(clean.time_s, clean.torque_nm, clean.angle_arcsec, rated_torque_nm=T_MAX)
+    assert ev.n_loops == 2
+    assert ev.rigidity_nm_per_arcmin == pytest.approx(reference.rigidity_nm_per_arcmin, rel=5e-3)
+    # the same record with the datum only changing back and forth nowhere (NaN: a batch without the column)
+    unknown = np.where(record.time_s < 5.0, np.nan, 0.0)
+    assert find_gaps(record.time_s, record.torque_nm, angle_datum=unknown) == []
 
 
 def test_a_torque_gap_is_seen_in_the_torque_interval():

@@ -12,8 +12,12 @@ from tcms_daq.protocols.nd287 import deg_to_dms_packed, dms_to_deg, format_frame
 
 # -- transcripts --------------------------------------------------------------------------------------------
 
+# what the driver sends on connecting (and after a re-open): DC1 (output released), ENQ (the error text, none)
+CONNECT = [(b"\x11", None), (b"\x05", b"\x02" + b" " * 13 + b"\r\n")]
+
+
 def test_transcript_request_and_frame_bytes():
-    port = ScriptedSerial([(b"\x02", b"-  12.34560 G  \r\n"), (b"\x02", b"+   0.00100 G  \r\n")])
+    port = ScriptedSerial([*CONNECT, (b"\x02", b"-  12.34560 G  \r\n"), (b"\x02", b"+   0.00100 G  \r\n")])
     times = iter([10.0, 10.5])
     nd = ND287("socket://bench:4001", opener=port.opener, clock=lambda: next(times))
     nd.connect()
@@ -31,6 +35,7 @@ def test_transcript_request_and_frame_bytes():
 
 def test_transcript_fault_unit_and_garbage_and_silence():
     port = ScriptedSerial([
+        *CONNECT,
         (b"\x02", b"+  12.34560 ?  \r\n"),
         (b"\x02", b"+  12.3x560 G  \r\n"),
         (b"\x02", b"+   12.34"),
@@ -120,6 +125,28 @@ def test_reconnect_after_simulator_restart(serial_sims):
         serial_sims.restart("nd287")
         assert len(nd.read()) == 1  # transparently re-opened
         assert nd.link.reconnects == 1
+
+
+def test_a_power_cycle_loses_the_datum_and_the_driver_counts_a_new_one(serial_sims):
+    """The simulated display counts from 0 where it is switched on (its datum is lost, its settings are the
+    power-on ones); the driver re-initialises it and tags the readings after it with a new datum."""
+    physics, server = serial_sims.physics, serial_sims.nd287
+    physics.set_drive_enabled(True)
+    physics.set_torque_target(500.0, 1e6)
+    physics.advance(0.2)
+    with _driver(serial_sims) as nd:
+        before = nd.read()
+        assert before.extra["angle_datum"].tolist() == [0.0]
+        assert before.value[0] == pytest.approx(physics.latest().angle_arcsec, abs=0.05) and before.value[0] > 90.0
+        server.unit, server.decimals = "R", 8  # changed at the display since it was switched on
+        serial_sims.restart("nd287")
+        after = nd.read()
+        assert after.extra["angle_datum"].tolist() == [1.0] and nd.power_cycles == 1
+        assert after.value[0] == pytest.approx(0.0, abs=0.05)  # counts from where it was switched on
+        assert (server.unit, server.decimals) == ("G", 5)  # the power-on settings
+        physics.set_torque_target(0.0, 1e6)
+        physics.advance(0.2)
+        assert nd.read().value[0] == pytest.approx(physics.latest().angle_arcsec - before.value[0], abs=0.1)
 
 
 def test_disconnected_when_simulator_stays_down(serial_sims):
