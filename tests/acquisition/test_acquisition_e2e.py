@@ -19,6 +19,8 @@ import tomli_w
 from tcms_daq.sim.instruments.child import start_simulators, stop_process
 
 from tcms_daq.acquisition import TestRun, compose_bench
+from tcms_daq.acquisition.testrun import ProcedureOptions
+from tcms_daq.analysis.gaps import GapLimits
 from tcms_daq.cli import main
 from tcms_daq.procedure.profiles import continuous_profile
 
@@ -202,3 +204,69 @@ def test_a_failing_worker_thread_on_real_time_aborts_and_restarts(sim_serve, tmp
     finally:
         acq.close()
         bench.close()
+
+
+# -- the angle display power-cycled mid-test (issue 22) ------------------------------------------------------
+def evaluator_with_u(config, profile):
+    """The service's evaluation (the catalogue's RV-110E, the bench's declared uncertainties), results with U."""
+    from tcms_daq.config import get_reducer, load_reducers_for
+    from tcms_daq.procedure.evaluation import evaluate_for_reducer
+
+    reducer = get_reducer(load_reducers_for(config), "RV-110E")
+    chain = config.chain_uncertainty()
+    return lambda samples: evaluate_for_reducer(samples, reducer, profile.test_torque_nm, chain=chain).to_dict()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("loader", ["canopen", "modbus"])
+def test_nd287_power_cycled_mid_test_no_number_across_its_new_datum(loader, sim_serve, tmp_path):
+    """`tcms sim serve` restarts the ND 287 (control channel) in evaluated loop 2 of 3, rising through 300 N·m: the
+    display comes back counting from 0 where it was switched on. The run never evaluates a loop across the new
+    datum: loop 2 is left out naming it, loops 1 and 3 are evaluated and agree with a clean in-process run within
+    the two runs' U; or the run does not complete and says why."""
+    from tcms_daq.config import load_bench_config
+
+    path = sim_serve.config_file(tmp_path, loader)
+    config = load_bench_config(path)
+    profile = continuous_profile(1000.0, 1000.0, cycles=3, conditioning_loops=1, tip_dwell_s=0.1)
+    evaluate = evaluator_with_u(config, profile)
+    fired = threading.Event()
+    state = {"loop": None}
+
+    def watch(msg):
+        if msg.kind == "event" and msg.event == "progress":
+            state["loop"] = msg.details.get("loop")
+        elif (msg.kind == "data" and not fired.is_set() and state["loop"] == 2
+              and msg.samples.torque_nm[-1] > 300.0 and msg.samples.torque_nm[-1] > msg.samples.torque_nm[0]):
+            fired.set()
+            sim_serve.control(cmd="restart", instrument="nd287")
+
+    bench = compose_bench(config, config_dir=path.parent, speed=SPEED)
+    # a stall of this machine is real time: the shortest gap is 0.2 s of it (simulated: × SPEED), so a loaded
+    # machine's pauses do not hide what this test is about (the new datum is a break whatever its length)
+    options = ProcedureOptions(gaps=GapLimits(min_limit_s=0.2 * SPEED))
+    record = TestRun(bench, profile, evaluate=evaluate, subscribers=[watch], options=options).run()
+    assert fired.is_set()
+    datum = record.samples.extra["angle_datum"]
+    assert set(datum.tolist()) == {0.0, 1.0}, "the driver did not notice the power cycle"
+    assert record.loader_final["state"] != "OPERATION ENABLED"
+    if record.state != "completed":  # the watchdog tripped on the silent display, or too few loops: it says why
+        assert "loops with a gap" in record.reason or "lost angle" in record.reason, record.reason
+        return
+    warnings = record.evaluation["warnings"]
+    left_out = {int(w.split()[1]): w for w in warnings if " left out, " in w}
+    assert 2 in left_out and "angle channel: new datum" in left_out[2], warnings
+    # on a loaded machine another loop may hold a real pause of a channel: left out too, naming it
+    assert all("no readings for" in w for k, w in left_out.items() if k != 2), left_out
+    assert record.evaluation["n_loops"] == 3 - len(left_out)
+    virtual = {k: {"driver": "virtual", "url": "virtual://sim"} for k in ("angle", "torque", "loader")}
+    reference_bench = compose_bench(config.model_copy(update={"instruments": type(config.instruments)
+                                                              .model_validate(virtual)}), config_dir=path.parent)
+    reference = TestRun(reference_bench, profile, evaluate=evaluate).run()
+    assert reference.state == "completed", reference.reason
+    key = "rigidity_nm_per_arcmin"
+    u = record.evaluation["uncertainty"][key]["U"], reference.evaluation["uncertainty"][key]["U"]
+    print(f"{loader}: {record.evaluation[key]:.2f} against {reference.evaluation[key]:.2f} N·m/arcmin clean, "
+          f"U {u[0]:.2f} / {u[1]:.2f}; {left_out[2]}")
+    assert abs(record.evaluation[key] - reference.evaluation[key]) <= math.hypot(*u), (record.evaluation[key],
+                                                                                     reference.evaluation[key], u)
