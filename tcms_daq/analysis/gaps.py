@@ -6,7 +6,9 @@ a long step in ``time_s``; the torque is interpolated onto the angle stamps (``t
 torque gap is only visible in the interval between the two torque readings that bracketed each angle reading
 (the ``torque_interval_s`` column the aligner adds). A stretch longer than the limit is a gap. A change of the
 angle's datum (the ``angle_datum`` column: the ND 287 was power-cycled and counts from a new zero) is a break in
-the angle channel whatever its length: the angles on its two sides are not comparable.
+the angle channel whatever its length: the angles on its two sides are not comparable. So is a step of the angle
+between two joined readings larger than the reducer can twist in that time at the run's torque rate (an "angle
+jump": a display whose datum was reset without its link dropping, ``find_angle_jumps``).
 
 Pure functions: ``find_gaps`` (the gaps of a record), ``exclude_gapped_loops`` (the record without the loops that
 hold a gap, the warnings naming each gap, and the reason when too few loops are left). The loops are the
@@ -23,7 +25,7 @@ import numpy as np
 from tcms_daq.samples import Samples
 
 __all__ = ["ANGLE_DATUM_COLUMN", "TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops",
-           "find_gaps"]
+           "find_angle_jumps", "find_gaps"]
 
 #: per aligned sample: time between the torque readings that bracket it (s); 0 when a reading has its stamp
 TORQUE_INTERVAL_COLUMN = "torque_interval_s"
@@ -43,6 +45,9 @@ class GapLimits:
     limit_periods: float = 5.0
     min_limit_s: float = 0.2
     min_loops: int = 1
+    #: an angle jump: a step above ``jump_factor`` × the compliance there × torque rate × time step + the floor
+    jump_factor: float = 5.0
+    jump_floor_arcsec: float = 1.0
 
     def limit_for(self, periods_s: np.ndarray) -> float:
         """The gap limit (s) of a channel whose reading periods (s) are ``periods_s``."""
@@ -64,8 +69,10 @@ class Gap:
     end_s: float
     torque_lo_nm: float
     torque_hi_nm: float
-    #: "no readings" (a gap), "new datum" (the readings after it count from another zero)
+    #: "no readings" (a gap), "new datum" (the readings after it count from another zero), "angle jump"
     kind: str = "no readings"
+    step_arcsec: float = 0.0  # an angle jump: the step, and the largest step the physics allows there
+    allowed_arcsec: float = 0.0
 
     @property
     def duration_s(self) -> float:
@@ -74,6 +81,10 @@ class Gap:
     def describe(self) -> str:
         where = (f"t = {self.start_s:.2f} … {self.end_s:.2f} s, torque {self.torque_lo_nm:.0f} … "
                  f"{self.torque_hi_nm:.0f} N·m")
+        if self.kind == "angle jump":
+            return (f"{self.channel} channel: a step of {self.step_arcsec:+.1f}″ in {self.duration_s:.3f} s, where "
+                    f"at most {self.allowed_arcsec:.1f}″ is plausible at this torque rate (the display's datum "
+                    f"changed?) ({where})")
         if self.kind == "new datum":
             return (f"{self.channel} channel: new datum (the display was power-cycled and counts from another "
                     f"zero) between two readings {self.duration_s:.2f} s apart ({where})")
@@ -120,6 +131,49 @@ def find_gaps(time_s: np.ndarray, torque_nm: np.ndarray, torque_interval_s: np.n
     return sorted(gaps, key=lambda g: g.start_s)
 
 
+def find_angle_jumps(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
+                     settings: GapLimits = GapLimits(), contiguous: np.ndarray | None = None) -> list[Gap]:
+    """Steps of the angle between two joined readings larger than the physics allows: the reducer twists at most
+    by its compliance at that torque × the torque change between them (the torque rate × the time between them,
+    or the measured change if larger), with ``jump_factor`` for margin and ``jump_floor_arcsec`` for the noise. The compliance at a torque is the record's own: the median of
+    |Δangle| / |Δtorque| over the steps in that torque band (20 bands over the 1st–99th percentiles; the largest of
+    a band and its neighbours, so the lost-motion band's high compliance covers its edges); the rate the record's
+    95th-percentile torque rate; the time at least the median reading period (stamps jitter). The medians are not
+    moved by the jumps they look for. Pure; [] for a record too short or without a torque span."""
+    t = np.asarray(time_s, dtype=float)
+    torque = np.asarray(torque_nm, dtype=float)
+    angle = np.asarray(angle_arcsec, dtype=float)
+    if t.size < 40:
+        return []
+    dt, d_torque, d_angle = np.diff(t), np.diff(torque), np.diff(angle)
+    joined = np.ones(dt.size, dtype=bool) if contiguous is None else np.asarray(contiguous, dtype=bool)
+    torque_lo, torque_hi = np.percentile(torque, [1, 99])
+    if not torque_hi - torque_lo > 0 or np.count_nonzero(joined) < 20:
+        return []
+    period = float(np.median(dt[joined]))
+    rate = float(np.percentile(np.abs(d_torque[joined]) / np.maximum(dt[joined], period), 95))  # N·m/s
+    step_torque = np.abs(d_torque)
+    ratio = np.abs(d_angle) / np.maximum(step_torque, 0.1 * float(np.median(step_torque[joined])) + 1e-12)
+    n_bands = 20
+    band = np.clip(((torque[:-1] + torque[1:]) / 2 - torque_lo) / (torque_hi - torque_lo) * n_bands, 0,
+                   n_bands - 1).astype(int)
+    overall = float(np.median(ratio[joined]))
+    per_band = np.array([float(np.median(ratio[joined & (band == b)])) if np.count_nonzero(joined & (band == b)) >= 5
+                         else overall for b in range(n_bands)])
+    padded = np.concatenate([[per_band[0]], per_band, [per_band[-1]]])
+    compliance = np.maximum(np.maximum(padded[:-2], padded[1:-1]), padded[2:])  # arcsec per N·m, per band
+    # the torque change a step may carry: at the run's rate over its time, or the measured one (readings that
+    # bunch up after a stall carry a larger change than their stamps say)
+    torque_change = np.maximum(rate * np.maximum(dt, period), step_torque)
+    allowed = settings.jump_factor * compliance[band] * torque_change + settings.jump_floor_arcsec
+    jumps = []
+    for i in np.flatnonzero(joined & (np.abs(d_angle) > allowed)):
+        pair = torque[i:i + 2]
+        jumps.append(Gap("angle", float(t[i]), float(t[i + 1]), float(pair.min()), float(pair.max()), "angle jump",
+                         float(d_angle[i]), float(allowed[i])))
+    return jumps
+
+
 @dataclass
 class GapExclusion:
     """The record to evaluate (``samples``: the loops without a gap), a warning per left-out loop naming its gaps,
@@ -142,8 +196,17 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
         stage_of = np.asarray(samples.extra.get("stage_index", np.zeros(len(loop))), dtype=float)
         step = np.diff(np.asarray(loop, dtype=float))
         contiguous = (np.diff(stage_of) == 0) & ((step == 0) | (step == 1))
-    gaps = find_gaps(samples.time_s, samples.torque_nm, interval, settings, contiguous,
-                     samples.extra.get(ANGLE_DATUM_COLUMN))
+    datum = samples.extra.get(ANGLE_DATUM_COLUMN)
+    gaps = find_gaps(samples.time_s, samples.torque_nm, interval, settings, contiguous, datum)
+    jumps = find_angle_jumps(samples.time_s, samples.torque_nm, samples.angle_arcsec, settings, contiguous)
+    if jumps:  # a jump is a datum change nobody announced: the loops on its two sides are joined like those
+        step_at = np.searchsorted(samples.time_s, [j.end_s for j in jumps])
+        unannounced = np.zeros(len(samples))
+        unannounced[step_at] = 1.0
+        known = np.zeros(len(samples)) if datum is None else np.nan_to_num(np.asarray(datum, dtype=float))
+        samples = Samples(samples.time_s, samples.torque_nm, samples.angle_arcsec,
+                          {**samples.extra, ANGLE_DATUM_COLUMN: known + np.cumsum(unannounced)})
+        gaps = sorted(gaps + jumps, key=lambda g: g.start_s)
     if not gaps:
         return GapExclusion(samples)
     t = samples.time_s

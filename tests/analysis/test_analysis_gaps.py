@@ -14,6 +14,7 @@ from tcms_daq.analysis.gaps import (
     TORQUE_INTERVAL_COLUMN,
     GapLimits,
     exclude_gapped_loops,
+    find_angle_jumps,
     find_gaps,
 )
 from tcms_daq.samples import Samples
@@ -22,6 +23,7 @@ RATE_HZ = 500.0
 T_MAX = 1000.0
 RIGIDITY = 300.0  # N·m/arcmin
 FRICTION_ARCSEC = 8.0
+FRICTION_TURN_NM = 40.0
 LOOP_S = 8.0  # −T → +T → −T at 500 N·m/s
 
 
@@ -32,7 +34,10 @@ def loops_record(n_loops: int) -> Samples:
     phase = ((t - 2.0) % LOOP_S) / LOOP_S
     torque = np.where(lead, -T_MAX * t / 2.0, T_MAX * (1 - 4 * np.abs(phase - 0.5)))
     rising = np.where(lead, False, phase < 0.5)
-    angle = torque / RIGIDITY * 60.0 + np.where(rising, -FRICTION_ARCSEC, FRICTION_ARCSEC) / 2
+    # the friction turns over within FRICTION_TURN_NM of each turning point (a reducer does not jump at a tip)
+    from_tip = np.where(rising, torque + T_MAX, T_MAX - torque)
+    friction = np.where(rising, -1.0, 1.0) * FRICTION_ARCSEC / 2 * (1 - 2 * np.exp(-from_tip / FRICTION_TURN_NM))
+    angle = torque / RIGIDITY * 60.0 + np.where(lead, FRICTION_ARCSEC / 2, friction)
     loop = np.where(lead, -1.0, np.floor((t - 2.0) / LOOP_S) + 1)
     return Samples(t, torque, angle, {"loop_index": loop, TORQUE_INTERVAL_COLUMN: np.zeros(t.size)})
 
@@ -95,6 +100,28 @@ def test_a_new_datum_is_a_break_however_short_and_its_loop_is_left_out():
     # the same record with the datum only changing back and forth nowhere (NaN: a batch without the column)
     unknown = np.where(record.time_s < 5.0, np.nan, 0.0)
     assert find_gaps(record.time_s, record.torque_nm, angle_datum=unknown) == []
+
+
+def test_an_angle_jump_without_a_datum_change_is_a_break_too():
+    """The display's datum reset while its link stayed up (no datum column says so): the angle steps by more than
+    the reducer can twist in one reading period at this torque rate; the loop is left out naming the step."""
+    record = with_new_datum(loops_record(3), 12.6)
+    record = Samples(record.time_s, record.torque_nm, record.angle_arcsec,
+                     {k: v for k, v in record.extra.items() if k != ANGLE_DATUM_COLUMN})
+    jumps = find_angle_jumps(record.time_s, record.torque_nm, record.angle_arcsec)
+    assert len(jumps) == 1 and jumps[0].kind == "angle jump"
+    assert jumps[0].step_arcsec == pytest.approx(-(300 / RIGIDITY * 60 - FRICTION_ARCSEC / 2), abs=1.0)
+    assert jumps[0].allowed_arcsec < 10.0  # 10 × 0.2″/N·m × 500 N·m/s × 2 ms + 1″
+    out = exclude_gapped_loops(record.select(record.extra["loop_index"] >= 1))
+    assert out.reason is None and out.excluded == [(0, 2)]
+    assert "angle channel: a step of -55.8″ in 0.002 s" in out.warnings[0], out.warnings
+    clean = loops_record(3)
+    clean = clean.select(clean.extra["loop_index"] >= 1)
+    assert find_angle_jumps(clean.time_s, clean.torque_nm, clean.angle_arcsec) == []
+    ev = evaluate(out.samples.time_s, out.samples.torque_nm, out.samples.angle_arcsec, rated_torque_nm=T_MAX)
+    reference = evaluate(clean.time_s, clean.torque_nm, clean.angle_arcsec, rated_torque_nm=T_MAX)
+    assert ev.n_loops == 2
+    assert ev.rigidity_nm_per_arcmin == pytest.approx(reference.rigidity_nm_per_arcmin, rel=5e-3)
 
 
 def test_a_torque_gap_is_seen_in_the_torque_interval():
