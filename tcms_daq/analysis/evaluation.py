@@ -388,7 +388,8 @@ def evaluate(
         raise EvaluationError(
             f"no full loop left to evaluate: the record has {len(loops)} full loop(s) and {skip_loops} are skipped"
         )
-    ctx = LoopContext(t, torque, angle, cond, _test_torque(loops[skip_loops:], settings), settings)
+    ctx = LoopContext(t, torque, angle, cond, _test_torque(loops[skip_loops:], settings, t, torque, angle, cond),
+                      settings)
     warnings: list[str] = []
     undecidable: list[str] = []
     loop_results = _evaluate_loops(loops, ctx, warnings)
@@ -556,12 +557,23 @@ def _condition(torque: np.ndarray, angle: np.ndarray) -> Conditioning:
                         max(MIN_FLANK_SAMPLES, span_samples))
 
 
-def _test_torque(evaluated: list[Loop], settings: EvaluationSettings) -> float:
-    """The requested test torque, else the median torque reached at the turning points (N·m), taken as the rated
-    torque when within 2 % of it."""
+def _tip_points(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, cond: Conditioning,
+                indices: Iterable[int]) -> dict[int, TipPoint]:
+    """The turning points at these samples (extremes of the smoothed torque), estimated on their flanks."""
+    return {i: tip_point(time_s, torque_nm, angle_arcsec, i, cond.flank_samples, cond.torque_noise_nm,
+                         cond.torque_smooth_nm, cond.max_span_nm) for i in indices}
+
+
+def _test_torque(evaluated: list[Loop], settings: EvaluationSettings, time_s: np.ndarray, torque_nm: np.ndarray,
+                 angle_arcsec: np.ndarray, cond: Conditioning) -> float:
+    """The requested test torque, else the median torque reached at the turning points (N·m, estimated on their
+    flanks: the smoothed extreme falls short of a sharp tip), taken as the rated torque when within 2 % of it."""
     if settings.test_torque_nm is not None:
         return float(settings.test_torque_nm)
-    reached = float(np.median([lp.reached_torque_nm(s) for lp in evaluated for _, s in SIDES]))
+    indices = {i for lp in evaluated for i in (lp.first.start, lp.first.stop, lp.second.stop)}
+    tips = _tip_points(time_s, torque_nm, angle_arcsec, cond, sorted(indices))
+    reached = float(np.median([min(abs(tips[i].torque_nm) for i in (lp.first.start, lp.first.stop, lp.second.stop)
+                                   if tips[i].torque_nm * s > 0.0) for lp in evaluated for _, s in SIDES]))
     if abs(reached - settings.rated_torque_nm) <= SNAP_TO_RATED * settings.rated_torque_nm:
         return float(settings.rated_torque_nm)
     return float(round(reached, 1))
@@ -621,8 +633,8 @@ def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext,
     A level within the flank span of a tip (the rigidity interval's upper end when the loop reaches about the
     test torque, or falls short of it) is read from the tip estimated on its flanks (``tcms_daq.analysis.tips``)."""
     cond = ctx.cond
-    tips = {i: tip_point(ctx.time_s, ctx.torque_nm, ctx.angle_arcsec, i, cond.flank_samples, cond.torque_noise_nm)
-            for i in (loop.first.start, loop.first.stop, loop.second.stop)}
+    tips = _tip_points(ctx.time_s, ctx.torque_nm, ctx.angle_arcsec, cond,
+                       (loop.first.start, loop.first.stop, loop.second.stop))
     his = _upper_ends(index, loop, ctx, warnings, tips)
     levels = _EvaluationLevels.build(loop, ctx, his)
 

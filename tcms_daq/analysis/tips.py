@@ -14,6 +14,7 @@ The compliance dθ/dT of each flank lets a branch be read a little below its tip
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,12 +68,31 @@ def _at(t: np.ndarray, y: np.ndarray, t_star: float) -> float:
     return float(sum(c * t_star**k for k, c in enumerate(coef)))
 
 
+def _within_band(torque_smooth_nm: np.ndarray, index: int, lo: int, hi: int, span_nm: float) -> tuple[int, int]:
+    """The flanks' ends [lo, hi) cut to the contiguous samples around ``index`` whose smoothed torque stays within
+    ``span_nm`` of the tip's (at least MIN_FLANK_SAMPLES on each side)."""
+    level = float(torque_smooth_nm[index])
+    inside = np.abs(torque_smooth_nm[lo:hi] - level) <= span_nm
+    k = index - lo
+    left = np.flatnonzero(~inside[: k + 1][::-1])
+    right = np.flatnonzero(~inside[k:])
+    new_lo = index - int(left[0]) + 1 if left.size else lo
+    new_hi = index + int(right[0]) if right.size else hi
+    return (min(new_lo, max(lo, index - MIN_FLANK_SAMPLES + 1)),
+            max(new_hi, min(hi, index + MIN_FLANK_SAMPLES)))
+
+
 def tip_point(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, index: int, n: int,
-              torque_noise_nm: float) -> TipPoint:
-    """The tip at sample ``index`` (the extreme of the smoothed torque) from ``n`` samples on each flank."""
+              torque_noise_nm: float, torque_smooth_nm: np.ndarray | None = None,
+              span_nm: float = math.inf) -> TipPoint:
+    """The tip at sample ``index`` (the extreme of the smoothed torque) from at most ``n`` samples on each flank:
+    those whose smoothed torque ``torque_smooth_nm`` stays within ``span_nm`` of the tip's, so the step below the
+    last ramp of a staircase (a hold, flat torque) does not bend the flank's line."""
     n = max(int(n), MIN_FLANK_SAMPLES)
     size = torque_nm.size
     lo, hi = max(0, index - n + 1), min(size, index + n)
+    if torque_smooth_nm is not None and math.isfinite(span_nm):
+        lo, hi = _within_band(torque_smooth_nm, index, lo, hi, span_nm)
     t0 = float(time_s[index])
     sign = 1.0 if torque_nm[index] >= 0.0 else -1.0
     flanks: list[Flank | None] = []

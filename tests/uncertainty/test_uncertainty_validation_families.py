@@ -23,8 +23,8 @@ def chain():
     return declared_chain()
 
 
-# known failures (issue 23 left open): the rigidity read at a sharp tip from the flank fits is biased on the
-# play-operator families (+0.1 % continuous at 1 kHz; −1.7 % on a staircase whose flank windows span several steps)
+# known failures (issue 23 left open): the rigidity on the play-operator families is biased in noise (+0.1 %
+# continuous at 1 kHz; −0.14 % on a staircase at 3× the declared noise, −1.7 % before the flanks stopped at the step)
 NOT_YET = {"rv-play-hard-1khz", "hd-play-soft-stepped-1khz"}
 KNOWN_FAILURE = pytest.mark.xfail(strict=True, reason="rigidity biased at sharp tips of this family (issue 23 open)")
 
