@@ -71,9 +71,10 @@ class ServiceRig:
     """A closed-loop rig talking HTTP to a running service (``client``: authorised for tests, discrepancy and
     apply). ``sim_speed`` sizes the wait for a run's end (a ceiling, not a pace)."""
 
-    def __init__(self, client: httpx.Client, sim_speed: float):
+    def __init__(self, client: httpx.Client, sim_speed: float, data_dir: Path | None = None):
         self.client = client
         self.sim_speed = sim_speed
+        self.data_dir = data_dir  # the service's data directory (its store and analyses), when known
 
     def _ok(self, response: httpx.Response, what: str) -> Any:
         if response.status_code >= 300:
@@ -81,10 +82,19 @@ class ServiceRig:
         return response.json()
 
     def analyse(self, design: TrialDesign, seed: int) -> LoopAnalysis:
-        run_id = self._ok(self.client.post("/api/tests", json=request_of(design)), "POST /api/tests")["id"]
+        doc = self.analyse_request(request_of(design), programme_s(design))
+        toml = self.client.get(f"/api/discrepancy/{doc['id']}/model")
+        model = parse_model(self._ok_text(toml, "GET model"), f"analysis {doc['id']} model.toml")
+        return LoopAnalysis(doc["verdict"], [e["name"] for e in doc["effects"]], model,
+                            float(doc["cv_rms_after_arcsec"]), float(doc["noise_floor_arcsec"]), ref=doc["id"])
+
+    def analyse_request(self, body: dict[str, Any], programme_s: float = 300.0) -> dict[str, Any]:
+        """POST /api/tests with ``body``, wait for its end, POST /api/discrepancy on it: the analysis document.
+        ``programme_s``: simulated seconds the test takes at most (sizes the wait's ceiling)."""
+        run_id = self._ok(self.client.post("/api/tests", json=body), "POST /api/tests")["id"]
         # generous ceiling: 10× the programme at the nominal speed (a loaded machine paces the clock slower),
         # plus a minute for the service's own steps
-        deadline = time.monotonic() + 60.0 + 10.0 * programme_s(design) / self.sim_speed
+        deadline = time.monotonic() + 60.0 + 10.0 * programme_s / self.sim_speed
         while True:
             status = self._ok(self.client.get(f"/api/tests/{run_id}"), "GET /api/tests/{id}")["status"]
             if status not in ("queued", "running"):
@@ -94,11 +104,7 @@ class ServiceRig:
             time.sleep(0.1)
         if status != "completed":
             raise RuntimeError(f"test {run_id} ended {status}")
-        doc = self._ok(self.client.post("/api/discrepancy", json={"run_id": run_id}), "POST /api/discrepancy")
-        toml = self.client.get(f"/api/discrepancy/{doc['id']}/model")
-        model = parse_model(self._ok_text(toml, "GET model"), f"analysis {doc['id']} model.toml")
-        return LoopAnalysis(doc["verdict"], [e["name"] for e in doc["effects"]], model,
-                            float(doc["cv_rms_after_arcsec"]), float(doc["noise_floor_arcsec"]), ref=doc["id"])
+        return self._ok(self.client.post("/api/discrepancy", json={"run_id": run_id}), "POST /api/discrepancy")
 
     def _ok_text(self, response: httpx.Response, what: str) -> str:
         if response.status_code >= 300:
@@ -142,7 +148,7 @@ def serving(table: dict[str, dict[str, float]], seed: int, sim_speed: float = DE
                 time.sleep(0.02)
             with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=120.0,
                               headers={"Authorization": f"Bearer {token}"}) as client:
-                yield ServiceRig(client, sim_speed)
+                yield ServiceRig(client, sim_speed, settings.data_dir)
         finally:
             server.should_exit = True
             thread.join(30)
