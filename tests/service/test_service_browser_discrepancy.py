@@ -58,3 +58,40 @@ def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_con
             assert errors == []
         finally:
             browser.close()
+
+
+@pytest.mark.timeout(300)
+def test_the_dashboard_starts_the_run_that_separates_an_alias(settings_factory, tmp_path):
+    """Backlash loaded at one rate cannot be told from a torque lag: the dashboard's analysis of the stored run
+    offers the run that separates them, and its button starts exactly the suggested request (two rates)."""
+    from playwright.sync_api import sync_playwright
+    from tcms_daq.sim.trials_service import bench_config_with_effects
+
+    config = bench_config_with_effects(tmp_path, {"backlash": {"backlash_arcsec": 3.0}}, seed=31,
+                                       sample_rate_hz=50.0)
+    one_rate = {"reducer": "RV-110E", "max_torque_nm": 800, "cycles": 3, "rate_nm_per_s": 300}
+    with serve(settings_factory(config_path=config, sim_speed=40.0)) as srv, srv.client() as c, \
+            sync_playwright() as pw:
+        run_id = c.post("/api/tests", json=one_rate).json()["id"]
+        wait_for(lambda: c.get(f"/api/tests/{run_id}").json()["status"] == "completed", timeout_s=120)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1500, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(f"{srv.base}/?token={TOKEN}")
+            page.click(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
+            button = page.wait_for_selector("button.start-suggested[data-kind='second_rate']", timeout=180_000)
+            label = button.text_content()
+            assert "time_skew / backlash" in label and "300 / 900 N·m/s" in label, label
+            assert "second loading rate" in button.get_attribute("title")
+            button.click()
+            started = page.wait_for_selector(".suggested-started", timeout=20_000).get_attribute("data-run")
+            run = c.get(f"/api/tests/{started}").json()
+            assert {k: run["request"][k] for k in ("reducer", "max_torque_nm", "cycles", "profile", "rates")} == {
+                "reducer": "RV-110E", "max_torque_nm": 800.0, "cycles": 3, "profile": "continuous",
+                "rates": [300.0, 900.0]}, run["request"]
+            assert errors == []
+        finally:
+            browser.close()
+        wait_for(lambda: c.get(f"/api/tests/{started}").json()["status"] not in ("queued", "running"), timeout_s=120)
