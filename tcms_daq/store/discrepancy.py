@@ -20,7 +20,7 @@ from tcms_daq.discrepancy.model_file import (
     resimulated_samples,
 )
 from tcms_daq.discrepancy.report import render_html
-from tcms_daq.discrepancy.stored import ForwardModel, resimulate
+from tcms_daq.discrepancy.stored import ForwardModel, first_branch_end, resimulate
 from tcms_daq.discrepancy.workflow import DiscrepancyResult
 from tcms_daq.errors import DataFormatError, TcmsError
 from tcms_daq.samples import Samples, write_csv
@@ -87,7 +87,9 @@ def pair_from_store(store: Store, run_id: str, model_for: ModelForReducer, where
     if name is None:
         raise DataFormatError(f"run {run_id!r} does not record its reducer: cannot re-simulate it")
     measured = Samples(measured.time_s, measured.torque_nm, measured.angle_arcsec)
-    simulated = resimulate(measured, model_for(name))
+    simulated = resimulate(measured, model_for(name))  # the whole run, so the model's loop state is its own
+    start = first_branch_end(measured.torque_nm)  # compared from the first reversal: the state before is unknown
+    measured, simulated = measured.select(slice(start, None)), simulated.select(slice(start, None))
     if effects_model is not None and effects_model.terms:
         simulated = apply_model(DiscrepancyModel(0.0, effects_model.signal_period_arcsec, effects_model.terms),
                                 simulated)
