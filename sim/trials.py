@@ -330,7 +330,9 @@ def closed_loop_table(loops: list[ClosedLoop]) -> str:
             f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, float('nan')):.2g}"
             for n, p in lp.named.items()) or "-"
         hidden = "; ".join(f"{n} {v[fx.REGISTRY[n].primary]:.4g}" for n, v in scaled(CASES[lp.case], lp.size).items())
-        lines.append(f"| {hidden} | ×{lp.size:g} | {lp.first} | {named} | {lp.second} "
+        refused = f"apply refused ({lp.apply_refused.split(':')[0]}); " if lp.apply_refused else ""
+        second_named = f", named {', '.join(lp.second_named)}" if lp.second_named else ""
+        lines.append(f"| {hidden} | ×{lp.size:g} | {lp.first} | {named} | {refused}{lp.second}{second_named} "
                      f"({lp.second_cv_rms_arcsec:.3f}″ vs floor {lp.noise_floor_arcsec:.3f}″) |")
     return "\n".join(lines)
 
