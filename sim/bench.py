@@ -5,7 +5,7 @@ ND 287 / AED / CiA 402 protocol simulators). Time advances only when ``advance()
 as fast as the arrays can be computed. Per batch, vectorised:
 
     demand (profile-torque ramp) → torque loop lag → applied torque → reducer twist (sim.physics)
-    → measuring chain (hook, default identity) → optional effects (hook, off by default)
+    → optional effects (hook, off by default) → measuring chain (hook, default identity)
     → torque sensor (gain, offset, noise) and encoder (interpolation error, noise, quantisation)
 
 Hooks:
@@ -13,7 +13,7 @@ Hooks:
   between reducer output and encoder scale (filled by the compensation module from a geometry file).
 * ``effects(cols) -> cols | None``: hidden effects (sim/effects.py). ``cols`` holds ``time_s``,
   ``applied_torque_nm``, ``true_angle_arcsec`` and the two sensor inputs ``torque_signal_nm`` and
-  ``angle_signal_arcsec``, which an effect may change (in place or in a returned dict) before the sensor models.
+  ``angle_signal_arcsec``, which an effect may change (in place or in a returned dict) before the measuring chain and the sensors.
 """
 
 from __future__ import annotations
@@ -268,19 +268,22 @@ class SimulatedBench:
                 twist, self._twist_state = twist_arcsec(applied, self.physics, self._twist_state)
             # the true angle is the output's absolute angle: its position plus the twist (0 at position 0)
             true_angle = twist + position_deg * ARCSEC_PER_DEG if (self._position_deg or self._move) else twist
-            angle_signal = true_angle if self.measuring_chain is None else np.asarray(
-                self.measuring_chain(true_angle, applied, time_s), dtype=float)
             cols = {
                 "time_s": time_s,
                 "applied_torque_nm": applied,
                 "true_angle_arcsec": true_angle,
                 "torque_signal_nm": applied,
-                "angle_signal_arcsec": angle_signal,
+                "angle_signal_arcsec": true_angle,
             }
             if self.effects is not None:
                 returned = self.effects(cols)
                 if returned is not None:
                     cols = returned
+            if self.measuring_chain is not None:
+                # after the effects: they are the catalogue's forms in the reducer's angle, which is what the
+                # compensated reading gives back (added after the chain, the compensation would rescale them)
+                cols["angle_signal_arcsec"] = np.asarray(
+                    self.measuring_chain(cols["angle_signal_arcsec"], applied, time_s), dtype=float)
             torque_reading = self.torque_sensor.read(cols["torque_signal_nm"])
             angle_reading = self.encoder.read(cols["angle_signal_arcsec"])
             self._last = {

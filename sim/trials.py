@@ -24,13 +24,17 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from tcms_daq.sim.physics import ReducerPhysics
 from tcms_daq.sim.unmodelled import UNMODELLED, Unmodelled
 
 from tcms_daq.discrepancy import effects as fx
+from tcms_daq.discrepancy.model_file import DiscrepancyModel
 from tcms_daq.samples import Samples
 
 # Hidden effects at the tested amplitudes (each effect's typical size, as in a [sim.effects] table).
@@ -226,36 +230,95 @@ class ClosedLoop:
     second_named: list[str]
     second_cv_rms_arcsec: float
     noise_floor_arcsec: float
+    apply_refused: str | None = None  # why the apply step refused run 1's terms (None: applied)
 
     @property
     def closed(self) -> bool:
-        return self.second == "consistent" and not self.second_named
+        return self.apply_refused is None and self.second == "consistent" and not self.second_named
 
     def to_dict(self) -> dict:
         return {"case": self.case, "size": self.size, "first": self.first, "named": self.named,
                 "uncertainty": self.uncertainty, "second": self.second, "second_named": self.second_named,
                 "second_cv_rms_arcsec": self.second_cv_rms_arcsec, "noise_floor_arcsec": self.noise_floor_arcsec,
-                "closed": self.closed}
+                "apply_refused": self.apply_refused, "closed": self.closed}
 
 
 # Run 2 is another programme than run 1 (a smaller amplitude, another seed): the model must carry over.
 SECOND_RUN = TrialDesign(amplitude_nm=600.0)
 
 
-def closed_loop(case: str, size: float, seed: int, design: TrialDesign = TrialDesign()) -> ClosedLoop:
-    """The closed loop of one case at ``size`` × its typical amplitude (seeds ``seed`` and ``seed + 1``)."""
-    from tcms_daq.discrepancy.model_file import apply_model, model_from_result, parse_model
-    from tcms_daq.discrepancy.workflow import run_discrepancy
+@dataclass(frozen=True)
+class LoopAnalysis:
+    """One run of a closed loop and its discrepancy analysis: the verdict, the names, the model file it would
+    apply (parsed from its TOML, with the standard uncertainties), the held-out RMS and the noise floor."""
 
+    verdict: str
+    names: list[str]
+    model: DiscrepancyModel
+    cv_rms_after_arcsec: float
+    noise_floor_arcsec: float
+    ref: str = ""  # the rig's handle of the analysis (the service's analysis id)
+
+
+class LoopRig(Protocol):
+    """Where a closed loop runs: the bench with the hidden effects, its discrepancy analysis and its apply step.
+    ``InProcessRig`` (simulated bench and workflow called directly) and ``trials_service.ServiceRig`` (the
+    service over HTTP: POST /api/tests, /api/discrepancy, /api/discrepancy/{id}/apply)."""
+
+    def analyse(self, design: TrialDesign, seed: int) -> LoopAnalysis:
+        """Run the programme ``design`` on the bench (new data) and analyse it against the model applied so far."""
+        ...
+
+    def apply(self, analysis: LoopAnalysis) -> str | None:
+        """Add ``analysis``'s terms to the model; None when applied, else why not (one line)."""
+        ...
+
+
+class InProcessRig:
+    """The closed loop in process: ``bench_run`` with ``table`` hidden, the workflow on (measured, simulated +
+    the applied model), the model carried through its file as the service stores it."""
+
+    def __init__(self, table: dict[str, dict[str, float]]):
+        self.table = table
+        self.model: DiscrepancyModel | None = None
+
+    def analyse(self, design: TrialDesign, seed: int) -> LoopAnalysis:
+        from tcms_daq.discrepancy.model_file import apply_model, model_from_result, parse_model
+        from tcms_daq.discrepancy.workflow import run_discrepancy
+
+        measured, simulated, floor = make_pair(self.table, seed, design)
+        if self.model is not None:
+            simulated = apply_model(self.model, simulated)
+        result = run_discrepancy(measured, simulated)
+        model = parse_model(model_from_result(result).to_toml())  # through the file, as the service stores it
+        return LoopAnalysis(result.verdict.verdict, result.names, model, result.cv_rms_after_arcsec, floor)
+
+    def apply(self, analysis: LoopAnalysis) -> str | None:
+        self.model = analysis.model
+        return None
+
+
+RigFactory = Callable[[dict[str, dict[str, float]], int], AbstractContextManager[LoopRig]]
+
+
+@contextmanager
+def in_process(table: dict[str, dict[str, float]], seed: int) -> Iterator[LoopRig]:
+    yield InProcessRig(table)
+
+
+def closed_loop(case: str, size: float, seed: int, design: TrialDesign = TrialDesign(),
+                second_design: TrialDesign = SECOND_RUN, rig: RigFactory = in_process) -> ClosedLoop:
+    """The closed loop of one case at ``size`` × its typical amplitude on ``rig`` (in process by default):
+    run 1 (seed ``seed``) → apply → run 2 (``second_design``, seed ``seed + 1``: new data)."""
     table = scaled(CASES[case], size)
-    measured, simulated, floor = make_pair(table, seed, design)
-    first = run_discrepancy(measured, simulated)
-    model = parse_model(model_from_result(first).to_toml())  # through the file, as the service stores it
-    measured_2, simulated_2, _ = make_pair(table, seed + 1, SECOND_RUN)
-    second = run_discrepancy(measured_2, apply_model(model, simulated_2))
-    return ClosedLoop(case, size, first.verdict.verdict, {t.name: t.parameters for t in model.terms},
-                      {t.name: t.standard_uncertainty for t in model.terms}, second.verdict.verdict, second.names,
-                      second.cv_rms_after_arcsec, floor)
+    with rig(table, seed) as bench:
+        first = bench.analyse(design, seed)
+        refused = bench.apply(first)
+        second = bench.analyse(second_design, seed + 1)
+    return ClosedLoop(case, size, first.verdict, {t.name: t.parameters for t in first.model.terms},
+                      {t.name: t.standard_uncertainty for t in first.model.terms},
+                      second.verdict, second.names, second.cv_rms_after_arcsec, first.noise_floor_arcsec,
+                      apply_refused=refused)
 
 
 def closed_loop_table(loops: list[ClosedLoop]) -> str:
@@ -267,7 +330,9 @@ def closed_loop_table(loops: list[ClosedLoop]) -> str:
             f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, float('nan')):.2g}"
             for n, p in lp.named.items()) or "-"
         hidden = "; ".join(f"{n} {v[fx.REGISTRY[n].primary]:.4g}" for n, v in scaled(CASES[lp.case], lp.size).items())
-        lines.append(f"| {hidden} | ×{lp.size:g} | {lp.first} | {named} | {lp.second} "
+        refused = f"apply refused ({lp.apply_refused.split(':')[0]}); " if lp.apply_refused else ""
+        second_named = f", named {', '.join(lp.second_named)}" if lp.second_named else ""
+        lines.append(f"| {hidden} | ×{lp.size:g} | {lp.first} | {named} | {refused}{lp.second}{second_named} "
                      f"({lp.second_cv_rms_arcsec:.3f}″ vs floor {lp.noise_floor_arcsec:.3f}″) |")
     return "\n".join(lines)
 
@@ -323,10 +388,25 @@ def main(argv: list[str] | None = None, prog: str = "python -m tcms_daq.sim.tria
     parser.add_argument("--closed-loop", type=float, action="append", metavar="SIZE",
                         help="run 1 → apply → run 2 for every catalogue case at SIZE × its typical amplitude "
                              "(repeatable); prints a Markdown table")
+    parser.add_argument("--service", action="store_true",
+                        help="with --closed-loop: each loop over HTTP on its own service (POST /api/tests, "
+                             "/api/discrepancy, /api/discrepancy/{id}/apply) instead of in process")
+    parser.add_argument("--sim-speed", type=float, default=None,
+                        help="with --service: simulated seconds per real second (default 40)")
     args = parser.parse_args(argv)
     if args.closed_loop:
+        rig: RigFactory = in_process
+        if args.service:
+            from tcms_daq.sim.trials_service import DEFAULT_SIM_SPEED, service_rig
+
+            rig = service_rig(args.sim_speed or DEFAULT_SIM_SPEED)
         names = [c for c in (args.case or CASES) if c in CASES and c != "null"]
-        loops = [closed_loop(c, size, args.first_seed) for c in names for size in args.closed_loop]
+        loops = []
+        for c in names:
+            for size in args.closed_loop:
+                loops.append(closed_loop(c, size, args.first_seed, rig=rig))
+                if not args.json:
+                    print(json.dumps(loops[-1].to_dict()), file=sys.stderr, flush=True)
         print(json.dumps([lp.to_dict() for lp in loops], indent=1) if args.json else closed_loop_table(loops))
         return 0 if all(lp.closed for lp in loops) else 1
     cases = args.case or list(CASES) + ([] if args.catalogue_only else list(UNMODELLED))

@@ -26,6 +26,8 @@ from tcms_daq.discrepancy.effects import (
     REGISTRY,
     SEPARATING,
     SEPARATING_BY_MEMBER,
+    SEPARATING_RUN,
+    SEPARATING_RUN_BY_MEMBER,
     DeclaredEffect,
     EffectDefinition,
     interpolation_periods,
@@ -45,7 +47,7 @@ __all__ = ["BUILT_IN", "CATALOGUE", "DECLARED", "EFFECT_NAMES", "ENTRY_POINT_GRO
            "MIN_IDENTIFIED_CYCLES", "ONE_TO_ONE_ALIAS", "PERIOD_EXCLUSION", "DeclaredEffect", "Effect",
            "available", "columns", "columns_at", "grid", "identification_limit", "interpolation_periods",
            "load_entry_point_effects", "parameters", "periodic_grid", "plausibility", "register_effect",
-           "separating_experiment", "signature", "sincos", "skew_grid", "skew_shift", "unregister_effect"]
+           "separating_experiment", "separating_run", "signature", "sincos", "skew_grid", "skew_shift", "unregister_effect"]
 
 
 def grid(name: str, data: DesignData) -> np.ndarray | None:
@@ -131,3 +133,17 @@ def separating_experiment(names: list[str]) -> str:
             if text not in found:
                 found.append(text)
     return "; ".join(found)
+
+
+def separating_run(names: list[str]) -> str | None:
+    """The kind of run that would separate the effects in ``names`` when a test request can make it
+    (``effects.SECOND_RATE``, ``effects.TIP_HOLDS``), else None; the first pair that has one decides."""
+    names = list(dict.fromkeys(names))
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            pair = frozenset({a, b})
+            kind = SEPARATING_RUN.get(pair) or next(
+                (k for members, k in SEPARATING_RUN_BY_MEMBER if pair & members), None)
+            if kind is not None:
+                return kind
+    return None

@@ -596,6 +596,17 @@ SEPARATING: dict[frozenset[str], str] = {
         "extend the angle span (a larger torque amplitude) so the two periods drift apart by more than a cycle",
 }
 
+# The run that separates a pair, where a test request can make it (the separating sentences above say more):
+# SECOND_RATE: the same test at its rate and at RATE_FACTOR × it; TIP_HOLDS: a stepped profile that holds at
+# each step, the torque tips included. ``tcms_daq.discrepancy.stored.separating_request`` makes the request body.
+SECOND_RATE = "second_rate"
+TIP_HOLDS = "tip_holds"
+SEPARATING_RUN: dict[frozenset[str], str] = {
+    frozenset({TIME_SKEW, BACKLASH}): SECOND_RATE,
+    frozenset({BACKLASH, NONLINEAR_STIFFNESS}): TIP_HOLDS,
+}
+SEPARATING_RUN_BY_MEMBER: tuple[tuple[frozenset[str], str], ...] = ((frozenset({TIME_SKEW}), SECOND_RATE),)
+
 # The fallback sentence when a pair has no entry: by the kind of effect one member is.
 SEPARATING_BY_MEMBER: tuple[tuple[frozenset[str], str], ...] = (
     (frozenset({THERMAL_DRIFT}),

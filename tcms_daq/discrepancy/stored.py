@@ -6,7 +6,7 @@ Pure: the model is injected (:class:`ForwardModel`); reading the run from the st
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -101,3 +101,48 @@ def resimulate(measured: Samples, model: ForwardModel) -> Samples:
         z0 = float(np.linalg.lstsq(design, measured.angle_arcsec - virgin, rcond=None)[0][0])
         angle = virgin + float(np.clip(z0, -half_width, half_width)) * unit
     return Samples(measured.time_s, measured.torque_nm, angle)
+
+
+def first_branch_end(torque_nm: np.ndarray) -> int:
+    """The first row to compare of a stored run: its first load reversal (0 when it has none). Before it the
+    reducer's friction loop and the side of its play are where the previous run, the conditioning or the tare
+    left them, while the model is re-simulated from rest: that branch compares two different states (on the
+    simulated bench a 2″ backlash came out 8 % small with structure left in the first 8 s)."""
+    from tcms_daq.discrepancy.design import load_direction, reversals
+
+    turns = reversals(load_direction(np.asarray(torque_nm, dtype=float)))
+    return int(turns[0]) if len(turns) else 0
+
+
+# The request fields a separating run keeps from the run it follows (who and what is tested, not how).
+_KEPT_REQUEST_FIELDS = ("cycles", "serial_number", "operator", "decision_rule", "customer",
+                        "order_number", "ambient_temperature_c")
+RATE_FACTOR = 3.0  # a second rate this many times the first (a skew's lag grows with it, backlash does not)
+TIP_STEPS = 4  # a tip-hold run steps to ±T in this many steps, holding TIP_DWELL_S at each (the tips included)
+TIP_DWELL_S = 2.0
+
+
+def separating_request(kind: str, request: dict[str, Any], *, reducer: str, max_torque_nm: float,
+                       rate_nm_per_s: float, max_rate_nm_per_s: float) -> dict[str, Any] | None:
+    """The ``POST /api/tests`` body of the run that separates an alias group of the run made with ``request``
+    (its stored request; the run went to ±``max_torque_nm`` at ``rate_nm_per_s``, the bench allows up to
+    ``max_rate_nm_per_s``):
+    ``effects.SECOND_RATE`` the same test at its rate and another (RATE_FACTOR × it, or ÷ when the bench cannot);
+    ``effects.TIP_HOLDS`` a stepped profile holding at each step. None when the run already did that (two rates)."""
+    from tcms_daq.discrepancy.effects import SECOND_RATE, TIP_HOLDS
+
+    body: dict[str, Any] = {"reducer": reducer, "max_torque_nm": max_torque_nm,
+                            **{k: request[k] for k in _KEPT_REQUEST_FIELDS if k in request}}
+    if kind == SECOND_RATE:
+        if len(request.get("rates") or ()) >= 2:
+            return None
+        other = rate_nm_per_s * RATE_FACTOR
+        if other > max_rate_nm_per_s:
+            other = rate_nm_per_s / RATE_FACTOR
+        return {**body, "profile": "continuous", "rates": [round(rate_nm_per_s, 6), round(other, 6)]}
+    if kind == TIP_HOLDS:
+        if request.get("profile") == "stepped" and (request.get("dwell_s") or 0) > 0:
+            return None
+        return {**body, "profile": "stepped", "step_nm": round(max_torque_nm / TIP_STEPS, 6), "dwell_s": TIP_DWELL_S,
+                "rate_nm_per_s": round(rate_nm_per_s, 6)}
+    return None

@@ -70,10 +70,16 @@ class AliasGroup:
     parameters: dict[str, float]
     in_model: bool
 
+    @property
+    def separating_run(self) -> str | None:
+        """The kind of run that separates the group when a test request can make it (``effects.SECOND_RATE``,
+        ``effects.TIP_HOLDS``), else None."""
+        return cat.separating_run(self.names)
+
     def to_dict(self) -> dict[str, Any]:
         return {"names": list(self.names), "separating_experiment": self.separating_experiment,
-                "representative": self.representative, "parameters": dict(self.parameters),
-                "in_model": self.in_model}
+                "separating_run": self.separating_run, "representative": self.representative,
+                "parameters": dict(self.parameters), "in_model": self.in_model}
 
 
 @dataclass

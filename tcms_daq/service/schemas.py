@@ -471,6 +471,17 @@ class DiscrepancyListItem(BaseModel):
     effects: list[str]
 
 
+class SuggestedRun(BaseModel):
+    """A run to add where one run cannot identify an effect (an alias group): what it separates and how."""
+
+    names: list[str] = Field(description="the effects this run cannot tell apart")
+    kind: Literal["second_rate", "tip_holds"] = Field(
+        description="second_rate: the same test at a second loading rate; tip_holds: a stepped profile holding "
+        "at each step, the torque tips included")
+    why: str = Field(description="the experiment that separates them, in words")
+    request: dict[str, Any] = Field(description="the POST /api/tests body that starts that run")
+
+
 class DiscrepancyAnalysis(BaseModel):
     """One analysis (``tcms discrepancy --json`` plus its id, run and report); further keys as the CLI's."""
 
@@ -494,6 +505,9 @@ class DiscrepancyAnalysis(BaseModel):
     rms_after_arcsec: float | None = None
     cv_rms_before_arcsec: float | None = None
     cv_rms_after_arcsec: float | None = None
+    suggested_runs: list[SuggestedRun] = Field(
+        default_factory=list, description="the runs that would separate what this run cannot (an alias group), "
+        "each with the POST /api/tests body that starts it")
 
 
 class ApplyRequest(StrictBody):

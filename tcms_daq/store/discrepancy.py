@@ -20,7 +20,7 @@ from tcms_daq.discrepancy.model_file import (
     resimulated_samples,
 )
 from tcms_daq.discrepancy.report import render_html
-from tcms_daq.discrepancy.stored import ForwardModel, resimulate
+from tcms_daq.discrepancy.stored import ForwardModel, first_branch_end, resimulate
 from tcms_daq.discrepancy.workflow import DiscrepancyResult
 from tcms_daq.errors import DataFormatError, TcmsError
 from tcms_daq.samples import Samples, write_csv
@@ -87,11 +87,52 @@ def pair_from_store(store: Store, run_id: str, model_for: ModelForReducer, where
     if name is None:
         raise DataFormatError(f"run {run_id!r} does not record its reducer: cannot re-simulate it")
     measured = Samples(measured.time_s, measured.torque_nm, measured.angle_arcsec)
-    simulated = resimulate(measured, model_for(name))
+    simulated = resimulate(measured, model_for(name))  # the whole run, so the model's loop state is its own
+    start = first_branch_end(measured.torque_nm)  # compared from the first reversal: the state before is unknown
+    measured, simulated = measured.select(slice(start, None)), simulated.select(slice(start, None))
     if effects_model is not None and effects_model.terms:
         simulated = apply_model(DiscrepancyModel(0.0, effects_model.signal_period_arcsec, effects_model.terms),
                                 simulated)
     return measured, simulated
+
+
+def suggested_runs(result: DiscrepancyResult, record: StoredRun | None, measured: Samples) -> list[dict[str, Any]]:
+    """For each alias group a test request can separate: ``{"names", "kind", "why", "request"}`` with the
+    ``POST /api/tests`` body of that run (the stored run's reducer, torque and documentation; its rate from the
+    request, else the bench's [procedure], else a quarter of the torque per second as the plan's default)."""
+    import numpy as np
+
+    from tcms_daq.discrepancy.stored import separating_request
+
+    if record is None:
+        return []
+    request = dict(record.request or {})
+    snapshot: dict[str, Any] = record.config_snapshot if isinstance(record.config_snapshot, dict) else {}
+
+    def section(name: str) -> dict[str, Any]:
+        value = snapshot.get(name)
+        return value if isinstance(value, dict) else {}
+
+    procedure, bench = section("procedure"), section("bench")
+    reducer = recorded_reducer(record)
+    torque = request.get("max_torque_nm") or procedure.get("max_torque_nm")
+    if torque is None and len(measured):
+        torque = round(float(np.max(np.abs(measured.torque_nm))))
+    if reducer is None or not torque:
+        return []
+    rates = request.get("rates") or []
+    rate = request.get("rate_nm_per_s") or (rates[0] if rates else None) or procedure.get("rate_nm_per_s") \
+        or float(torque) / 4.0
+    max_rate = bench.get("max_rate_nm_per_s") or bench.get("max_torque_nm") or float(torque)
+    out: list[dict[str, Any]] = []
+    for alias in result.aliases:
+        kind = alias.separating_run
+        body = separating_request(kind, request, reducer=reducer, max_torque_nm=float(torque),
+                                  rate_nm_per_s=float(rate), max_rate_nm_per_s=float(max_rate)) if kind else None
+        if body is not None and all(o["request"] != body for o in out):
+            out.append({"names": list(alias.names), "kind": kind, "why": alias.separating_experiment,
+                        "request": body})
+    return out
 
 
 def write_outputs(result: DiscrepancyResult, measured: Samples, simulated: Samples, out_dir: str | Path,
@@ -159,6 +200,7 @@ class AnalysisArchive:
             "report_url": f"/api/discrepancy/{analysis_id}/report",
             "model_version": version,
             **jsonable(result.to_dict()),
+            "suggested_runs": suggested_runs(result, store.get_run(run_id), measured),
         }
         tmp = out / (RESULT_FILENAME + ".tmp")
         tmp.write_text(json.dumps(doc, indent=1), encoding="utf-8")

@@ -472,10 +472,12 @@
     $("discrepancy").disabled = true;
     $("apply-effects").hidden = true;
     $("discrepancy-result").textContent = t("dash.analysing", { id });
+    TcmsDiscrepancy.offerRuns($("discrepancy-result"), null);
     try {
       const d = await api("POST", "/api/discrepancy", { run_id: id });
       state.analysis = d;
       $("discrepancy-result").textContent = describeDiscrepancy(d) + " " + t("dash.against_model", { version: d.model_version });
+      TcmsDiscrepancy.offerRuns($("discrepancy-result"), d);
       const named = d.effects.length > 0 || d.aliases.some((a) => a.in_model);
       $("apply-effects").hidden = !named;
       $("apply-effects").disabled = !named;

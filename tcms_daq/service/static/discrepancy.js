@@ -1,6 +1,7 @@
 // TCMS-DAQ discrepancy on any stored run, shared by the dashboard and the fleet page: start an analysis
 // (POST /api/discrepancy), say what it found in words (with the experiment or run that would separate look-alikes),
-// and show the analyses' history (GET /api/discrepancy). Kept apart from the pages' own code.
+// offer the run that separates them (a button that starts it) and show the analyses' history
+// (GET /api/discrepancy). Kept apart from the pages' own code.
 "use strict";
 const TcmsDiscrepancy = (() => {
   const { withToken, escapeHtml } = TcmsSession;
@@ -46,5 +47,47 @@ const TcmsDiscrepancy = (() => {
     return items;
   }
 
-  return { describe, start, history };
+  // Where the run cannot separate look-alikes, a button per suggested run (the analysis's suggested_runs: a POST
+  // /api/tests body) placed after `after`; a click starts exactly that run. Called with null it removes them.
+  function offerRuns(after, d) {
+    const t = TcmsI18n.t;
+    const old = after.parentNode.querySelector(".suggested-runs");
+    if (old) old.remove();
+    const runs = (d && d.suggested_runs) || [];
+    if (!runs.length) return;
+    const box = document.createElement("p");
+    box.className = "suggested-runs";
+    for (const s of runs) {
+      const button = document.createElement("button");
+      button.type = "button";
+      button.className = "start-suggested secondary";
+      button.dataset.kind = s.kind;
+      const names = s.names.join(" / ");
+      button.textContent = s.kind === "tip_holds"
+        ? t("disc.run_tip_holds", { names, step: fmt(s.request.step_nm), dwell: fmt(s.request.dwell_s) })
+        : t("disc.run_second_rate", { names, rates: (s.request.rates || []).map(fmt).join(" / ") });
+      button.title = s.why;
+      button.addEventListener("click", async () => {
+        button.disabled = true;
+        try {
+          const run = await api("POST", "/api/tests", s.request);
+          const said = document.createElement("span");
+          said.className = "suggested-started";
+          said.dataset.run = run.id;
+          said.textContent = " " + t("disc.run_started", { id: run.id, names });
+          button.after(said);
+        } catch (e) {
+          button.disabled = false;
+          const said = document.createElement("span");
+          said.className = "error";
+          said.textContent = " " + e.message;
+          button.after(said);
+        }
+      });
+      box.appendChild(button);
+    }
+    after.after(box);
+  }
+
+  return { describe, start, history, offerRuns };
 })();
