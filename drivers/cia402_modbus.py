@@ -28,7 +28,6 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 from urllib.parse import urlparse
 
 from pymodbus import FramerType
@@ -44,13 +43,11 @@ from tcms_daq.drivers.base import (
 )
 from tcms_daq.drivers.cia402 import CiA402Loader
 from tcms_daq.drivers.modbus_rtu import RtuSerialClient
+from tcms_daq.drivers.options import CiA402ModbusOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
-from tcms_daq.config.models import DEFAULT_COMM_TIMEOUT_MS
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.cia402 import (
-    ABORT_CONNECTION_FAULT,
-    ABORT_CONNECTION_OPTIONS,
     POWERED_STATES,
     state_from_statusword,
 )
@@ -88,54 +85,34 @@ def make_client(url: str, *, timeout_s: float, retries: int, baudrate: int, trac
 class CiA402Modbus(CiA402Loader):
     """Loader: a CiA 402 drive in profile torque mode over Modbus TCP/RTU."""
 
-    def __init__(
-        self,
-        url: str,
-        *,
-        name: str = "CiA 402 drive (Modbus)",
-        register_map: str | Path | RegisterMap | None = None,
-        device_id: int | None = None,
-        max_torque_nm: float | None = None,
-        torque_slope_nm_per_s: float = 200.0,
-        timeout_s: float = 0.5,
-        retries: int = 0,
-        baudrate: int = 115200,
-        reconnect_attempts: int = 3,
-        reconnect_delay_s: float = 0.2,
-        state_timeout_s: float = 2.0,
-        clock: Clock = time.monotonic,
-        timebase: Timebase = REAL_TIME,
-        trace_packet=None,
-        serial_line: bool = False,
-        counts_per_rev: int = 1 << 20,
-        move_torque_window_nm: float | None = None,
-        comm_timeout_ms: int = DEFAULT_COMM_TIMEOUT_MS,
-        abort_connection_option: int = ABORT_CONNECTION_FAULT,
-    ):
-        if not (isinstance(comm_timeout_ms, int) and 0 <= comm_timeout_ms <= 0xFFFF):
-            raise ValueError(f"{name}: comm_timeout_ms must be 0 (off) … 65535, got {comm_timeout_ms!r}")
-        if abort_connection_option not in ABORT_CONNECTION_OPTIONS:
-            raise ValueError(f"{name}: abort_connection_option must be one of {ABORT_CONNECTION_OPTIONS} (0x6007), "
-                             f"got {abort_connection_option!r}")
-        super().__init__(name=name, max_torque_nm=max_torque_nm, torque_slope_nm_per_s=torque_slope_nm_per_s,
-                         state_timeout_s=state_timeout_s, clock=clock, timebase=timebase)
-        if not (isinstance(counts_per_rev, int) and counts_per_rev > 0):
-            raise ValueError(f"{name}: counts_per_rev must be a positive integer, got {counts_per_rev!r}")
-        self.counts_per_rev = counts_per_rev
-        self.move_torque_window_nm = move_torque_window_nm
+    options_model = CiA402ModbusOptions
+
+    def __init__(self, options: CiA402ModbusOptions, *, clock: Clock = time.monotonic,
+                 timebase: Timebase = REAL_TIME, register_map: RegisterMap | None = None,
+                 trace_packet: Callable[[bool, bytes], bytes] | None = None):
+        """``register_map``: a map already loaded (else ``options.register_map``'s file); ``trace_packet``: sees
+        every packet (tests)."""
+        super().__init__(name=options.name, max_torque_nm=options.max_torque_nm,
+                         torque_slope_nm_per_s=options.torque_slope_nm_per_s, state_timeout_s=options.state_timeout_s,
+                         clock=clock, timebase=timebase)
+        self.options = options
+        name, url, timeout_s = options.name, options.url, options.timeout_s
+        comm_timeout_ms = options.comm_timeout_ms
+        self.counts_per_rev = options.counts_per_rev
+        self.move_torque_window_nm = options.move_torque_window_nm
         self.url = url
-        self.map = register_map if isinstance(register_map, RegisterMap) else load_register_map(register_map)
-        self.device_id = self.map.device_id if device_id is None else int(device_id)
-        self.timeout_s = float(timeout_s)
-        self.reconnect_attempts = int(reconnect_attempts)
-        self.reconnect_delay_s = float(reconnect_delay_s)
+        self.map = register_map if register_map is not None else load_register_map(options.register_map)
+        self.device_id = self.map.device_id if options.device_id is None else options.device_id
+        self.timeout_s = timeout_s
+        self.reconnect_attempts = options.reconnect_attempts
+        self.reconnect_delay_s = options.reconnect_delay_s
         self._user_trace = trace_packet
         self._rx_seen = b""  # reply bytes seen during the current call (tells "garbage" from "silence")
-        self.client = make_client(url, timeout_s=timeout_s, retries=retries, baudrate=baudrate,
-                                  trace_packet=self._trace, serial_line=serial_line, timebase=timebase)
+        self.client = make_client(url, timeout_s=timeout_s, retries=options.retries, baudrate=options.baudrate,
+                                  trace_packet=self._trace, serial_line=options.serial_line, timebase=timebase)
         self.reconnects = 0
         self.comm_timeout_ms = comm_timeout_ms
-        self.abort_connection_option = abort_connection_option
+        self.abort_connection_option = options.abort_connection_option
         if comm_timeout_ms and "comm_timeout" not in self.map.registers:
             raise ConfigError(f"{name}: the register map has no 'comm_timeout' register: the drive's communication "
                               "watchdog cannot be armed (add the drive's register, or set comm_timeout_ms = 0 to run "

@@ -21,6 +21,7 @@ import time
 
 import serial
 from tcms_daq.drivers.base import Clock, DeviceFault, MalformedReply
+from tcms_daq.drivers.options import ND287Options
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.drivers.transport import SerialInstrument, open_serial_url
 
@@ -53,6 +54,8 @@ def _read_frame(port: serial.SerialBase) -> bytes:
 
 class ND287(SerialInstrument):
     """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls ``readings_per_read`` times (arcsec)."""
+
+    options_model = ND287Options
 
     def __init__(
         self,

@@ -17,7 +17,7 @@ from tcms_daq.drivers.base import (
 )
 from tcms_daq.drivers.cia402_modbus import CiA402Modbus
 from tcms_daq.drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
-from tcms_daq.drivers.testing import ManualTime, wait_until
+from tcms_daq.drivers.testing import ManualTime, driver_for, wait_until
 from tcms_daq.sim.instruments.proxy import FaultProxy
 
 from tcms_daq.config.loader import packaged_config_dir as tcms_config_dir
@@ -35,7 +35,7 @@ def drive_sims(make_sims):
 def _tcp(sims, port=None, **kw):
     kw.setdefault("timeout_s", 0.3)
     kw.setdefault("reconnect_delay_s", 0.05)
-    return CiA402Modbus(f"tcp://127.0.0.1:{port or sims.ports['modbus']}", **kw)
+    return driver_for(CiA402Modbus, f"tcp://127.0.0.1:{port or sims.ports['modbus']}", **kw)
 
 
 def test_register_map_file():
@@ -73,7 +73,7 @@ def test_adu_bytes_tcp_and_rtu(drive_sims):
     assert bytes.fromhex("01 06 35 00 00 04") in pdus  # mode 4
 
     sent.clear()
-    rtu = CiA402Modbus(f"socket://127.0.0.1:{drive_sims.ports['modbus_rtu']}", timeout_s=0.3, trace_packet=trace)
+    rtu = driver_for(CiA402Modbus, f"socket://127.0.0.1:{drive_sims.ports['modbus_rtu']}", timeout_s=0.3, trace_packet=trace)
     with rtu:
         rtu.disable()
         rtu.enable()
@@ -145,7 +145,7 @@ def test_malformed_and_partial_replies(drive_sims, framing):
     port = drive_sims.loop.run(proxy.start())
     url = f"tcp://127.0.0.1:{port}" if framing == "tcp" else f"socket://127.0.0.1:{port}"
     try:
-        with CiA402Modbus(url, timeout_s=0.3) as drive:
+        with driver_for(CiA402Modbus, url, timeout_s=0.3) as drive:
             proxy.inject("garbage")
             with pytest.raises(MalformedReply, match="do not form a valid frame"):
                 drive.status()
@@ -287,7 +287,7 @@ def test_rtu_reply_length_from_the_first_three_bytes():
 
 def _serial_line(sims, port=None, **kw):
     """The driver's serial-line client (pyserial, replies by length, t3.5) on the RTU simulator."""
-    return CiA402Modbus(f"socket://127.0.0.1:{port or sims.ports['modbus_rtu']}", serial_line=True,
+    return driver_for(CiA402Modbus, f"socket://127.0.0.1:{port or sims.ports['modbus_rtu']}", serial_line=True,
                         timeout_s=kw.pop("timeout_s", 0.3), **kw)
 
 
