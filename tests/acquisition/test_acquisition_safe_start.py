@@ -22,7 +22,7 @@ def _leave_the_drive_under_torque(pb, torque_nm: float) -> None:
     other.enable()
     other.set_torque(torque_nm)
     assert wait_until(lambda: abs(pb.physics.latest().applied_torque_nm - torque_nm) < 10.0, timeout_s=10.0)
-    other.client.close()  # no disable, no disarm: as if its process had been killed
+    other.link.client.close()  # no disable, no disarm: as if its process had been killed
 
 
 def test_connect_finds_a_drive_under_torque_and_makes_it_safe(protocol_bench, caplog):
