@@ -57,3 +57,18 @@ def test_hardware_md_option_tables_are_the_models():
     assert fill_options_tables(text) == text, (
         "docs/hardware.md's option tables differ from the drivers' options models: run "
         ".venv/bin/python scripts/hardware_options.py")
+
+
+def test_hardware_md_examples_are_valid_instrument_tables():
+    """Every ``[instruments.*]`` example in docs/hardware.md passes its driver's options model as written."""
+    import re
+    import tomllib
+
+    from tcms_daq.config.models import InstrumentsConfig
+
+    text = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8")
+    examples = [tomllib.loads(block) for block in re.findall(r"```toml\n(.*?)```", text, re.S)]
+    tables = [ex["instruments"] for ex in examples if "instruments" in ex]
+    assert {kind for t in tables for kind in t} == {"angle", "torque", "loader"}
+    for table in tables:
+        InstrumentsConfig.model_validate(table)
