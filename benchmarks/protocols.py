@@ -133,6 +133,7 @@ def run(quick: bool = False) -> dict:
 def _measure(quick: bool) -> dict[str, float]:
     from tcms_daq.drivers.cia402_modbus import CiA402Modbus
     from tcms_daq.drivers.nd287 import ND287
+    from tcms_daq.drivers.testing import driver_for
     from tcms_daq.sim.bench import SimulatedBench
     from tcms_daq.sim.instruments.drive_canopen import DriveCanopenNode
     from tcms_daq.sim.instruments.physics import SharedPhysics
@@ -151,14 +152,14 @@ def _measure(quick: bool) -> dict[str, float]:
     try:
         with ND287(f"socket://127.0.0.1:{ports['nd287']}", timeout_s=1.0) as nd:
             metrics["nd287_readings_per_s"] = _rate(nd.read_one, duration_s)
-        with CiA402Modbus(f"tcp://127.0.0.1:{ports['modbus']}", timeout_s=1.0) as drive:
-            metrics["modbus_tcp_transactions_per_s"] = _rate(lambda: drive.read_register("statusword"), duration_s)
-        with CiA402Modbus(f"socket://127.0.0.1:{ports['modbus_rtu']}", timeout_s=1.0) as drive:
-            metrics["modbus_rtu_transactions_per_s"] = _rate(lambda: drive.read_register("statusword"), duration_s)
+        with driver_for(CiA402Modbus, f"tcp://127.0.0.1:{ports['modbus']}", timeout_s=1.0) as drive:
+            metrics["modbus_tcp_transactions_per_s"] = _rate(lambda: drive.link.read_register("statusword"), duration_s)
+        with driver_for(CiA402Modbus, f"socket://127.0.0.1:{ports['modbus_rtu']}", timeout_s=1.0) as drive:
+            metrics["modbus_rtu_transactions_per_s"] = _rate(lambda: drive.link.read_register("statusword"), duration_s)
         # what a real serial line gets: the driver's serial-line client (pyserial, replies read by length)
-        with CiA402Modbus(f"socket://127.0.0.1:{ports['modbus_rtu']}", timeout_s=1.0, serial_line=True) as drive:
+        with driver_for(CiA402Modbus, f"socket://127.0.0.1:{ports['modbus_rtu']}", timeout_s=1.0, serial_line=True) as drive:
             metrics["modbus_rtu_serial_line_transactions_per_s"] = _rate(
-                lambda: drive.read_register("statusword"), duration_s)
+                lambda: drive.link.read_register("statusword"), duration_s)
         # baseline: pymodbus' stock serial client waits for the line to fall silent by polling it in ≥ 1 ms steps
         serial_client = ModbusSerialClient(f"socket://127.0.0.1:{ports['modbus_rtu']}", framer=FramerType.RTU,
                                            baudrate=115200, timeout=1.0, retries=0)

@@ -27,6 +27,7 @@ from tcms_daq.drivers.base import (
     MalformedReply,
     ReinitialisedOnReconnect,
 )
+from tcms_daq.drivers.options import AEDOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
@@ -52,6 +53,8 @@ def parse_msv(reply: bytes, instrument: str = "AED") -> int:
 
 class AED(ReinitialisedOnReconnect, SerialInstrument):
     """TorqueSource over the AED ASCII command set. ``read()`` returns one reading (N·m) per call."""
+
+    options_model = AEDOptions
 
     def __init__(
         self,

@@ -94,9 +94,6 @@ class CiA402Loader:
 
     def __init__(self, *, name: str, max_torque_nm: float | None, torque_slope_nm_per_s: float,
                  state_timeout_s: float, clock: Clock, timebase: Timebase = REAL_TIME):
-        if not (isinstance(torque_slope_nm_per_s, int | float) and math.isfinite(torque_slope_nm_per_s)
-                and torque_slope_nm_per_s > 0):
-            raise ValueError(f"{name}: torque_slope_nm_per_s must be > 0")
         self.name = name
         self.max_torque_nm = max_torque_nm
         self.default_slope_nm_per_s = float(torque_slope_nm_per_s)

@@ -31,6 +31,7 @@ import time
 import numpy as np
 import serial
 from tcms_daq.drivers.base import Batch, Clock, DeviceFault, MalformedReply, ReinitialisedOnReconnect
+from tcms_daq.drivers.options import ND287Options
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
@@ -71,6 +72,8 @@ def _read_line(port: serial.SerialBase) -> bytes:
 class ND287(ReinitialisedOnReconnect, SerialInstrument):
     """AngleSource over the ND 287 Ctrl-B protocol. ``read()`` polls ``readings_per_read`` times (arcsec), each
     reading with its datum (``angle_datum``: power cycles noticed so far)."""
+
+    options_model = ND287Options
 
     def __init__(
         self,

@@ -2,21 +2,20 @@
 interface registry: every driver — hardware drivers here, the simulator's in-process instruments in ``sim`` — is
 declared as an entry point of the group ``tcms_daq.drivers`` (pyproject ``[project.entry-points]``) and imported
 only when a bench names it, so a bench imports only the libraries it uses and ``drivers`` never imports ``sim``.
+The lookup and each driver's options model are ``tcms_daq.config.drivers`` (the bench config validates the
+options when it is read); this module adds what the bench composer hands a driver.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 
+from tcms_daq.config.drivers import ENTRY_POINT_GROUP, driver_class, names, options_model
 from tcms_daq.config.models import BenchConfig
-from tcms_daq.errors import ConfigError
 
-ENTRY_POINT_GROUP = "tcms_daq.drivers"
-
-_LOADED: dict[str, type] = {}
+__all__ = ["ENTRY_POINT_GROUP", "CompositionContext", "driver_class", "names", "options_model"]
 
 
 @dataclass
@@ -32,18 +31,3 @@ class CompositionContext:
     real_time_clock: Callable[[], float] | None = None
     physics_factory: Callable[[BenchConfig], object] | None = None
     shared: dict[str, object] = field(default_factory=dict)
-
-
-def names() -> list[str]:
-    """The driver names available in this installation."""
-    return sorted({ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)})
-
-
-def driver_class(name: str) -> type:
-    """The class registered as ``name``; ConfigError naming the known drivers otherwise."""
-    if name not in _LOADED:
-        found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
-        if not found:
-            raise ConfigError(f"unknown driver {name!r} (known: {', '.join(names()) or 'none'})")
-        _LOADED[name] = found[0].load()
-    return _LOADED[name]

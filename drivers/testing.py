@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 def wait_until(predicate: Callable[[], bool], timeout_s: float = 2.0, poll_s: float = 0.01) -> bool:
@@ -121,3 +123,13 @@ class ScriptedSerial:
                 f"transcript stopped at step {self.position} of {len(self.transcript)}"
                 + (f" with pending write {self._written!r}" if self._written else "")
             )
+
+
+def driver_for(cls: type[T], url: str, **settings: object) -> T:
+    """A driver built as a bench builds it, from its validated options model (``cls.options_model``): the
+    ``settings`` that are options go into the model, the rest (``clock``, ``timebase``, a test's
+    ``trace_packet`` …) to the constructor beside it. For tests and scripts that talk to one instrument."""
+    model = cls.options_model  # type: ignore[attr-defined]
+    options = model.model_validate({"url": url, **{k: v for k, v in settings.items() if k in model.model_fields}})
+    build: Callable[..., T] = cls  # a driver class: (options, *, clock, timebase, …)
+    return build(options, **{k: v for k, v in settings.items() if k not in model.model_fields})

@@ -21,6 +21,7 @@ from typing import Any, Self, TypeVar
 import numpy as np
 import serial
 from tcms_daq.drivers.base import Batch, Clock, Disconnected, InstrumentTimeout, MalformedReply
+from tcms_daq.drivers.options import SerialOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 # A function that reads one reply from an open port (e.g. ``lambda port: port.read_until(b"\r\n", 64)``).
@@ -181,6 +182,11 @@ class SerialInstrument:
         self.link = SerialLink(name, url, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
                                reconnect_delay_s=reconnect_delay_s, opener=opener, timebase=timebase,
                                xonxoff=False, **serial_settings)
+
+    @classmethod
+    def from_options(cls, options: SerialOptions, *, clock: Clock) -> Self:
+        """The instrument its validated options describe (``options_model``), stamping readings with ``clock``."""
+        return cls(**options.model_dump(), clock=clock)
 
     def connect(self) -> None:
         self.link.open()

@@ -20,6 +20,7 @@ import time
 
 from tcms_daq.drivers.base import InstrumentError
 from tcms_daq.drivers.cia402_canopen import CiA402Canopen
+from tcms_daq.drivers.testing import driver_for
 from tcms_daq.sim.instruments.child import start_simulators, stop_process
 
 
@@ -38,7 +39,7 @@ def main() -> int:
     sim, info = start_simulators("--config", "bench-loopback.toml", "--speed", "1", timeout_s=300)
     polls = failed = 0
     try:
-        drive = CiA402Canopen(info["urls"]["loader_canopen"])
+        drive = driver_for(CiA402Canopen, info["urls"]["loader_canopen"])
         drive.connect()
         drive.enable()
         load_before = os.getloadavg()[0]
@@ -53,7 +54,7 @@ def main() -> int:
         status = _control(info["ports"]["control"], cmd="status")
         result = {"duration_s": args.duration, "hogs": args.hogs, "polls": polls, "failed_polls": failed,
                   "consumer_reactions": len(status["watchdog_reactions"]), "drive_state": status["drive"]["state"],
-                  "late_drive_heartbeats": drive.late_heartbeats, "reconnects": drive.reconnects,
+                  "late_drive_heartbeats": drive.link.late_heartbeats, "reconnects": drive.link.reconnects,
                   "consumer_timeout_ms": drive.drive_consumer_timeout_ms,
                   "load_1min_before": round(load_before, 1), "load_1min_after": round(os.getloadavg()[0], 1)}
         drive.disable()

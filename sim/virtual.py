@@ -25,13 +25,14 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 from urllib.parse import parse_qs, urlparse
 
 import numpy as np
+from pydantic import Field
 from tcms_daq.drivers.base import (
     Batch,
     CommandRejected,
@@ -43,7 +44,7 @@ from tcms_daq.drivers.base import (
 from tcms_daq.drivers.registry import CompositionContext
 from tcms_daq.sim.bench import SimulatedBench
 
-from tcms_daq.config.models import BenchConfig
+from tcms_daq.config.models import BenchConfig, DriverOptions
 from tcms_daq.errors import ConfigError
 from tcms_daq.samples import Samples
 
@@ -512,12 +513,24 @@ class VirtualLoader:
         self.commands.append(("fault_reset", 0.0, self.bench.now_s()))
 
 
+class VirtualOptions(DriverOptions):
+    """[instruments.<kind>] of ``driver = "virtual"``: the in-process simulated bench ``url`` names
+    (``virtual://NAME``, ``?clock=real-time`` to follow the real-time clock); a loader's rated torque (N·m, 0x6076
+    of a real drive; default its ``max_torque_nm``, else 2000) and limit (N·m; default the bench's limit)."""
+
+    url: str = Field("virtual://sim", min_length=1, description="the simulated bench: virtual://NAME")
+    rated_torque_nm: float | None = Field(None, gt=0.0, description="the loader's rated torque (N·m)")
+    max_torque_nm: float | None = Field(None, gt=0.0, description="the loader's limit (N·m)")
+
+
 class VirtualDriver:
     """Registry entry ``virtual``: builds the angle/torque/loader driver of kind ``kind`` on the shared bench.
 
     The bench composer calls :meth:`from_config` with a context holding the shared benches so the three
     instruments of ``virtual://sim`` drive one physics object and one clock.
     """
+
+    options_model = VirtualOptions
 
     @staticmethod
     def build(*, kind: str, url: str = "virtual://sim", context: VirtualContext | None = None,
@@ -537,18 +550,18 @@ class VirtualDriver:
         raise ConfigError(f"virtual driver: unknown instrument kind {kind!r} (angle, torque, loader)")
 
     @classmethod
-    def from_config(cls, kind: str, options: Mapping[str, object], context: CompositionContext
+    def from_config(cls, kind: str, options: VirtualOptions, context: CompositionContext
                     ) -> VirtualAngleSource | VirtualTorqueSource | VirtualLoader:
-        """Called by the bench composer with the context its instruments share; a loader without
-        ``max_torque_nm`` takes the bench's limit. Options other than ``url``, ``rated_torque_nm`` and
-        ``max_torque_nm`` are a TypeError naming the key (the composer makes it a ConfigError)."""
+        """Called by the bench composer with the validated options and the context its instruments share; a
+        loader without ``max_torque_nm`` takes the bench's limit."""
         ctx = context.shared.get("virtual")
         if not isinstance(ctx, VirtualContext):
             ctx = VirtualContext(context.config, context.physics_factory, context.config_dir,
                                  context.real_time_clock or time.monotonic)
             context.shared["virtual"] = ctx
-        opts = dict(options)
-        if kind == "loader":
+        max_torque_nm = options.max_torque_nm
+        if kind == "loader" and max_torque_nm is None:
             bench_max_nm = context.bench_max_torque_nm
-            opts.setdefault("max_torque_nm", bench_max_nm if math.isfinite(bench_max_nm) else 2000.0)
-        return cls.build(kind=kind, context=ctx, **opts)  # type: ignore[arg-type]  # typed by build's signature
+            max_torque_nm = bench_max_nm if math.isfinite(bench_max_nm) else 2000.0
+        return cls.build(kind=kind, context=ctx, url=options.url, rated_torque_nm=options.rated_torque_nm,
+                         max_torque_nm=max_torque_nm)

@@ -1,9 +1,10 @@
 """A bench composed from config: angle source, torque source, loader, clock and compensator.
 
-Each ``[instruments.<kind>]`` table names a registered driver and its options (``url`` and whatever the
-driver takes). The composer does not know which drivers are simulated: a driver class may offer
-``from_config(kind, options, context)`` to share state with its siblings (the in-process virtual bench does,
-so its three instruments drive one physics object); otherwise it is built as ``cls(**options)``.
+Each ``[instruments.<kind>]`` table names a registered driver and its options, validated against the driver's
+``options_model`` when the config was read (``tcms_daq.config.drivers``). The composer does not know which drivers
+are simulated: a driver class may offer ``from_config(kind, options, context)`` to share state with its siblings
+(the in-process virtual bench does, so its three instruments drive one physics object); otherwise it is built as
+``cls.from_options(options, clock=…)`` (or ``cls(options, clock=…)``) on the bench's real-time clock.
 
 ``connect()`` ends with a safe start (:meth:`Bench.make_safe`): the loader's state and torque are read before
 anything else, and a drive found enabled or under torque is ramped to zero and disabled (one left in FAULT is
@@ -34,7 +35,6 @@ from tcms_daq.config.models import (
     BenchConfig,
     InstrumentConfig,
     InterlocksSection,
-    LoaderInstrumentConfig,
     ReducerSpec,
 )
 from tcms_daq.drivers import registry
@@ -47,9 +47,6 @@ SAFE_TORQUE_SHARE = 0.01  # a drive is "under torque" above this share of the be
 DEFAULT_SAFE_TORQUE_NM = 20.0  # … or above this when the bench has no finite limit
 
 KINDS = ("angle", "torque", "loader")
-# [instruments.loader] fields of the drive's communication watchdog (config.models.LoaderInstrumentConfig): each goes
-# to the loader driver only when it takes it (the CANopen and the Modbus drive take different ones)
-WATCHDOG_FIELDS = ("comm_timeout_ms", "abort_connection_option", "master_heartbeat_ms", "drive_consumer_timeout_ms")
 #: the methods of each kind's protocol (tcms_daq.drivers.base: AngleSource, TorqueSource, Loader)
 METHODS = {"angle": ("connect", "close", "read"), "torque": ("connect", "close", "read", "tare"),
            "loader": ("connect", "close", "enable", "disable", "set_torque", "status", "fault_reset")}
@@ -227,33 +224,6 @@ def load_compensator(path: str | Path) -> Compensator:
     return load(path)
 
 
-def _accepts(cls: type, name: str) -> bool:
-    try:
-        params = inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        return False
-    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
-
-
-def _takes(cls: type, name: str) -> bool:
-    """``cls(...)`` has a parameter ``name`` (by name: a driver taking ``**options`` does not take them all)."""
-    try:
-        return name in inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        return False
-
-
-def _driver_options(instrument: InstrumentConfig, cls: type) -> dict[str, object]:
-    """What a driver is built with: the table's ``url``, the loader's watchdog fields the driver takes, and the
-    driver's own keys (not its name, its calibration or its declared uncertainty: the certificate's and the
-    evaluation's)."""
-    declared: dict[str, object] = {}
-    if isinstance(instrument, LoaderInstrumentConfig):
-        declared = {k: getattr(instrument, k) for k in WATCHDOG_FIELDS if _takes(cls, k)}
-    extra = instrument.model_extra or {}
-    return {k: v for k, v in {"url": instrument.url, **declared, **extra}.items() if v is not None}
-
-
 def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, speed: float | None = None,
                   physics_factory: Callable[[BenchConfig], object] | None = None,
                   compensator: Compensation | None = None) -> Bench:
@@ -277,19 +247,21 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
         instrument: InstrumentConfig = getattr(config.instruments, kind)
         driver_name = instrument.driver
         cls = registry.driver_class(driver_name)
-        opts = _driver_options(instrument, cls)
+        options = instrument.options
+        if not isinstance(options, registry.options_model(driver_name)):
+            raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r}: options of another driver "
+                              f"({type(options).__name__}); the config was not validated for this driver")
         from_config = getattr(cls, "from_config", None)
-        if from_config is None and "clock" not in opts and _accepts(cls, "clock"):
-            opts["clock"] = real_clock.now
-        try:
-            drivers[kind] = from_config(kind, opts, context) if from_config else cls(**opts)
-        except TypeError as exc:
-            raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r}: {exc}") from None
+        if from_config is not None:
+            drivers[kind] = from_config(kind, options, context)
+        else:
+            drivers[kind] = getattr(cls, "from_options", cls)(options, clock=real_clock.now)
         missing = [m for m in METHODS[kind] if not callable(inspect.getattr_static(drivers[kind], m, None))]
         if missing:
             raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r} is not a {kind} driver "
                               f"(no {', '.join(missing)})")
-        description[kind] = {"driver": driver_name, **{k: v for k, v in opts.items() if k != "clock"}}
+        description[kind] = {"driver": driver_name, **options.model_dump(mode="json", exclude_defaults=True),
+                             "url": options.url}
 
     sources = [getattr(d, "time_source", None) for d in drivers.values()]
     shared = sources[0]

@@ -57,8 +57,7 @@ def _loopback(host: str) -> bool:
 
 def _service_token(config) -> str | None:
     """``[service] api_token`` of the loaded bench config, if present."""
-    token = ((config.model_extra or {}).get("service") or {}).get("api_token")
-    return str(token) if token else None
+    return config.service.api_token
 
 
 def run(args: argparse.Namespace) -> int:

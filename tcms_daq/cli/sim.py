@@ -61,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _options(args: argparse.Namespace, cfg: Any):
     from tcms_daq.sim.instruments.serve import SimulatorOptions
 
-    table = dict((getattr(cfg, "model_extra", None) or {}).get("simulators", {}) or {})
+    table = cfg.simulators.settings()
     ports = dict(table.pop("ports", {}) or {})
     if args.free_ports:
         ports.update(dict.fromkeys(("nd287", "aed", "modbus", "socketcand"), 0))

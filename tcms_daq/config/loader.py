@@ -98,6 +98,8 @@ def _problem(err: Mapping[str, Any]) -> str:
         return "missing key"
     if kind == "extra_forbidden":
         return "unknown key"
+    if kind == "driver_options":  # complete already (tcms_daq.config.drivers): names the driver, the key, the keys
+        return str(msg)
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, "):]
     if "input" in err and kind not in ("model_type", "dict_type"):
@@ -110,6 +112,8 @@ def format_validation_error(path: str | Path, exc: ValidationError, prefix: str 
     errors = exc.errors()
     first = errors[0]
     loc = tuple(p for p in first.get("loc", ()) if p != "__root__")
+    if first.get("type") == "driver_options" and loc[-1:] == ("options",):
+        loc = loc[:-1]  # the options are the instrument table's own keys in the file
     line = f"{path}: {_key_path(prefix, loc)}: {_problem(first)}"
     if len(errors) > 1:
         line += f" (and {len(errors) - 1} more problem{'s' if len(errors) > 2 else ''})"

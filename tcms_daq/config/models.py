@@ -9,7 +9,7 @@ from __future__ import annotations
 from datetime import date
 from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, SerializeAsAny, model_validator
 
 from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
 
@@ -274,15 +274,55 @@ class InstrumentCalibration(BaseModel):
                                     description="as the certificate states it, e.g. '0.05 % of reading (k = 2)'")
 
 
-class InstrumentConfig(BaseModel):
-    """One instrument: a driver name from the registry and a transport URL; driver options as extra keys; its
-    calibration (for the certificate) in ``calibration``."""
+class DriverOptions(BaseModel):
+    """What a driver is built with from its ``[instruments.<kind>]`` table: the base of every driver's options
+    model (``options_model`` on the driver class: ``drivers/options.py``, ``sim/virtual.py``). Validated once, when
+    the bench config is read; a key the driver does not take is an error naming it and the keys it takes."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    url: str = Field(min_length=1, description="where the instrument is: a transport URL or a device path")
+
+
+#: the keys of an [instruments.<kind>] table that are not the driver's options
+INSTRUMENT_KEYS = frozenset({"driver", "calibration", "uncertainty"})
+
+
+class InstrumentConfig(BaseModel):
+    """One instrument: a driver name from the registry and that driver's options (the other keys of the table,
+    checked against the driver's options model); its calibration (for the certificate) in ``calibration``."""
+
+    model_config = ConfigDict(extra="forbid")
 
     driver: str = "virtual"
-    url: str = "virtual://sim"
     calibration: InstrumentCalibration | None = None
+    options: SerializeAsAny[DriverOptions]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _gather_options(cls, data: object) -> object:
+        """The table is flat in the file: every key but ``driver``, ``calibration`` and ``uncertainty`` is an
+        option of the driver, validated against its options model."""
+        if not isinstance(data, dict):
+            return data
+        if isinstance(data.get("options"), DriverOptions):
+            return data
+        data = dict(data)
+        driver = data.setdefault("driver", "virtual")
+        raw = data.pop("options", None)
+        table = {k: v for k, v in data.items() if k not in INSTRUMENT_KEYS}
+        if isinstance(raw, dict):
+            table = {**raw, **table}
+        out = {k: v for k, v in data.items() if k in INSTRUMENT_KEYS}
+        if isinstance(driver, str):
+            from tcms_daq.config.drivers import validate_driver_options
+
+            out["options"] = validate_driver_options(driver, table)
+        return out
+
+    @property
+    def url(self) -> str:
+        return self.options.url
 
 
 class TorqueInstrumentConfig(InstrumentConfig):
@@ -302,30 +342,20 @@ DEFAULT_COMM_TIMEOUT_MS = 1000  # Modbus: the drive reacts after this much silen
 
 
 class LoaderInstrumentConfig(InstrumentConfig):
-    """[instruments.loader]: also the drive's own communication watchdog, armed by the driver on connect so a dead
-    service or a silent link stops the drive by itself (docs/hardware.md). Over Modbus: ``comm_timeout_ms`` of
-    silence (0 = off, not recommended) and the drive's reaction ``abort_connection_option`` (CiA 402 0x6007:
-    1 fault 0x8130, 2 disable voltage, 3 quick stop). Over CANopen the drive's heartbeat consumer
-    (``drive_consumer_timeout_ms``; None: ten periods of ``master_heartbeat_ms``, at most 1 s). A driver gets the
-    fields it takes."""
-
-    comm_timeout_ms: int = Field(DEFAULT_COMM_TIMEOUT_MS, ge=0, le=65535, strict=True,
-                                 description="Modbus: the drive reacts after this much silence (ms; 0 = off)")
-    abort_connection_option: Literal[1, 2, 3] = Field(
-        1, description="the drive's reaction (0x6007): 1 fault, 2 disable voltage, 3 quick stop")
-    master_heartbeat_ms: int | None = Field(None, ge=10, le=1000, strict=True,
-                                            description="CANopen: this master's heartbeat period (ms)")
-    drive_consumer_timeout_ms: int | None = Field(
-        None, ge=0, le=65535, strict=True,
-        description="CANopen: the drive faults (0x8130) after this much silence of the master's heartbeat (ms)")
+    """[instruments.loader]: the loader's driver and its options, among them the drive's own communication
+    watchdog the driver arms on connect (docs/hardware.md): over Modbus ``comm_timeout_ms`` and
+    ``abort_connection_option``, over CANopen ``master_heartbeat_ms`` and ``drive_consumer_timeout_ms``
+    (``drivers/options.py``)."""
 
 
 class InstrumentsConfig(BaseModel):
-    model_config = ConfigDict(extra="allow")
+    """[instruments]: the angle source, the torque source and the loader."""
 
-    angle: AngleInstrumentConfig = Field(default_factory=AngleInstrumentConfig)
-    torque: TorqueInstrumentConfig = Field(default_factory=TorqueInstrumentConfig)
-    loader: LoaderInstrumentConfig = Field(default_factory=LoaderInstrumentConfig)
+    model_config = ConfigDict(extra="forbid")
+
+    angle: AngleInstrumentConfig = Field(default_factory=lambda: AngleInstrumentConfig.model_validate({}))
+    torque: TorqueInstrumentConfig = Field(default_factory=lambda: TorqueInstrumentConfig.model_validate({}))
+    loader: LoaderInstrumentConfig = Field(default_factory=lambda: LoaderInstrumentConfig.model_validate({}))
 
 
 class InterlocksSection(BaseModel):
@@ -356,7 +386,7 @@ class BenchSection(BaseModel):
     compensations and bench model versions are kept under it, and a restarting service marks only its own
     bench's runs as interrupted. None: derived from ``name`` (``bench_id``)."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="forbid")
 
     id: str | None = Field(None, pattern=r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$",
                            description="letters, digits, '.', '_', '-' (at most 64)")
@@ -566,10 +596,50 @@ class SimConfig(BaseModel):
     rich: RichReducerConfig = Field(default_factory=RichReducerConfig)
 
 
-class BenchConfig(BaseModel):
-    """A bench configuration file (config/bench-*.toml). Unknown top-level tables are kept for other modules."""
+class ServiceSection(BaseModel):
+    """[service]: the service's settings that belong to the bench (``tcms serve``)."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="forbid")
+
+    api_token: str | None = Field(None, min_length=1, description=(
+        "the API token of changes (TCMS_API_TOKEN wins; none: one is made and printed at start)"))
+
+
+class SimulatorsSection(BaseModel):
+    """[simulators]: the protocol simulators ``tcms sim serve`` starts for this bench
+    (``sim.instruments.serve.SimulatorOptions``, whose defaults a key left out keeps). Ports by instrument
+    (``nd287``, ``aed``, ``modbus``, ``socketcand``, ``modbus_rtu``; 0 = a free one)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    host: str | None = Field(None, min_length=1)
+    ports: dict[str, int] | None = None
+    instruments: list[Literal["nd287", "aed", "modbus", "canopen", "modbus_rtu"]] | None = None
+    nd287_unit: str | None = None
+    nd287_decimals: int | None = Field(None, ge=0, le=9)
+    nd287_reply_delay_s: float | None = Field(None, ge=0.0)
+    aed_nominal_torque_nm: float | None = Field(None, gt=0.0)
+    aed_reply_delay_s: float | None = Field(None, ge=0.0)
+    node_id: int | None = Field(None, ge=1, le=127)
+    can_channel: str | None = Field(None, min_length=1)
+    can_interface: Literal["socketcand", "virtual"] | None = None
+    rated_torque_nm: float | None = Field(None, gt=0.0)
+    max_torque_permille: int | None = Field(None, gt=0, le=32767)
+    counts_per_rev: int | None = Field(None, gt=0)
+    heartbeat_ms: int | None = Field(None, gt=0)
+    modbus_map: str | None = None
+    modbus_comm_timeout_s: float | None = Field(None, ge=0.0)
+    abort_connection_option: Literal[0, 1, 2, 3] | None = None
+
+    def settings(self) -> dict[str, object]:
+        """The keys this table sets."""
+        return {k: v for k, v in self.model_dump().items() if v is not None}
+
+
+class BenchConfig(BaseModel):
+    """A bench configuration file (config/bench-*.toml). An unknown table or key is an error naming it."""
+
+    model_config = ConfigDict(extra="forbid")
 
     bench: BenchSection = Field(default_factory=BenchSection)
     store: StoreSection = Field(default_factory=StoreSection)
@@ -582,6 +652,8 @@ class BenchConfig(BaseModel):
     opcua: OpcUaSection = Field(default_factory=OpcUaSection)
     compensation_checks: CompensationChecks = Field(default_factory=CompensationChecks)
     gaps: GapSettings = Field(default_factory=GapSettings)
+    service: ServiceSection = Field(default_factory=ServiceSection)
+    simulators: SimulatorsSection = Field(default_factory=SimulatorsSection)
     source_path: str | None = Field(None, exclude=True)
 
     def chain_uncertainty(self) -> ChainUncertainty | None:

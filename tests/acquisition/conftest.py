@@ -82,7 +82,8 @@ class ProtocolBench:
         inst = self.config.instruments
         urls = {"angle": f"socket://127.0.0.1:{self.ports['nd287']}", "torque": f"socket://127.0.0.1:{self.ports['aed']}",
                 "loader": f"tcp://127.0.0.1:{self.ports['modbus']}"}
-        instruments = inst.model_copy(update={k: getattr(inst, k).model_copy(update={"url": url})
+        instruments = inst.model_copy(update={k: getattr(inst, k).model_copy(
+                                              update={"options": getattr(inst, k).options.model_copy(update={"url": url})})
                                               for k, url in urls.items()})
         return self.config.model_copy(update={"instruments": instruments})
 

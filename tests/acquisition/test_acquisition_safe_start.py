@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from tcms_daq.drivers.base import Disconnected, LoaderStatus
 from tcms_daq.drivers.cia402_modbus import CiA402Modbus
-from tcms_daq.drivers.testing import wait_until
+from tcms_daq.drivers.testing import driver_for, wait_until
 
 from tcms_daq.acquisition import MonotonicClock, TestRun
 from tcms_daq.acquisition.bench import Bench
@@ -17,12 +17,12 @@ SPEED = 4.0
 
 def _leave_the_drive_under_torque(pb, torque_nm: float) -> None:
     """Another master (with the drive's watchdog off) enables the drive, loads it and goes away without a word."""
-    other = CiA402Modbus(f"tcp://127.0.0.1:{pb.ports['modbus']}", comm_timeout_ms=0, torque_slope_nm_per_s=4000.0)
+    other = driver_for(CiA402Modbus, f"tcp://127.0.0.1:{pb.ports['modbus']}", comm_timeout_ms=0, torque_slope_nm_per_s=4000.0)
     other.connect()
     other.enable()
     other.set_torque(torque_nm)
     assert wait_until(lambda: abs(pb.physics.latest().applied_torque_nm - torque_nm) < 10.0, timeout_s=10.0)
-    other.client.close()  # no disable, no disarm: as if its process had been killed
+    other.link.client.close()  # no disable, no disarm: as if its process had been killed
 
 
 def test_connect_finds_a_drive_under_torque_and_makes_it_safe(protocol_bench, caplog):

@@ -10,7 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 # file -> the classes and functions of the composition in it (None: every top-level function and class)
 COMPOSITION: dict[str, set[str] | None] = {
-    "tcms_daq/acquisition/bench.py": {"Bench", "compose_bench", "_driver_options", "bench_from_file",
+    "tcms_daq/acquisition/bench.py": {"Bench", "compose_bench", "bench_from_file",
                                       "read_bench_config", "load_compensator"},
     "drivers/registry.py": None,
     "sim/virtual.py": {"VirtualDriver", "VirtualContext", "BenchPhysics", "PositioningPhysics"},

@@ -131,9 +131,15 @@ def test_bench_config_errors(write, bench_text):
         load_bench_config(path)
 
 
-def test_other_modules_may_add_tables(write, bench_text):
-    cfg = load_bench_config(write("bench.toml", bench_text + "\n[service]\nport = 8000\n"))
-    assert cfg.model_extra["service"] == {"port": 8000}
+def test_every_table_is_declared(write, bench_text):
+    """No table or key is kept unchecked: [service] and [simulators] are models; anything else is an error."""
+    cfg = load_bench_config(write("bench.toml", bench_text + "\n[service]\napi_token = \"t0ken\"\n"
+                                                          "[simulators]\nports = { nd287 = 0 }\n"))
+    assert cfg.service.api_token == "t0ken" and cfg.simulators.settings() == {"ports": {"nd287": 0}}
+    with pytest.raises(ConfigError, match=r"service\.port: unknown key"):
+        load_bench_config(write("bench2.toml", bench_text + "\n[service]\nport = 8000\n"))
+    with pytest.raises(ConfigError, match=r"servise: unknown key"):
+        load_bench_config(write("bench3.toml", bench_text + "\n[servise]\napi_token = \"x\"\n"))
 
 
 def test_missing_reducers_table(write):
@@ -175,14 +181,36 @@ def test_overrides_change_a_copy_before_validation():
 
 def test_loader_watchdog_fields_are_typed_with_safe_defaults():
     """[instruments.loader]: the drive's communication watchdog is on by default (<= 1 s of silence) and its fields
-    are checked at the boundary (no coercion, no out-of-range reaction)."""
+    are checked at the boundary, against the loader driver's options model (no coercion, no out-of-range
+    reaction); a key the driver does not take is refused."""
     from pydantic import ValidationError
 
     from tcms_daq.config.models import InstrumentsConfig
 
-    loader = InstrumentsConfig().loader
-    assert 0 < loader.comm_timeout_ms <= 1000 and loader.abort_connection_option == 1
-    for bad in ({"comm_timeout_ms": "500"}, {"comm_timeout_ms": -1}, {"abort_connection_option": 0},
-                {"master_heartbeat_ms": 5}):
-        with pytest.raises(ValidationError):
-            InstrumentsConfig.model_validate({"loader": bad})
+    modbus = InstrumentsConfig.model_validate({"loader": {"driver": "cia402-modbus", "url": "tcp://127.0.0.1:1"}})
+    assert 0 < modbus.loader.options.comm_timeout_ms <= 1000 and modbus.loader.options.abort_connection_option == 1
+    canopen = InstrumentsConfig.model_validate({"loader": {"driver": "cia402-canopen", "url": "virtual://x"}})
+    assert 0 < canopen.loader.options.consumer_timeout_ms <= 1000
+    for driver, bad in (("cia402-modbus", {"comm_timeout_ms": "500"}), ("cia402-modbus", {"comm_timeout_ms": -1}),
+                        ("cia402-modbus", {"abort_connection_option": 0}),
+                        ("cia402-canopen", {"master_heartbeat_ms": 5}),
+                        ("cia402-canopen", {"comm_timeout_ms": 1000}),  # a Modbus key on a CANopen drive
+                        ("virtual", {"master_heartbeat_ms": 100})):
+        with pytest.raises(ValidationError, match=f"driver '{driver}'"):
+            InstrumentsConfig.model_validate({"loader": {"driver": driver, "url": "virtual://x", **bad}})
+
+
+def test_instrument_options_unknown_key_names_instrument_key_and_allowed(write, bench_text):
+    """An instrument option the driver does not take fails when the file is read: the error names the instrument,
+    the key and the keys its driver takes."""
+    path = write("bench.toml", bench_text)
+    with pytest.raises(ConfigError) as err:
+        load_bench_config(path, ["instruments.angle.urll=x"])
+    text = str(err.value)
+    assert "instruments.angle:" in text and "'urll'" in text
+    assert "its options: max_torque_nm, rated_torque_nm, url)" in text
+    with pytest.raises(ConfigError, match=r"instruments\.torque: unknown driver 'nope' \(known: .*nd287"):
+        load_bench_config(path, ["instruments.torque.driver=nope"])
+    with pytest.raises(ConfigError, match=r"instruments\.loader: driver 'cia402-canopen' option 'node_id': .*"
+                                          r"less than or equal to 127 \(got 300\)"):
+        load_bench_config(path, ["instruments.loader.driver=cia402-canopen", "instruments.loader.node_id=300"])

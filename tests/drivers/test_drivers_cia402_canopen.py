@@ -19,7 +19,7 @@ from tcms_daq.drivers.base import (
     MalformedReply,
 )
 from tcms_daq.drivers.cia402_canopen import CiA402Canopen, parse_can_url
-from tcms_daq.drivers.testing import wait_until
+from tcms_daq.drivers.testing import driver_for, wait_until
 
 from tcms_daq.errors import ConfigError
 
@@ -37,7 +37,7 @@ def can_sims(make_sims):
 
 
 def _driver(sims, **kw):
-    return CiA402Canopen(f"virtual://{sims.options.can_channel}", **{**FAST, **kw})
+    return driver_for(CiA402Canopen, f"virtual://{sims.options.can_channel}", **{**FAST, **kw})
 
 
 def test_url_parsing():
@@ -125,7 +125,7 @@ def test_reconnect_after_drive_restart(can_sims):
         can_sims.restart("canopen")  # drive power-cycled: boot-up, back in SWITCH ON DISABLED, PRE-OP
         time.sleep(0.1)
         assert drive.status().state == "SWITCH ON DISABLED"  # reconfigured and started again
-        assert drive.reconnects == 1
+        assert drive.link.reconnects == 1
         drive.enable()
         assert drive.status().state == "OPERATION ENABLED"
 
@@ -167,10 +167,10 @@ def test_a_late_drive_heartbeat_keeps_the_link(can_sims):
     down: no reconnect, no silence of this master, no 0x8130."""
     with _driver(can_sims) as drive:
         drive.enable()
-        with drive._cond:
-            drive._last_heartbeat = time.monotonic() - 10.0  # as if the last heartbeat had come long ago
+        with drive.link.process.cond:
+            drive.link.process.last_heartbeat = time.monotonic() - 10.0  # as if the last heartbeat had come long ago
         assert drive.status().state == "OPERATION ENABLED"
-        assert drive.late_heartbeats == 1 and drive.reconnects == 0
+        assert drive.link.late_heartbeats == 1 and drive.link.reconnects == 0
         assert can_sims.canopen.consumer_reactions == []
 
 
@@ -182,7 +182,7 @@ def test_a_dead_master_faults_the_drive_by_itself(can_sims):
     drive.enable()
     drive.set_torque(-600.0)
     assert wait_until(lambda: can_sims.physics.latest().applied_torque_nm < -590.0)
-    drive._teardown()  # no close(): the consumer stays armed
+    drive.link.teardown()  # no close(): the consumer stays armed
     consumer_s = FAST["drive_consumer_timeout_ms"] / 1000.0
     assert wait_until(lambda: can_sims.drive.state.label == "FAULT", timeout_s=10 * consumer_s + 2.0)
     assert can_sims.drive.error_code == 0x8130
@@ -192,11 +192,11 @@ def test_a_dead_master_faults_the_drive_by_itself(can_sims):
 
 def test_consumer_time_is_derived_from_the_master_heartbeat():
     url = "virtual://derived"
-    assert CiA402Canopen(url, master_heartbeat_ms=100).drive_consumer_timeout_ms == 1000
-    assert CiA402Canopen(url, master_heartbeat_ms=50).drive_consumer_timeout_ms == 500
-    assert CiA402Canopen(url, master_heartbeat_ms=500).drive_consumer_timeout_ms == 1500  # three periods at least
+    assert driver_for(CiA402Canopen, url, master_heartbeat_ms=100).drive_consumer_timeout_ms == 1000
+    assert driver_for(CiA402Canopen, url, master_heartbeat_ms=50).drive_consumer_timeout_ms == 500
+    assert driver_for(CiA402Canopen, url, master_heartbeat_ms=500).drive_consumer_timeout_ms == 1500  # three periods at least
     with pytest.raises(ValueError, match="at least 3 master heartbeat periods"):
-        CiA402Canopen(url, master_heartbeat_ms=100, drive_consumer_timeout_ms=250)
+        driver_for(CiA402Canopen, url, master_heartbeat_ms=100, drive_consumer_timeout_ms=250)
 
 
 LOADER_CALLS = {
@@ -231,7 +231,7 @@ def test_every_method_on_a_lost_link_raises_disconnected(can_sims):
             drive.quick_stop()
         with pytest.raises(Disconnected, match="CANopen.*heartbeat lost.*2 reconnect attempts failed"):
             drive.status()
-        assert drive.node is None  # torn down after the bounded reconnect
+        assert drive.link.node is None  # torn down after the bounded reconnect
         # the reported bug: disable() after the loss raised AttributeError ('NoneType' … 'rpdo')
         with pytest.raises(Disconnected, match="CANopen.*link lost earlier; 1 reconnect attempt failed"):
             drive.disable()
@@ -240,7 +240,7 @@ def test_every_method_on_a_lost_link_raises_disconnected(can_sims):
         can_sims.inject("canopen", None)
         # back after one re-probe; the best-effort disable reached the drive before the link was dropped
         assert drive.status().state == "SWITCH ON DISABLED"
-        assert drive.reconnects == 1
+        assert drive.link.reconnects == 1
 
 
 def test_methods_without_a_link_raise_disconnected(can_sims):
@@ -258,7 +258,7 @@ def test_across_processes_socketcand_hub(make_sims):
     sims = make_sims(instruments=("canopen",), can_interface="socketcand", heartbeat_ms=50)
     sims.physics.start(speed=1.0)
     url = f"socketcand://127.0.0.1:{sims.ports['socketcand']}/{sims.options.can_channel}"
-    with CiA402Canopen(url, **FAST) as drive:
+    with driver_for(CiA402Canopen, url, **FAST) as drive:
         drive.enable()
         drive.set_torque(-300.0)
         assert wait_until(lambda: abs(drive.status().torque_actual_nm + 300.0) <= 2.0)
@@ -329,7 +329,7 @@ def test_a_lost_socketcand_link_kills_no_thread(make_sims, thread_deaths):
     sims = make_sims(instruments=("canopen",), can_interface="socketcand", heartbeat_ms=50)
     sims.physics.start(speed=1.0)
     url = f"socketcand://127.0.0.1:{sims.ports['socketcand']}/{sims.options.can_channel}"
-    with CiA402Canopen(url, **FAST) as drive:
+    with driver_for(CiA402Canopen, url, **FAST) as drive:
         drive.enable()
         sims.stop_server("socketcand")
         time.sleep(0.8)
@@ -345,7 +345,7 @@ def test_bus_read_errors_keep_the_receive_thread_alive(can_sims, thread_deaths, 
     slowed down, the driver logs the loss once and the next command reconnects on a new bus."""
     with caplog.at_level(logging.WARNING, logger="tcms_daq.drivers.cia402_canopen"), _driver(can_sims) as drive:
         drive.enable()
-        bus = drive.network.bus
+        bus = drive.link.network.bus
         reads = []
 
         def failing_recv(timeout=None):
@@ -354,9 +354,9 @@ def test_bus_read_errors_keep_the_receive_thread_alive(can_sims, thread_deaths, 
 
         bus.recv = failing_recv
         assert wait_until(lambda: len(reads) >= 3, 3.0)
-        assert not drive._heartbeat_alive()  # lost at once, not after the heartbeat timeout
+        assert not drive.link.process.heartbeat_alive()  # lost at once, not after the heartbeat timeout
         assert drive.status().state == "OPERATION ENABLED"  # the bounded reconnect opened a new bus
-        assert drive.network.bus is not bus
+        assert drive.link.network.bus is not bus
     assert thread_deaths == []
     lost = [r.getMessage() for r in caplog.records if "CAN link lost" in r.getMessage()]
     assert len(lost) == 1 and "adapter gone" in lost[0]

@@ -17,7 +17,7 @@ from tcms_daq.drivers.base import (
 )
 from tcms_daq.drivers.cia402_modbus import CiA402Modbus
 from tcms_daq.drivers.modbus_rtu import RtuSerialClient, inter_frame_silence_s, rtu_reply_length
-from tcms_daq.drivers.testing import ManualTime, wait_until
+from tcms_daq.drivers.testing import ManualTime, driver_for, wait_until
 from tcms_daq.sim.instruments.proxy import FaultProxy
 
 from tcms_daq.config.loader import packaged_config_dir as tcms_config_dir
@@ -35,7 +35,7 @@ def drive_sims(make_sims):
 def _tcp(sims, port=None, **kw):
     kw.setdefault("timeout_s", 0.3)
     kw.setdefault("reconnect_delay_s", 0.05)
-    return CiA402Modbus(f"tcp://127.0.0.1:{port or sims.ports['modbus']}", **kw)
+    return driver_for(CiA402Modbus, f"tcp://127.0.0.1:{port or sims.ports['modbus']}", **kw)
 
 
 def test_register_map_file():
@@ -73,7 +73,7 @@ def test_adu_bytes_tcp_and_rtu(drive_sims):
     assert bytes.fromhex("01 06 35 00 00 04") in pdus  # mode 4
 
     sent.clear()
-    rtu = CiA402Modbus(f"socket://127.0.0.1:{drive_sims.ports['modbus_rtu']}", timeout_s=0.3, trace_packet=trace)
+    rtu = driver_for(CiA402Modbus, f"socket://127.0.0.1:{drive_sims.ports['modbus_rtu']}", timeout_s=0.3, trace_packet=trace)
     with rtu:
         rtu.disable()
         rtu.enable()
@@ -145,7 +145,7 @@ def test_malformed_and_partial_replies(drive_sims, framing):
     port = drive_sims.loop.run(proxy.start())
     url = f"tcp://127.0.0.1:{port}" if framing == "tcp" else f"socket://127.0.0.1:{port}"
     try:
-        with CiA402Modbus(url, timeout_s=0.3) as drive:
+        with driver_for(CiA402Modbus, url, timeout_s=0.3) as drive:
             proxy.inject("garbage")
             with pytest.raises(MalformedReply, match="do not form a valid frame"):
                 drive.status()
@@ -164,7 +164,7 @@ def test_reconnect_after_restart_and_disconnected(drive_sims):
         drive.status()
         drive_sims.restart("modbus")
         assert drive.status().state == "SWITCH ON DISABLED"
-        assert drive.reconnects == 1
+        assert drive.link.reconnects == 1
         drive_sims.stop_server("modbus")
         with pytest.raises(Disconnected, match="Modbus.*2 reconnect attempts"):
             drive.status()
@@ -226,8 +226,8 @@ def test_a_dead_master_stops_the_drive_by_itself(make_sims, option, final):
     drive.enable()
     drive.set_torque(-600.0)
     assert wait_until(lambda: sims.physics.latest().applied_torque_nm < -590.0)
-    drive._stop_keepalive()  # the process is gone: nothing feeds the drive any more
-    drive.client.close()
+    drive.link.stop_keepalive()  # the process is gone: nothing feeds the drive any more
+    drive.link.client.close()
     assert wait_until(lambda: _stopped_by_itself(sims), timeout_s=10 * WATCHDOG_MS / 1000.0 + 2.0)
     assert sims.drive.state.label == final
     if option == 1:
@@ -287,7 +287,7 @@ def test_rtu_reply_length_from_the_first_three_bytes():
 
 def _serial_line(sims, port=None, **kw):
     """The driver's serial-line client (pyserial, replies by length, t3.5) on the RTU simulator."""
-    return CiA402Modbus(f"socket://127.0.0.1:{port or sims.ports['modbus_rtu']}", serial_line=True,
+    return driver_for(CiA402Modbus, f"socket://127.0.0.1:{port or sims.ports['modbus_rtu']}", serial_line=True,
                         timeout_s=kw.pop("timeout_s", 0.3), **kw)
 
 
@@ -295,14 +295,14 @@ def test_serial_line_client_exchange_and_failures(drive_sims):
     sent = []
     trace = lambda sending, data: (sent.append(bytes(data)) if sending else None, data)[1]  # noqa: E731
     with _serial_line(drive_sims, trace_packet=trace, torque_slope_nm_per_s=20000.0) as drive:
-        assert isinstance(drive.client, RtuSerialClient)
+        assert isinstance(drive.link.client, RtuSerialClient)
         drive.enable()
         assert bytes.fromhex("01 06 31 00 00 0F C7 32") in sent
         drive.set_torque(250.0)
         assert wait_until(lambda: abs(drive.status().torque_actual_nm - 250.0) <= 2.0)
-        assert drive.read_register("position_actual") > 0  # a two-register reply (9 bytes)
+        assert drive.link.read_register("position_actual") > 0  # a two-register reply (9 bytes)
         with pytest.raises(CommandRejected, match="exception 2"):
-            drive.write_register("statusword", 1)  # read-only: exception reply (5 bytes)
+            drive.link.write_register("statusword", 1)  # read-only: exception reply (5 bytes)
         drive_sims.inject("modbus_rtu", "mute")
         with pytest.raises(InstrumentTimeout, match="no response"):
             drive.status()
@@ -331,16 +331,16 @@ def test_serial_line_client_keeps_the_inter_frame_silence(drive_sims):
     timebase the driver's wait is exact and costs no real time, whatever else loads the machine."""
     timebase = ManualTime()
     with _serial_line(drive_sims, timebase=timebase) as drive:
-        silence_s = drive.client.silence_s
+        silence_s = drive.link.client.silence_s
         assert silence_s == pytest.approx(1.75e-3)
-        port = drive.client.socket
+        port = drive.link.client.socket
         events = []
         read, write = port.read, port.write
         port.read = lambda n=1: (data := read(n), events.append(("rx", timebase.now())), data)[2]
         port.write = lambda data: (events.append(("tx", timebase.now())), write(data))[1]
         timebase.sleeps.clear()
         for _ in range(5):
-            drive.read_register("statusword")
+            drive.link.read_register("statusword")
         gaps = [t - events[i - 1][1] for i, (kind, t) in enumerate(events) if kind == "tx" and i > 0]
         assert gaps == pytest.approx([silence_s] * 4, abs=1e-12)  # exactly t3.5: time moved only in the waits
         assert timebase.sleeps == pytest.approx([silence_s] * 5)  # the first request waits after connect's reply

@@ -11,7 +11,7 @@ import pytest
 from tcms_daq.drivers.base import CommandRejected
 from tcms_daq.drivers.cia402_canopen import CiA402Canopen
 from tcms_daq.drivers.cia402_modbus import CiA402Modbus
-from tcms_daq.drivers.testing import wait_until
+from tcms_daq.drivers.testing import driver_for, wait_until
 from tcms_daq.sim.bench import SimulatedBench
 from tcms_daq.sim.instruments.physics import SharedPhysics
 from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
@@ -36,9 +36,9 @@ def sims():
 
 def _drivers(sims):
     return {
-        "canopen": lambda: CiA402Canopen(f"virtual://{sims.options.can_channel}", heartbeat_ms=50,
+        "canopen": lambda: driver_for(CiA402Canopen, f"virtual://{sims.options.can_channel}", heartbeat_ms=50,
                                          master_heartbeat_ms=50, sdo_timeout_s=1.0),
-        "modbus": lambda: CiA402Modbus(f"tcp://127.0.0.1:{sims.ports['modbus']}", timeout_s=0.5),
+        "modbus": lambda: driver_for(CiA402Modbus, f"tcp://127.0.0.1:{sims.ports['modbus']}", timeout_s=0.5),
     }
 
 
