@@ -268,6 +268,20 @@ class RunQuery:
         return ("WHERE " + " AND ".join(clauses)) if clauses else "", params
 
 
+#: up to this many matching runs the list's total is counted; past it PostgreSQL gives its planner's estimate (a
+#: plant's year is 500 000 runs: counting them all costs more than the page), and the response says so
+EXACT_TOTAL_UP_TO = 10_000
+
+
+@dataclass(frozen=True)
+class RunTotal:
+    """How many runs match a query: ``count`` exact, or (``exact`` False) an estimate, made only once more than
+    the counting limit matched and never below what was counted."""
+
+    count: int
+    exact: bool = True
+
+
 @dataclass(frozen=True)
 class RunColumns:
     """The searchable columns a run record keeps beside its JSON request and results."""
@@ -512,6 +526,10 @@ class Store(Protocol):
         ...
 
     def count_runs(self, query: RunQuery | None = None) -> int: ...
+
+    def total_runs(self, query: RunQuery | None = None, exact_up_to: int = EXACT_TOTAL_UP_TO) -> RunTotal:
+        """The list's total: exact up to ``exact_up_to`` matching runs; past it a backend may estimate."""
+        ...
 
     def count_by_status(self) -> dict[str, int]:
         """This bench's runs by status (the service's metrics)."""

@@ -34,6 +34,7 @@ from tcms_daq.identity import HEADLINES
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
     BRIEF_KEYS,
+    EXACT_TOTAL_UP_TO,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
@@ -41,6 +42,7 @@ from tcms_daq.store.base import (
     HeadlineSeries,
     RunColumns,
     RunQuery,
+    RunTotal,
     SamplesRetired,
     StoredRun,
     StoredSamples,
@@ -362,6 +364,21 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, People
         with self._connection() as conn:
             row = conn.execute(f"SELECT count(*) FROM runs {where}", params).fetchone()
         return int(row[0]) if row else 0
+
+    def total_runs(self, query: RunQuery | None = None, exact_up_to: int = EXACT_TOTAL_UP_TO) -> RunTotal:
+        """Exact up to ``exact_up_to`` matching runs (counted from the index, stopping at one more); past it the
+        planner's estimate of the matching rows, never below what was counted (a plant's year is 500 000 runs:
+        counting them exactly would cost more than the page)."""
+        where, params = (query or RunQuery()).where("%s", "ILIKE")
+        with self._connection() as conn:
+            row = conn.execute(f"SELECT count(*) FROM (SELECT 1 FROM runs {where} LIMIT %s) AS counted",
+                               (*params, exact_up_to + 1)).fetchone()
+            counted = int(row[0]) if row else 0
+            if counted <= exact_up_to:
+                return RunTotal(counted)
+            plan = conn.execute(f"EXPLAIN (FORMAT JSON) SELECT 1 FROM runs {where}", params).fetchone()
+        estimate = int(plan[0][0]["Plan"]["Plan Rows"]) if plan else 0
+        return RunTotal(max(estimate, counted), exact=False)
 
     def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
         """:meth:`HeadlineSeries.headline_points` from the headline columns: the runs' whole results are not read."""

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tcms_daq.store import RunQuery, Store, StoreError, open_store
-from tcms_daq.store.base import INTERRUPTED_ERROR
+from tcms_daq.store import RunQuery, RunStore, Store, StoreError, open_store
+from tcms_daq.store.base import INTERRUPTED_ERROR, RunTotal
 
 CHANNELS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec")
 Opener = Callable[..., Store]
@@ -146,6 +146,19 @@ def test_queries_filter_and_paginate(opener: Opener):
     for bad in ({"status": "done"}, {"verdict": "maybe"}, {"since": 2.0, "until": 1.0}, {"since": float("nan")}):
         with pytest.raises(StoreError):
             RunQuery(**bad)
+
+
+def test_the_lists_total_is_exact_up_to_its_limit_and_an_estimate_past_it(opener: Opener):
+    store = opener()
+    for i in range(6):
+        store.create_run(f"r{i}", {"reducer": "RV-110E", "serial_number": f"SN-{i % 3}"}, CHANNELS)
+    assert store.total_runs() == RunTotal(6, exact=True)
+    assert store.total_runs(RunQuery(serial="SN-1"), exact_up_to=2) == RunTotal(2, exact=True)  # at the limit
+    past = store.total_runs(exact_up_to=3)
+    if isinstance(store, RunStore):  # one bench's file: always counted
+        assert past == RunTotal(6, exact=True)
+    else:  # PostgreSQL: the planner's estimate, never below the limit + 1 it counted
+        assert not past.exact and past.count >= 4
 
 
 def test_postgres_second_service_of_a_bench_is_refused_and_migrations_are_idempotent(postgres_url):

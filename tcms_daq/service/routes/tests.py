@@ -21,7 +21,7 @@ from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import ErrorBody, LoopView, TestAccepted, TestRequest, TestSummary, summary_view
 from tcms_daq.service.users import audit
 from tcms_daq.store import RunQuery, StoreError
-from tcms_daq.store.base import text_sha256
+from tcms_daq.store.base import EXACT_TOTAL_UP_TO, text_sha256
 from tcms_daq.store.people import SavedPlan
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
@@ -77,8 +77,13 @@ def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, 
 
 @router.get("", response_model=list[TestSummary], responses={
     **errors(422), 200: {"description": "the page of tests, newest first",
-                         "headers": {"X-Total-Count": {"description": "tests matching the filters, all pages",
-                                                       "schema": {"type": "integer"}}}}})
+                         "headers": {"X-Total-Count": {"description": "tests matching the filters, all pages (an "
+                                                                      "estimate when X-Total-Count-Exact is false)",
+                                                       "schema": {"type": "integer"}},
+                                     "X-Total-Count-Exact": {"description": (
+                                         f"false when more than {EXACT_TOTAL_UP_TO} tests match and the store "
+                                         "(PostgreSQL) gives its estimate instead of counting them all"),
+                                         "schema": {"type": "boolean"}}}}})
 def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depends(run_query)],
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
                offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
@@ -87,11 +92,14 @@ def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depe
                    "the fleet page lists them: a page of a plant's runs without their whole results"))] = False,
                ) -> list[TestSummary]:
     """Stored tests of every bench sharing the store, newest first, one page at a time (``limit``, ``offset``;
-    the header ``X-Total-Count`` counts all pages). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
+    the header ``X-Total-Count`` counts all pages, exactly up to a limit; past it PostgreSQL estimates and
+    ``X-Total-Count-Exact`` says ``false``). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
     (exact, any case), ``status``, ``verdict`` (pass / fail / undecided), ``q`` (a substring of the id, serial
     number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601). ``brief``: results reduced
     to the headline results and the verdict."""
-    response.headers["X-Total-Count"] = str(store.count_runs(query))
+    total = store.total_runs(query)
+    response.headers["X-Total-Count"] = str(total.count)
+    response.headers["X-Total-Count-Exact"] = "true" if total.exact else "false"
     return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query, brief=brief)]
 
 
