@@ -19,6 +19,7 @@ results stay, their samples answer 410 Gone.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -59,6 +60,8 @@ from tcms_daq.store.base import (
 from tcms_daq.store.opening import redact_url
 from tcms_daq.store.people import POSTGRES_MIGRATION as _PEOPLE_MIGRATION
 from tcms_daq.store.people import PeopleRecords
+
+log = logging.getLogger(__name__)
 
 # Each entry moves the schema one version up; applied in order, each in its own transaction. Never edit an
 # applied entry: add the next one.
@@ -178,7 +181,23 @@ MIGRATIONS: tuple[str, ...] = (
     DROP TABLE sample_batches_v1;
     """,
     _PEOPLE_MIGRATION,  # users, API tokens, sessions, the append-only audit trail, saved plans
+    # 4: a plant's year at the fleet page's pace. The list newest first and SPC read their indexes alone (index-only
+    # scans: the filters' and the chart's columns are in the index), never the runs' wide rows; the text search's
+    # trigram index comes with it when pg_trgm can be had (_text_search_index)
+    """
+    DROP INDEX runs_created;
+    CREATE INDEX runs_created ON runs (created_at DESC, id DESC)
+        INCLUDE (bench_id, bench_name, reducer, serial_number, operator, status, verdict);
+    DROP INDEX runs_reducer;
+    CREATE INDEX runs_reducer ON runs (lower(reducer), created_at DESC, id DESC)
+        INCLUDE (reducer, status, verdict, bench_id, bench_name, serial_number, test_series, rigidity_nm_per_arcmin,
+                 lost_motion_arcsec, backlash_arcsec);
+    """,
 )
+#: the text search (``RunQuery.text``, ``ILIKE '%…%'`` on these columns) by trigrams: its own migration step
+_TEXT_SEARCH_INDEX = (
+    "CREATE INDEX runs_text ON runs USING gin ("
+    + ", ".join(f"(COALESCE({c}, '')) gin_trgm_ops" for c in RunQuery.TEXT_COLUMNS) + ")")
 
 _MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)
 _BENCH_LOCK_CLASS = 0x7C45_0002
@@ -250,6 +269,8 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, People
                 conn.execute(MIGRATIONS[version - 1])  # our own SQL, no parameters
                 if version == 2:
                     _fill_test_series(conn)
+                if version == 4:
+                    _text_search_index(conn)
                 conn.execute("INSERT INTO schema_version (version) VALUES (%s)", (version,))
 
     @property
@@ -550,6 +571,18 @@ def _fill_test_series(conn: Any) -> None:
     with conn.cursor() as cur:
         cur.executemany("UPDATE runs SET test_series = %s WHERE id = %s",
                         [(test_series(request or {}, profile), run_id) for run_id, request, profile in rows])
+
+
+def _text_search_index(conn: Any) -> None:
+    """Migration 4's trigram index for the text search, when the pg_trgm extension is there or can be made (it is
+    trusted since PostgreSQL 13: a database owner may create it); without it the search is right, only slower."""
+    try:
+        with conn.transaction():  # a savepoint: a refused extension leaves the migration's transaction usable
+            conn.execute("CREATE EXTENSION IF NOT EXISTS pg_trgm")
+    except psycopg.Error as exc:
+        log.warning("run store: no pg_trgm (%s): the text search of the runs goes without its index", _reason(exc))
+        return
+    conn.execute(_TEXT_SEARCH_INDEX)
 
 
 def _reason(exc: BaseException) -> str:

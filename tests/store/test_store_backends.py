@@ -223,3 +223,37 @@ def test_a_brief_list_carries_the_headline_results_their_uncertainty_and_the_ver
                            "uncertainty": {"rigidity_nm_per_arcmin": {"U": 2.0, "k": 2.0, "u": 1.0, "note": None}},
                            "verdict": {"passed": True, "decision": "pass", "reasons": None}}
     assert {r.id: r.results for r in store.list_runs(10)}["b1"] == results
+
+
+def test_postgres_fleet_queries_use_their_indexes(postgres_url):
+    """On 20 000 runs (a month of a plant): the text search uses the trigram index (its expressions match the
+    query's), SPC and the list's filters are answered from their indexes alone (index-only scans, never the runs'
+    wide rows)."""
+    import psycopg
+
+    from tcms_daq.store.postgres_store import PostgresRunStore
+
+    PostgresRunStore(postgres_url, recover=False).close()  # the schema
+    with psycopg.connect(postgres_url, autocommit=True) as conn:
+        conn.execute(
+            "INSERT INTO runs (id, created_at, status, request, channels, bench_id, bench_name, reducer, serial_number, "
+            "operator, verdict, rigidity_nm_per_arcmin, test_series) "
+            "SELECT 'r' || i, 1.8e9 + i * 60, 'completed', '{}', '[]', 'bench-' || (i % 20), 'Bench ' || (i % 20), "
+            "'RV-' || (i % 7), 'SN-' || lpad(i::text, 6, '0'), 'op-' || (i % 30), "
+            "CASE WHEN i % 29 = 0 THEN 'fail' ELSE 'pass' END, 300 + i % 10, 'single' "
+            "FROM generate_series(1, 20000) AS i")
+        conn.execute("VACUUM ANALYZE runs")
+
+        def plan(query: RunQuery, sql: str) -> str:
+            where, params = query.where("%s", "ILIKE")
+            return "\n".join(r[0] for r in conn.execute("EXPLAIN " + sql.format(where=where), params))
+
+        text = plan(RunQuery(text="SN-01234"), "SELECT id FROM runs {where} ORDER BY created_at DESC, id DESC LIMIT 100")
+        assert "runs_text" in text, text
+        spc = plan(RunQuery(reducer="RV-3", status="completed"),
+                   "SELECT id, created_at, bench_id, serial_number, test_series, rigidity_nm_per_arcmin FROM runs "
+                   "{where} ORDER BY created_at DESC, id DESC LIMIT 10000")
+        assert "Index Only Scan using runs_reducer" in spc, spc
+        for query in (RunQuery(), RunQuery(since=1.8e9 + 6e5), RunQuery(status="completed", verdict="pass")):
+            listed = plan(query, "SELECT id FROM runs {where} ORDER BY created_at DESC, id DESC LIMIT 100 OFFSET 1000")
+            assert "Index Only Scan using runs_created" in listed, listed

@@ -17,7 +17,7 @@
   function message(text, isError) { $("message").textContent = text || ""; $("message").className = isError ? "error" : ""; }
   async function api(path) {
     const { data, response } = await TcmsSession.request("GET", path);
-    // past 10 000 matches PostgreSQL estimates the total (X-Total-Count-Exact: false): shown as "≈ N"
+    // past 1 000 matches (store.base.EXACT_TOTAL_UP_TO) PostgreSQL estimates the total (X-Total-Count-Exact: false): shown as "≈ N"
     return { data, total: response.headers.get("X-Total-Count"),
              exact: response.headers.get("X-Total-Count-Exact") !== "false" };
   }
