@@ -184,6 +184,24 @@ def iso(t: float | None) -> str | None:
     return None if t is None else datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds")
 
 
+def iso_many(times_s: Sequence[float]) -> list[str]:
+    """:func:`iso` of many finite times (UNIX s) at once, character for character (an SPC chart's 10 000 runs):
+    the microseconds rounded half to even from the fraction as ``datetime.fromtimestamp`` rounds them, then cut to
+    milliseconds."""
+    t = np.asarray(times_s, dtype=float)
+    if t.size == 0:
+        return []
+    if not np.isfinite(t).all():
+        raise ValueError("iso_many: every time must be finite")
+    fraction, whole = np.modf(t)
+    micro = np.round(fraction * 1e6)  # half to even, as datetime's ROUND_HALF_EVEN
+    whole = whole + np.floor_divide(micro, 1e6)  # a fraction that rounds to 1 s (or below 0 for times before 1970)
+    micro = np.mod(micro, 1e6)
+    seconds = np.datetime_as_string(whole.astype("datetime64[s]"), unit="s")
+    millis = (micro // 1000).astype(np.int64)
+    return [f"{s}.{ms:03d}+00:00" for s, ms in zip(seconds.tolist(), millis.tolist(), strict=True)]
+
+
 def new_run_id() -> str:
     """A time-sortable, human-readable run id: ``20261121-153012-1a2b3c``."""
     return f"{datetime.now(UTC):%Y%m%d-%H%M%S}-{uuid.uuid4().hex[:6]}"
