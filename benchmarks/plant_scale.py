@@ -9,8 +9,8 @@ and its loop), SPC over 10 000 runs, and exports.
   :class:`~tcms_daq.store.pgserver.ThrowawayPostgres`) with 256 MB of shared buffers; fsync off during the fill
   only matters to a crash of the server, not to the reads measured.
 * The year is filled in SQL, not row by row: one real test on the simulated bench through ``tcms serve`` is the
-  template (its request, profile, whole results — about 15 kB of JSON — config snapshot, compensator and
-  samples); ``generate_series`` makes 500 000 runs from it over a year (20 benches, the catalogue's reducer
+  template (its request, profile, whole results — about 15 kB of JSON — and their brief, config snapshot,
+  compensator and samples); ``generate_series`` makes 500 000 runs from it over a year (20 benches, the catalogue's reducer
   models, serial numbers, operators; 2 % aborted or failed; each completed run's headline results drawn around
   its model's catalogue rigidity with the run's pass/fail/undecided verdict), and ``INSERT … SELECT`` gives a
   share of the completed runs the template's samples, in the month partitions of the runs.
@@ -97,7 +97,7 @@ _FILL_RUNS = """
 INSERT INTO runs (id, created_at, started_at, finished_at, status, request, profile, results, error, config_snapshot,
                   compensator_toml, channels, sample_count, compensation_version, bench_id, bench_name, reducer,
                   serial_number, operator, verdict, rigidity_nm_per_arcmin, lost_motion_arcsec, backlash_arcsec,
-                  test_series)
+                  test_series, results_brief)
 SELECT v.id, v.created, v.created + 2, v.created + 62, v.status,
        t.request || jsonb_build_object('reducer', v.reducer, 'serial_number', v.serial, 'operator', v.operator),
        t.profile,
@@ -111,7 +111,10 @@ SELECT v.id, v.created, v.created + 2, v.created + 62, v.status,
        CASE WHEN v.status = 'completed' THEN v.rigidity END,
        CASE WHEN v.status = 'completed' THEN v.lost_motion END,
        CASE WHEN v.status = 'completed' THEN v.backlash END,
-       t.test_series
+       t.test_series,
+       CASE WHEN v.status = 'completed' THEN jsonb_set(t.results_brief || jsonb_build_object(
+            'rigidity_nm_per_arcmin', v.rigidity, 'lost_motion_arcsec', v.lost_motion, 'backlash_arcsec', v.backlash),
+            '{verdict,decision}', to_jsonb(v.verdict)) END
 FROM template t, generate_series(%(first)s::int, %(last)s::int) AS i, LATERAL (
     SELECT 'y' || lpad(i::text, 7, '0') AS id,
            %(t0)s + (i - 1) * %(step)s + random() * %(step)s AS created,

@@ -223,6 +223,12 @@ def test_a_brief_list_carries_the_headline_results_their_uncertainty_and_the_ver
                            "uncertainty": {"rigidity_nm_per_arcmin": {"U": 2.0, "k": 2.0, "u": 1.0, "note": None}},
                            "verdict": {"passed": True, "decision": "pass", "reasons": None}}
     assert {r.id: r.results for r in store.list_runs(10)}["b1"] == results
+    if not isinstance(store, RunStore):  # PostgreSQL: the runs written before migration 5 are reduced when listed
+        with store._connection() as conn:  # type: ignore[attr-defined]
+            stored = dict(conn.execute("SELECT id, results_brief FROM runs").fetchall())
+            assert stored == brief
+            conn.execute("UPDATE runs SET results_brief = NULL")
+        assert {r.id: r.results for r in store.list_runs(10, brief=True)} == brief
 
 
 def test_postgres_fleet_queries_use_their_indexes(postgres_url):
