@@ -9,8 +9,8 @@ and its loop), SPC over 10 000 runs, and exports.
   :class:`~tcms_daq.store.pgserver.ThrowawayPostgres`) with 256 MB of shared buffers; fsync off during the fill
   only matters to a crash of the server, not to the reads measured.
 * The year is filled in SQL, not row by row: one real test on the simulated bench through ``tcms serve`` is the
-  template (its request, profile, whole results — about 15 kB of JSON — config snapshot, compensator and
-  samples); ``generate_series`` makes 500 000 runs from it over a year (20 benches, the catalogue's reducer
+  template (its request, profile, whole results — about 15 kB of JSON — and their brief, config snapshot,
+  compensator and samples); ``generate_series`` makes 500 000 runs from it over a year (20 benches, the catalogue's reducer
   models, serial numbers, operators; 2 % aborted or failed; each completed run's headline results drawn around
   its model's catalogue rigidity with the run's pass/fail/undecided verdict), and ``INSERT … SELECT`` gives a
   share of the completed runs the template's samples, in the month partitions of the runs.
@@ -22,6 +22,7 @@ and its loop), SPC over 10 000 runs, and exports.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -47,6 +48,7 @@ YEAR_S = 365 * 86400.0
 TOKEN = "plant-scale-token"
 P95_LIMIT_S = 0.2  # the issue's target for the list, its filters and SPC
 OPERATORS = 30
+REFERENCE = "reference"  # GET /api/health: the HTTP round trip and the framework, no store; the ratios' unit
 
 
 def _free_port() -> int:
@@ -95,7 +97,7 @@ _FILL_RUNS = """
 INSERT INTO runs (id, created_at, started_at, finished_at, status, request, profile, results, error, config_snapshot,
                   compensator_toml, channels, sample_count, compensation_version, bench_id, bench_name, reducer,
                   serial_number, operator, verdict, rigidity_nm_per_arcmin, lost_motion_arcsec, backlash_arcsec,
-                  test_series)
+                  test_series, results_brief)
 SELECT v.id, v.created, v.created + 2, v.created + 62, v.status,
        t.request || jsonb_build_object('reducer', v.reducer, 'serial_number', v.serial, 'operator', v.operator),
        t.profile,
@@ -109,7 +111,10 @@ SELECT v.id, v.created, v.created + 2, v.created + 62, v.status,
        CASE WHEN v.status = 'completed' THEN v.rigidity END,
        CASE WHEN v.status = 'completed' THEN v.lost_motion END,
        CASE WHEN v.status = 'completed' THEN v.backlash END,
-       t.test_series
+       t.test_series,
+       CASE WHEN v.status = 'completed' THEN jsonb_set(t.results_brief || jsonb_build_object(
+            'rigidity_nm_per_arcmin', v.rigidity, 'lost_motion_arcsec', v.lost_motion, 'backlash_arcsec', v.backlash),
+            '{verdict,decision}', to_jsonb(v.verdict)) END
 FROM template t, generate_series(%(first)s::int, %(last)s::int) AS i, LATERAL (
     SELECT 'y' || lpad(i::text, 7, '0') AS id,
            %(t0)s + (i - 1) * %(step)s + random() * %(step)s AS created,
@@ -165,7 +170,6 @@ def _fill(url: str, template_id: str, n_runs: int, sample_share: float, t0: floa
         runs_s = time.perf_counter() - started
         progress(f"indexes made again ({runs_s:.0f} s)")
         every = max(1, round(1 / sample_share)) if sample_share > 0 else 0
-        with_samples = 0
         if every:
             row = conn.execute(
                 "WITH chosen AS (UPDATE runs SET sample_count = t.sample_count FROM template t "
@@ -175,18 +179,23 @@ def _fill(url: str, template_id: str, n_runs: int, sample_share: float, t0: floa
                 "SELECT c.id, c.created_at, b.batch_index, b.n_samples, b.data FROM chosen c "
                 "CROSS JOIN (SELECT batch_index, n_samples, data FROM sample_batches WHERE run_id = %s) b "
                 "RETURNING 1", (every, template_id)).rowcount
-            with_samples = conn.execute("SELECT count(*) FROM runs WHERE id LIKE 'y%%' AND sample_count > 0"
-                                        ).fetchone()[0]  # type: ignore[index]
-            progress(f"samples: {with_samples} runs, {row} batches ({time.perf_counter() - started:.0f} s)")
+            progress(f"samples: {row} batches ({time.perf_counter() - started:.0f} s)")
         conn.execute("DROP TABLE template")
         conn.execute("DROP TABLE models")
         conn.execute("VACUUM ANALYZE")
-        sizes = conn.execute("SELECT pg_total_relation_size('runs'), "
-                             "(SELECT COALESCE(sum(pg_total_relation_size(name::regclass)), 0) "
-                             "FROM sample_partitions)").fetchone()
-    assert sizes is not None
-    return {"fill_s": time.perf_counter() - started, "fill_runs_s": runs_s, "runs_with_samples": with_samples,
-            "runs_table_gb": sizes[0] / 2**30, "samples_gb": float(sizes[1]) / 2**30}
+    return {"fill_s": time.perf_counter() - started, "fill_runs_s": runs_s}
+
+
+def _sizes(url: str) -> dict[str, float]:
+    """The plant database's runs with samples and its sizes on disk."""
+    import psycopg
+
+    with psycopg.connect(url) as conn:
+        row = conn.execute("SELECT (SELECT count(*) FROM runs WHERE id LIKE 'y%%' AND sample_count > 0), "
+                           "pg_total_relation_size('runs'), (SELECT COALESCE(sum(pg_total_relation_size("
+                           "name::regclass)), 0) FROM sample_partitions)").fetchone()
+    assert row is not None
+    return {"runs_with_samples": float(row[0]), "runs_table_gb": row[1] / 2**30, "samples_gb": float(row[2]) / 2**30}
 
 
 def _timed(client: httpx.Client, paths: list[str]) -> list[float]:
@@ -221,6 +230,7 @@ def _round(client: httpx.Client, rng: random.Random, n_runs: int, sampled: list[
 
     page = "/api/tests?limit=100&brief=true"  # a page of the fleet page's list
     kinds: dict[str, Callable[[], list[str]]] = {
+        REFERENCE: lambda: ["/api/health"],
         "list": lambda: [f"{page}"],
         "list_page_100": lambda: [f"{page}&offset={100 * rng.randrange(90, 110)}"],
         "list_whole_results": lambda: ["/api/tests?limit=100"],
@@ -240,13 +250,38 @@ def _round(client: httpx.Client, rng: random.Random, n_runs: int, sampled: list[
         _timed(client, make())  # warm-up (the first request of a kind plans its queries)
         times = [sum(_timed(client, make())) for _ in range(requests)]
         figures[kind] = {"p50_s": statistics.median(times), "p95_s": _p95(times)}
+    reference = figures[REFERENCE]
+    for figure in figures.values():  # against the cheap request of the same round: the load divides out
+        figure.update(p50_ratio=figure["p50_s"] / reference["p50_s"], p95_ratio=figure["p95_s"] / reference["p95_s"])
     return figures
 
 
+def _measure(client: httpx.Client, url: str, rounds: int, requests: int,
+             progress: Callable[[str], None]) -> tuple[dict[str, float], list[dict[str, dict[str, float]]]]:
+    """The rounds of requests on a filled plant database (the year's runs are those whose id starts with y)."""
+    import psycopg
+
+    with psycopg.connect(url) as conn:
+        sampled = [r[0] for r in conn.execute("SELECT id FROM runs WHERE id LIKE 'y%%' AND sample_count > 0 ORDER BY id")]
+        reducers = [r[0] for r in conn.execute("SELECT DISTINCT reducer FROM runs WHERE id LIKE 'y%%'")]
+        n_runs, t0, samples_per_run = conn.execute(
+            "SELECT count(*), min(created_at), max(sample_count) FROM runs WHERE id LIKE 'y%%'").fetchone()  # type: ignore[misc]
+    found = {"runs": float(n_runs), "samples_per_sampled_run": float(samples_per_run),
+             "spc_points": float(len(client.get(f"/api/spc/chart?reducer={reducers[0]}").json()["runs"]))}
+    rng = random.Random(27)
+    per_round = []
+    for k in range(rounds):
+        progress(f"round {k + 1}/{rounds}")
+        per_round.append(_round(client, rng, int(n_runs), sampled, reducers, float(t0), requests))
+    return found, per_round
+
+
 def run(quick: bool = False, n_runs: int | None = None, sample_share: float = SAMPLE_SHARE,
-        rounds: int = RUNS, requests: int = REQUESTS) -> dict:
+        rounds: int = RUNS, requests: int = REQUESTS, url: str | None = None) -> dict:
+    """Fill a throwaway PostgreSQL with a plant's year and measure the fleet API on it; with ``url``, measure an
+    existing plant database instead (one an earlier fill made: its pending migrations are applied first)."""
     bin_dir = pg_bin_dir()
-    if bin_dir is None:
+    if bin_dir is None and url is None:
         raise RuntimeError("no PostgreSQL server binaries: run `bash scripts/setup --test`")
     n_runs = n_runs or (20_000 if quick else RUNS_PER_YEAR)
     if quick:
@@ -256,40 +291,40 @@ def run(quick: bool = False, n_runs: int | None = None, sample_share: float = SA
         print(f"[plant_scale] {text}", file=sys.stderr, flush=True)
 
     t0 = time.time() - YEAR_S - 86400  # the year that ended yesterday
-    metrics: dict[str, float] = {"benches": BENCHES, "runs": n_runs, "sample_share": sample_share,
-                                 "rounds": rounds, "requests_per_kind": requests}
-    server = ThrowawayPostgres(bin_dir, settings={"shared_buffers": "256MB", "max_wal_size": "4GB"})
-    with server, tempfile.TemporaryDirectory(prefix="tcms-plant-") as tmp:
-        import psycopg
+    metrics: dict[str, float] = {"benches": BENCHES, "sample_share": sample_share, "rounds": rounds,
+                                 "requests_per_kind": requests}
+    with contextlib.ExitStack() as stack:
+        tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="tcms-plant-"))
+        fill = url is None
+        if url is None:
+            import psycopg
 
-        with psycopg.connect(server.url(), autocommit=True) as conn:
-            conn.execute("CREATE DATABASE plant")
-        url = server.url("plant")
+            assert bin_dir is not None
+            server = stack.enter_context(ThrowawayPostgres(bin_dir, settings={"shared_buffers": "256MB",
+                                                                              "max_wal_size": "4GB"}))
+            with psycopg.connect(server.url(), autocommit=True) as conn:
+                conn.execute("CREATE DATABASE plant")
+            url = server.url("plant")
+        else:
+            from tcms_daq.store.postgres_store import PostgresRunStore
+
+            progress("the store's pending migrations")
+            PostgresRunStore(url, recover=False).close()
         proc, client = _start_service(url, Path(tmp))
         try:
-            progress("the template: one real test on the simulated bench")
-            template_id = _template_run(client)
-            metrics.update(_fill(url, template_id, n_runs, sample_share, t0, progress))
-            with psycopg.connect(url) as conn:
-                sampled = [r[0] for r in conn.execute(
-                    "SELECT id FROM runs WHERE id LIKE 'y%%' AND sample_count > 0 ORDER BY id")]
-                reducers = [r[0] for r in conn.execute("SELECT DISTINCT reducer FROM runs WHERE id LIKE 'y%%'")]
-                samples_per_run = conn.execute("SELECT sample_count FROM runs WHERE id = %s",
-                                               (template_id,)).fetchone()[0]  # type: ignore[index]
-            metrics["samples_per_sampled_run"] = samples_per_run
-            spc = client.get(f"/api/spc/chart?reducer={reducers[0]}").json()
-            metrics["spc_points"] = len(spc["runs"])
-            rng = random.Random(27)
-            per_round = []
-            for k in range(rounds):
-                progress(f"round {k + 1}/{rounds}")
-                per_round.append(_round(client, rng, n_runs, sampled, reducers, t0, requests))
+            if fill:
+                progress("the template: one real test on the simulated bench")
+                template_id = _template_run(client)
+                metrics.update(_fill(url, template_id, n_runs, sample_share, t0, progress))
+            metrics.update(_sizes(url))
+            found, per_round = _measure(client, url, rounds, requests, progress)
+            metrics.update(found)
         finally:
             client.close()
             proc.terminate()
             proc.wait(30)
     for kind in per_round[0]:
-        for figure in ("p50_s", "p95_s"):
+        for figure in ("p50_s", "p95_s", "p50_ratio", "p95_ratio"):
             metrics.update(spread(f"{kind}_{figure}", [r[kind][figure] for r in per_round]))
     gated = [k for k in per_round[0] if k.startswith(("list", "filter", "spc")) and k != "list_whole_results"]
     targets = {f"{k}_p95_s_max": {"limit": P95_LIMIT_S, "met": metrics[f"{k}_p95_s_max"] < P95_LIMIT_S}
@@ -298,11 +333,12 @@ def run(quick: bool = False, n_runs: int | None = None, sample_share: float = SA
         "name": "plant_scale",
         "metrics": metrics,
         "targets": targets,
-        "notes": (f"{n_runs} runs over a year on {BENCHES} benches in a throwaway PostgreSQL (shared_buffers 256MB), "
-                  f"results of one real test as the template (~15 kB of JSON each), samples for "
-                  f"{metrics['runs_with_samples']:.0f} runs ({samples_per_run} samples each) in month partitions; "
-                  f"tcms serve in its own process asked over HTTP; p50/p95 of {requests} requests per kind per "
-                  f"round, min/median/max of {rounds} rounds"),
+        "notes": (f"{metrics['runs']:.0f} runs over a year on {BENCHES} benches in a throwaway PostgreSQL "
+                  "(shared_buffers 256MB), results of one real test as the template (~15 kB of JSON each), samples "
+                  f"for {metrics['runs_with_samples']:.0f} runs ({metrics['samples_per_sampled_run']:.0f} samples "
+                  "each) in month partitions; tcms serve in its own process asked over HTTP; p50/p95 of "
+                  f"{requests} requests per kind per round, min/median/max of {rounds} rounds; ratios to "
+                  "GET /api/health in the same round"),
     }
 
 
@@ -312,6 +348,7 @@ if __name__ == "__main__":  # pragma: no cover
     parser.add_argument("--sample-share", type=float, default=SAMPLE_SHARE)
     parser.add_argument("--rounds", type=int, default=RUNS)
     parser.add_argument("--requests", type=int, default=REQUESTS)
+    parser.add_argument("--url", help="measure this plant database (an earlier fill's) instead of filling a new one")
     cli = parser.parse_args()
-    print(json.dumps(run(n_runs=cli.runs, sample_share=cli.sample_share, rounds=cli.rounds, requests=cli.requests),
-                     indent=2))
+    print(json.dumps(run(n_runs=cli.runs, sample_share=cli.sample_share, rounds=cli.rounds, requests=cli.requests,
+                         url=cli.url), indent=2))

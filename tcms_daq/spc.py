@@ -47,7 +47,10 @@ class ImrChart:
 
     def to_dict(self) -> dict[str, object]:
         def listed(a: NDArray[np.float64]) -> list[float | None]:
-            return [float(v) if math.isfinite(v) else None for v in a]
+            out: list[float | None] = a.tolist()
+            for i in np.flatnonzero(~np.isfinite(a)).tolist():
+                out[i] = None
+            return out
 
         return {"values": listed(self.values), "moving_range": listed(self.moving_range),
                 "baseline_n": self.baseline_n, "center": self.center, "sigma": self.sigma, "ucl": self.ucl,

@@ -33,12 +33,23 @@ def fit_window(angle_noise_arcsec: float, torque_noise_nm: float, compliance_arc
     return int(max(2, min(wanted, MAX_WINDOW)))
 
 
+def _products_summed(weighted: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """``Σ_i weighted[l, i, k] · other[l, i, c]`` as (levels, k, c): ``einsum("lik,lic->lkc")`` bit for bit (the
+    products summed in sample order from the first) at a third of its CPU for the fits' small k and c, where
+    einsum's inner loop is only k long. The samples are laid outermost and the levels innermost, so every
+    product is one long multiply and the sum over the samples a sequential reduction over the first axis."""
+    by_sample_w = np.ascontiguousarray(weighted.transpose(1, 2, 0))  # (n, k, levels)
+    by_sample_o = np.ascontiguousarray(other.transpose(1, 2, 0))  # (n, c, levels)
+    summed: np.ndarray = (by_sample_w[:, :, None, :] * by_sample_o[:, None, :, :]).sum(axis=0)
+    return summed.transpose(2, 0, 1)
+
+
 def _solve(u: np.ndarray, weight: np.ndarray, values: np.ndarray, degree: int) -> np.ndarray:
     """Weighted LS polynomial coefficients (levels, degree+1, columns) of ``values`` (levels, n, columns) in u."""
     design = np.stack([u**k for k in range(degree + 1)], axis=2)  # (levels, n, degree+1)
     weighted = design * weight[:, :, None]
-    normal = np.einsum("lik,lij->lkj", weighted, design)
-    rhs = np.einsum("lik,lic->lkc", weighted, values)
+    normal = _products_summed(weighted, design)
+    rhs = _products_summed(weighted, values)
     return np.linalg.solve(normal, rhs)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import math
 from pathlib import Path
 
@@ -129,6 +130,9 @@ def run(args: argparse.Namespace) -> int:
                             timeout_graceful_shutdown=10)
     redact_tokens_in_logs()  # after uvicorn configured its loggers and handlers
     server = _server(config)
+    # the start-up's objects (modules, the app, the bench: some 10^5) leave the collector's generations, so a request
+    # that allocates many (SPC's 10 000 runs) no longer traverses them at each full collection (its CPU halved)
+    gc.freeze()
     server.run(sockets=[sock])  # after a signal, uvicorn re-raises it here: the process ends with its status
     if not server.started:
         print("TCMS-DAQ service did not start (see the error above).", flush=True)

@@ -19,6 +19,7 @@ results stay, their samples answer 410 Gone.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ from tcms_daq.identity import HEADLINES
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
     BRIEF_KEYS,
+    EXACT_TOTAL_UP_TO,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
     VERSIONED,
@@ -41,11 +43,13 @@ from tcms_daq.store.base import (
     HeadlineSeries,
     RunColumns,
     RunQuery,
+    RunTotal,
     SamplesRetired,
     StoredRun,
     StoredSamples,
     StoreError,
     VersionedDocuments,
+    brief_results,
     check_new_run,
     dumps,
     finite_number,
@@ -57,6 +61,8 @@ from tcms_daq.store.base import (
 from tcms_daq.store.opening import redact_url
 from tcms_daq.store.people import POSTGRES_MIGRATION as _PEOPLE_MIGRATION
 from tcms_daq.store.people import PeopleRecords
+
+log = logging.getLogger(__name__)
 
 # Each entry moves the schema one version up; applied in order, each in its own transaction. Never edit an
 # applied entry: add the next one.
@@ -176,7 +182,27 @@ MIGRATIONS: tuple[str, ...] = (
     DROP TABLE sample_batches_v1;
     """,
     _PEOPLE_MIGRATION,  # users, API tokens, sessions, the append-only audit trail, saved plans
+    # 4: a plant's year at the fleet page's pace. The list newest first and SPC read their indexes alone (index-only
+    # scans: the filters' and the chart's columns are in the index), never the runs' wide rows; the text search's
+    # trigram index comes with it when pg_trgm can be had (_text_search_index)
+    """
+    DROP INDEX runs_created;
+    CREATE INDEX runs_created ON runs (created_at DESC, id DESC)
+        INCLUDE (bench_id, bench_name, reducer, serial_number, operator, status, verdict);
+    DROP INDEX runs_reducer;
+    CREATE INDEX runs_reducer ON runs (lower(reducer), created_at DESC, id DESC)
+        INCLUDE (reducer, status, verdict, bench_id, bench_name, serial_number, test_series, rigidity_nm_per_arcmin,
+                 lost_motion_arcsec, backlash_arcsec);
+    """,
+    # 5: each run's brief results (base.brief_results: what the fleet list shows) stored beside its whole results when
+    # they are written, so a page of the brief list reads a few hundred bytes a run instead of decompressing 15 kB;
+    # runs written before keep NULL and are reduced when listed
+    "ALTER TABLE runs ADD COLUMN results_brief jsonb",
 )
+#: the text search (``RunQuery.text``, ``ILIKE '%…%'`` on these columns) by trigrams: its own migration step
+_TEXT_SEARCH_INDEX = (
+    "CREATE INDEX runs_text ON runs USING gin ("
+    + ", ".join(f"(COALESCE({c}, '')) gin_trgm_ops" for c in RunQuery.TEXT_COLUMNS) + ")")
 
 _MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)
 _BENCH_LOCK_CLASS = 0x7C45_0002
@@ -184,15 +210,16 @@ _RUN_COLUMNS = ("id, created_at, started_at, finished_at, status, request, profi
                 "config_snapshot, compensator_toml, channels, sample_count, compensation_version, bench_id, "
                 "bench_name, samples_retired_at")
 _LIST_COLUMNS = _RUN_COLUMNS.replace("config_snapshot, compensator_toml", "NULL, NULL")
-# the brief list: results reduced in the database (base.brief_results), so a page of runs moves and parses kilobytes
+# the brief list: the brief results stored with the results (migration 5), or for runs written before, the results
+# reduced in the database (base.brief_results) in one pass (their uncertainty table reduced on the way), so each
+# run's TOASTed results are decompressed once; a page of runs moves and parses kilobytes
 _BRIEF_KEYS_SQL = ", ".join(f"'{k}'" for k in BRIEF_KEYS)
 _BRIEF_RESULTS = (
-    "CASE WHEN results IS NULL THEN NULL ELSE "
-    f"COALESCE((SELECT jsonb_object_agg(key, value) FROM jsonb_each(results) WHERE key IN ({_BRIEF_KEYS_SQL}, "
-    "'verdict', 'passed')), '{}') || CASE WHEN jsonb_typeof(results->'uncertainty') = 'object' THEN "
-    "jsonb_build_object('uncertainty', COALESCE((SELECT jsonb_object_agg(key, value) FROM "
-    f"jsonb_each(results->'uncertainty') WHERE key IN ({_BRIEF_KEYS_SQL})), '{{}}')) ELSE '{{}}' END END")
-_BRIEF_COLUMNS = _LIST_COLUMNS.replace("results", _BRIEF_RESULTS, 1)
+    "CASE WHEN results IS NULL THEN NULL ELSE COALESCE((SELECT jsonb_object_agg(key, CASE WHEN key = 'uncertainty' "
+    "THEN COALESCE((SELECT jsonb_object_agg(u.k, u.v) FROM jsonb_each(value) AS u(k, v) WHERE u.k IN "
+    f"({_BRIEF_KEYS_SQL})), '{{}}') ELSE value END) FROM jsonb_each(results) WHERE key IN ({_BRIEF_KEYS_SQL}, "
+    "'verdict', 'passed') OR (key = 'uncertainty' AND jsonb_typeof(value) = 'object')), '{}') END")
+_BRIEF_COLUMNS = _LIST_COLUMNS.replace("results", f"COALESCE(results_brief, {_BRIEF_RESULTS})", 1)
 
 
 def _json_text(obj: Any) -> str:
@@ -248,6 +275,8 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, People
                 conn.execute(MIGRATIONS[version - 1])  # our own SQL, no parameters
                 if version == 2:
                     _fill_test_series(conn)
+                if version == 4:
+                    _text_search_index(conn)
                 conn.execute("INSERT INTO schema_version (version) VALUES (%s)", (version,))
 
     @property
@@ -330,9 +359,9 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, People
                    results: Mapping[str, Any] | None = None) -> None:
         """Move a run to ``status`` (:func:`~tcms_daq.store.base.status_update`)."""
         sets, params = status_update(status, error=error, results=results, encode_results=_jsonb, placeholder="%s")
-        if results is not None:  # the headline results also in their columns (SPC)
-            sets += "".join(f", {h.key} = %s" for h in HEADLINES)
-            params += [finite_number(results.get(h.key)) for h in HEADLINES]
+        if results is not None:  # the headline results also in their columns (SPC), the brief ones for the list
+            sets += "".join(f", {h.key} = %s" for h in HEADLINES) + ", results_brief = %s"
+            params += [finite_number(results.get(h.key)) for h in HEADLINES] + [_jsonb(brief_results(results))]
         params.append(run_id)
         with self._connection() as conn:
             cur = conn.execute(f"UPDATE runs SET {sets} WHERE id = %s", params)
@@ -362,6 +391,21 @@ class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, People
         with self._connection() as conn:
             row = conn.execute(f"SELECT count(*) FROM runs {where}", params).fetchone()
         return int(row[0]) if row else 0
+
+    def total_runs(self, query: RunQuery | None = None, exact_up_to: int = EXACT_TOTAL_UP_TO) -> RunTotal:
+        """Exact up to ``exact_up_to`` matching runs (counted from the index, stopping at one more); past it the
+        planner's estimate of the matching rows, never below what was counted (a plant's year is 500 000 runs:
+        counting them exactly would cost more than the page)."""
+        where, params = (query or RunQuery()).where("%s", "ILIKE")
+        with self._connection() as conn:
+            row = conn.execute(f"SELECT count(*) FROM (SELECT 1 FROM runs {where} LIMIT %s) AS counted",
+                               (*params, exact_up_to + 1)).fetchone()
+            counted = int(row[0]) if row else 0
+            if counted <= exact_up_to:
+                return RunTotal(counted)
+            plan = conn.execute(f"EXPLAIN (FORMAT JSON) SELECT 1 FROM runs {where}", params).fetchone()
+        estimate = int(plan[0][0]["Plan"]["Plan Rows"]) if plan else 0
+        return RunTotal(max(estimate, counted), exact=False)
 
     def headline_points(self, quantity: str, query: RunQuery, limit: int) -> list[HeadlinePoint]:
         """:meth:`HeadlineSeries.headline_points` from the headline columns: the runs' whole results are not read."""
@@ -533,6 +577,18 @@ def _fill_test_series(conn: Any) -> None:
     with conn.cursor() as cur:
         cur.executemany("UPDATE runs SET test_series = %s WHERE id = %s",
                         [(test_series(request or {}, profile), run_id) for run_id, request, profile in rows])
+
+
+def _text_search_index(conn: Any) -> None:
+    """Migration 4's trigram index for the text search, when the pg_trgm extension is there or can be made (it is
+    trusted since PostgreSQL 13: a database owner may create it); without it the search is right, only slower."""
+    try:
+        with conn.transaction():  # a savepoint: a refused extension leaves the migration's transaction usable
+            conn.execute("CREATE EXTENSION IF NOT EXISTS pg_trgm")
+    except psycopg.Error as exc:
+        log.warning("run store: no pg_trgm (%s): the text search of the runs goes without its index", _reason(exc))
+        return
+    conn.execute(_TEXT_SEARCH_INDEX)
 
 
 def _reason(exc: BaseException) -> str:

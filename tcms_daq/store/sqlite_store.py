@@ -27,6 +27,7 @@ import numpy as np
 from tcms_daq.identity import decision
 from tcms_daq.store.base import (
     ACTIVE_STATUSES,
+    EXACT_TOTAL_UP_TO,
     FINAL_STATUSES,
     INTERRUPTED_ERROR,
     RUN_STATUSES,
@@ -36,6 +37,7 @@ from tcms_daq.store.base import (
     HeadlineSeries,
     RunColumns,
     RunQuery,
+    RunTotal,
     StoredRun,
     StoredSamples,
     StoreError,
@@ -379,6 +381,10 @@ class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries, PeopleRecords)
     def count_runs(self, query: RunQuery | None = None) -> int:
         where, params = (query or RunQuery()).where("?", "LIKE")
         return int(self._query(f"SELECT COUNT(*) FROM runs {where}", params)[0][0])
+
+    def total_runs(self, query: RunQuery | None = None, exact_up_to: int = EXACT_TOTAL_UP_TO) -> RunTotal:
+        """Always exact: one bench's file counts its runs quickly."""
+        return RunTotal(self.count_runs(query))
 
     def count_by_status(self) -> dict[str, int]:
         """Runs of this bench (and those recorded before benches) by status."""

@@ -45,6 +45,7 @@ def test_two_services_on_one_postgres_list_filter_and_serve_each_others_runs(set
         for client in (c1, c2):  # each lists every bench's runs, newest first, with its bench
             listed = client.get("/api/tests")
             assert listed.status_code == 200 and listed.headers["X-Total-Count"] == "3"
+            assert listed.headers["X-Total-Count-Exact"] == "true"  # counted: far below the estimate's threshold
             assert [(r["id"], r["bench_id"]) for r in listed.json()] == [(c, "line-2"), (b, "line-2"), (a, "line-1")]
         by_serial = c1.get("/api/tests", params={"serial": "ref-0042"})
         assert {r["id"] for r in by_serial.json()} == {a, b} and by_serial.headers["X-Total-Count"] == "2"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from svc_helpers import ScriptedRunner, serve
 
+from tcms_daq.service.schemas import SpcChartView
 from tcms_daq.store import open_store
 
 BIAS_B = 2.5  # N·m/arcmin: bench line-b reads this much stiffer than line-a
@@ -56,6 +57,7 @@ def test_spc_chart_and_bias_over_a_shared_store(settings_factory, postgres_url, 
         assert doc["unit"] == "N·m/arcmin" and doc["dof"] == 24 - 5
 
         chart = c.get("/api/spc/chart", params={"reducer": "RV-110E", "bench": "line-a", "baseline_runs": 22}).json()
+        assert SpcChartView.model_validate(chart).model_dump(mode="json") == chart  # the route skips the validation
         values = [p["value"] for p in chart["runs"]]
         assert len(values) == 28 and chart["chart"]["baseline_n"] == 22 and chart["bench"] == "line-a"
         assert [p["serial_number"] for p in chart["runs"]][-1] == "SN-late-5"  # oldest first
@@ -73,6 +75,7 @@ def test_spc_chart_and_bias_over_a_shared_store(settings_factory, postgres_url, 
         few = c.get("/api/spc/chart", params={"reducer": "RV-110E", "bench": "line-a", "baseline_runs": 5}).json()
         assert few["limits"] == "provisional" and few["baseline_n"] == 5 and "provisional until 20" in few["note"]
         none = c.get("/api/spc/chart", params={"reducer": "RV-60N"})
+        assert SpcChartView.model_validate(none.json()).model_dump(mode="json") == none.json()
         assert none.status_code == 200 and none.json()["chart"] is None and none.json()["limits"] == "none"
         assert none.json()["note"].startswith("too few runs: 0 completed single runs of RV-60N")
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tcms_daq.store import RunQuery, Store, StoreError, open_store
-from tcms_daq.store.base import INTERRUPTED_ERROR
+from tcms_daq.store import RunQuery, RunStore, Store, StoreError, open_store
+from tcms_daq.store.base import INTERRUPTED_ERROR, RunTotal
 
 CHANNELS = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec")
 Opener = Callable[..., Store]
@@ -148,6 +148,19 @@ def test_queries_filter_and_paginate(opener: Opener):
             RunQuery(**bad)
 
 
+def test_the_lists_total_is_exact_up_to_its_limit_and_an_estimate_past_it(opener: Opener):
+    store = opener()
+    for i in range(6):
+        store.create_run(f"r{i}", {"reducer": "RV-110E", "serial_number": f"SN-{i % 3}"}, CHANNELS)
+    assert store.total_runs() == RunTotal(6, exact=True)
+    assert store.total_runs(RunQuery(serial="SN-1"), exact_up_to=2) == RunTotal(2, exact=True)  # at the limit
+    past = store.total_runs(exact_up_to=3)
+    if isinstance(store, RunStore):  # one bench's file: always counted
+        assert past == RunTotal(6, exact=True)
+    else:  # PostgreSQL: the planner's estimate, never below the limit + 1 it counted
+        assert not past.exact and past.count >= 4
+
+
 def test_postgres_second_service_of_a_bench_is_refused_and_migrations_are_idempotent(postgres_url):
     from tcms_daq.store.postgres_store import MIGRATIONS, PostgresRunStore
 
@@ -210,3 +223,43 @@ def test_a_brief_list_carries_the_headline_results_their_uncertainty_and_the_ver
                            "uncertainty": {"rigidity_nm_per_arcmin": {"U": 2.0, "k": 2.0, "u": 1.0, "note": None}},
                            "verdict": {"passed": True, "decision": "pass", "reasons": None}}
     assert {r.id: r.results for r in store.list_runs(10)}["b1"] == results
+    if not isinstance(store, RunStore):  # PostgreSQL: the runs written before migration 5 are reduced when listed
+        with store._connection() as conn:  # type: ignore[attr-defined]
+            stored = dict(conn.execute("SELECT id, results_brief FROM runs").fetchall())
+            assert stored == brief
+            conn.execute("UPDATE runs SET results_brief = NULL")
+        assert {r.id: r.results for r in store.list_runs(10, brief=True)} == brief
+
+
+def test_postgres_fleet_queries_use_their_indexes(postgres_url):
+    """On 20 000 runs (a month of a plant): the text search uses the trigram index (its expressions match the
+    query's), SPC and the list's filters are answered from their indexes alone (index-only scans, never the runs'
+    wide rows)."""
+    import psycopg
+
+    from tcms_daq.store.postgres_store import PostgresRunStore
+
+    PostgresRunStore(postgres_url, recover=False).close()  # the schema
+    with psycopg.connect(postgres_url, autocommit=True) as conn:
+        conn.execute(
+            "INSERT INTO runs (id, created_at, status, request, channels, bench_id, bench_name, reducer, serial_number, "
+            "operator, verdict, rigidity_nm_per_arcmin, test_series) "
+            "SELECT 'r' || i, 1.8e9 + i * 60, 'completed', '{}', '[]', 'bench-' || (i % 20), 'Bench ' || (i % 20), "
+            "'RV-' || (i % 7), 'SN-' || lpad(i::text, 6, '0'), 'op-' || (i % 30), "
+            "CASE WHEN i % 29 = 0 THEN 'fail' ELSE 'pass' END, 300 + i % 10, 'single' "
+            "FROM generate_series(1, 20000) AS i")
+        conn.execute("VACUUM ANALYZE runs")
+
+        def plan(query: RunQuery, sql: str) -> str:
+            where, params = query.where("%s", "ILIKE")
+            return "\n".join(r[0] for r in conn.execute("EXPLAIN " + sql.format(where=where), params))
+
+        text = plan(RunQuery(text="SN-01234"), "SELECT id FROM runs {where} ORDER BY created_at DESC, id DESC LIMIT 100")
+        assert "runs_text" in text, text
+        spc = plan(RunQuery(reducer="RV-3", status="completed"),
+                   "SELECT id, created_at, bench_id, serial_number, test_series, rigidity_nm_per_arcmin FROM runs "
+                   "{where} ORDER BY created_at DESC, id DESC LIMIT 10000")
+        assert "Index Only Scan using runs_reducer" in spc, spc
+        for query in (RunQuery(), RunQuery(since=1.8e9 + 6e5), RunQuery(status="completed", verdict="pass")):
+            listed = plan(query, "SELECT id FROM runs {where} ORDER BY created_at DESC, id DESC LIMIT 100 OFFSET 1000")
+            assert "Index Only Scan using runs_created" in listed, listed

@@ -9,6 +9,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
+from pydantic import TypeAdapter
 
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.extras import require_extra
@@ -21,7 +22,7 @@ from tcms_daq.service.runner import RequestRejected
 from tcms_daq.service.schemas import ErrorBody, LoopView, TestAccepted, TestRequest, TestSummary, summary_view
 from tcms_daq.service.users import audit
 from tcms_daq.store import RunQuery, StoreError
-from tcms_daq.store.base import text_sha256
+from tcms_daq.store.base import EXACT_TOTAL_UP_TO, text_sha256
 from tcms_daq.store.people import SavedPlan
 
 router = APIRouter(prefix="/api/tests", tags=["tests"])
@@ -77,22 +78,35 @@ def run_query(bench: _Text = None, reducer: _Text = None, serial: _Text = None, 
 
 @router.get("", response_model=list[TestSummary], responses={
     **errors(422), 200: {"description": "the page of tests, newest first",
-                         "headers": {"X-Total-Count": {"description": "tests matching the filters, all pages",
-                                                       "schema": {"type": "integer"}}}}})
-def list_tests(store: Store, response: Response, query: Annotated[RunQuery, Depends(run_query)],
+                         "headers": {"X-Total-Count": {"description": "tests matching the filters, all pages (an "
+                                                                      "estimate when X-Total-Count-Exact is false)",
+                                                       "schema": {"type": "integer"}},
+                                     "X-Total-Count-Exact": {"description": (
+                                         f"false when more than {EXACT_TOTAL_UP_TO} tests match and the store "
+                                         "(PostgreSQL) gives its estimate instead of counting them all"),
+                                         "schema": {"type": "boolean"}}}}})
+def list_tests(store: Store, query: Annotated[RunQuery, Depends(run_query)],
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
                offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
                brief: Annotated[bool, Query(description=(
                    "each test's results reduced to its headline results (with their uncertainty) and verdict, as "
                    "the fleet page lists them: a page of a plant's runs without their whole results"))] = False,
-               ) -> list[TestSummary]:
+               ) -> Response:
     """Stored tests of every bench sharing the store, newest first, one page at a time (``limit``, ``offset``;
-    the header ``X-Total-Count`` counts all pages). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
+    the header ``X-Total-Count`` counts all pages, exactly up to a limit; past it PostgreSQL estimates and
+    ``X-Total-Count-Exact`` says ``false``). Filters: ``bench`` (id or name), ``reducer`` and ``serial``
     (exact, any case), ``status``, ``verdict`` (pass / fail / undecided), ``q`` (a substring of the id, serial
     number, reducer, operator or bench), ``since`` / ``until`` (creation time, ISO 8601). ``brief``: results reduced
     to the headline results and the verdict."""
-    response.headers["X-Total-Count"] = str(store.count_runs(query))
-    return [summary_view(r.summary()) for r in store.list_runs(limit, offset, query, brief=brief)]
+    total = store.total_runs(query)
+    views = [summary_view(r.summary()) for r in store.list_runs(limit, offset, query, brief=brief)]
+    # the views are validated models already: serialised once by pydantic (FastAPI would validate them again and
+    # encode them in Python, more than the query costs for a page of a plant's runs)
+    return Response(_SUMMARIES.dump_json(views), media_type="application/json", headers={
+        "X-Total-Count": str(total.count), "X-Total-Count-Exact": "true" if total.exact else "false"})
+
+
+_SUMMARIES = TypeAdapter(list[TestSummary])
 
 
 @router.get("/{run_id}", response_model=TestSummary, responses=errors(404))

@@ -17,7 +17,9 @@
   function message(text, isError) { $("message").textContent = text || ""; $("message").className = isError ? "error" : ""; }
   async function api(path) {
     const { data, response } = await TcmsSession.request("GET", path);
-    return { data, total: response.headers.get("X-Total-Count") };
+    // past 1 000 matches (store.base.EXACT_TOTAL_UP_TO) PostgreSQL estimates the total (X-Total-Count-Exact: false): shown as "≈ N"
+    return { data, total: response.headers.get("X-Total-Count"),
+             exact: response.headers.get("X-Total-Count-Exact") !== "false" };
   }
   function utc(local) { return local ? local + (local.length === 16 ? ":00" : "") + "Z" : ""; }  // datetime-local as UTC
   function width(el) { return Math.max(300, el.clientWidth - 4); }
@@ -41,10 +43,11 @@
     try { answer = await api("/api/tests?" + query()); } catch (e) { message(e.message, true); return; }
     message("");
     state.total = parseInt(answer.total || "0", 10);
-    $("total").textContent = state.total;
+    const shown = (answer.exact ? "" : "≈ ") + state.total;
+    $("total").textContent = shown;
     const limit = parseInt($("f-limit").value, 10);
     const first = state.total ? state.offset + 1 : 0;
-    $("page").textContent = t("fleet.page", { first, last: Math.min(state.offset + limit, state.total), total: state.total });
+    $("page").textContent = t("fleet.page", { first, last: Math.min(state.offset + limit, state.total), total: shown });
     $("prev").disabled = state.offset === 0;
     $("next").disabled = state.offset + limit >= state.total;
     const body = $("runs").tBodies[0];
