@@ -534,10 +534,11 @@ ZH: dict[str, str] = {
 CATALOGUES: dict[str, dict[str, str]] = {"en": EN, "zh": ZH}
 
 
-def language(requested: str | None, accept_language: str | None = None) -> str:
+def language(requested: str | None, accept_language: str | None = None, default: str | None = None) -> str:
     """The language to answer in: ``requested`` (``?lang=``: ``en``, ``zh``, ``zh-CN`` …) when it names one of
-    :data:`LANGUAGES`, else the first of the ``Accept-Language`` header's that does, else English."""
-    for candidate in [requested or "", *[part.split(";")[0] for part in (accept_language or "").split(",")]]:
+    :data:`LANGUAGES`, else ``default`` (the bench's, set by its admin), else the first of the
+    ``Accept-Language`` header's that does, else English."""
+    for candidate in [requested or "", default or "", *[part.split(";")[0] for part in (accept_language or "").split(",")]]:
         primary = candidate.strip().lower().split("-")[0]
         if primary in LANGUAGES:
             return primary

@@ -56,6 +56,7 @@ from tcms_daq.store.base import (
 )
 from tcms_daq.store.opening import redact_url
 from tcms_daq.store.people import POSTGRES_MIGRATION as _PEOPLE_MIGRATION
+from tcms_daq.store.people import POSTGRES_SETTINGS_MIGRATION as _SETTINGS_MIGRATION
 from tcms_daq.store.people import PeopleRecords
 
 # Each entry moves the schema one version up; applied in order, each in its own transaction. Never edit an
@@ -176,6 +177,7 @@ MIGRATIONS: tuple[str, ...] = (
     DROP TABLE sample_batches_v1;
     """,
     _PEOPLE_MIGRATION,  # users, API tokens, sessions, the append-only audit trail, saved plans
+    _SETTINGS_MIGRATION,  # the admin's run-time settings of each bench
 )
 
 _MIGRATION_LOCK = 0x7C45_0001  # advisory lock keys of this application (two int4 keys: class, object)

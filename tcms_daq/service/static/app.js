@@ -542,7 +542,7 @@
   async function syncBench() {
     try {
       const bench = await api("GET", "/api/bench");
-      $("bench-name").textContent = bench.name || "";
+      $("bench-name").textContent = bench.display_name || bench.name || "";
       if (bench.id && bench.id !== state.benchId) { state.benchId = bench.id; loadHistory(); }
       const sel = $("f-reducer");
       if (!sel.options.length) {

@@ -1,6 +1,7 @@
 // TCMS-DAQ pages in the user's language: the catalogues come from /i18n/messages.js (tcms_daq/service/messages.py,
 // one per language). The language is ?lang=, else the one chosen with the switch (kept in this browser), else the
-// first of the browser's languages the catalogue has, else English. Elements name their words by key:
+// bench's default language (its admin's setting), else the first of the browser's languages the catalogue has,
+// else English. Elements name their words by key:
 // data-i18n (text), data-i18n-placeholder, data-i18n-title.
 "use strict";
 const TcmsI18n = (() => {
@@ -11,7 +12,8 @@ const TcmsI18n = (() => {
   function pick() {
     let kept = null;
     try { kept = localStorage.getItem("tcmsLang"); } catch (e) { kept = null; }
-    const candidates = [params.get("lang"), kept, ...(navigator.languages || [navigator.language])];
+    const candidates = [params.get("lang"), kept, window.TCMS_DEFAULT_LANG,
+      ...(navigator.languages || [navigator.language])];
     for (const c of candidates) if (c && all[primary(c)]) return primary(c);
     return "en";
   }
