@@ -10,8 +10,11 @@ names; values may hold ``{name}`` fields. A key a language lacks falls back to E
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Mapping
 from typing import Any
 
+from tcms_daq.analysis.notices import notices_in
 from tcms_daq.service import certificate_text
 
 LANGUAGES: tuple[str, ...] = ("en", "zh")
@@ -170,6 +173,12 @@ EN: dict[str, str] = {
     "verdict.pass": "pass",
     "verdict.fail": "fail",
     "verdict.undecided": "undecided",
+    "rule.guarded": "guarded",
+    "rule.simple": "simple",
+    # a warning of one stage of a test at several positions or rates; the warnings themselves are the core's
+    # English texts (tcms_daq.analysis.notices), translated by their code below in the other languages
+    "notice.stage_position": "position {number}: {text}",
+    "notice.stage_rate": "rate {number}: {text}",
     # fleet page
     "fleet.title": "TCMS-DAQ fleet",
     "fleet.subtitle": "every bench sharing this run store",
@@ -449,6 +458,34 @@ ZH: dict[str, str] = {
     "verdict.pass": "合格",
     "verdict.fail": "不合格",
     "verdict.undecided": "无法判定",
+    "rule.guarded": "保护带",
+    "rule.simple": "简单接受",
+    "notice.stage_position": "位置 {number}：{text}",
+    "notice.stage_rate": "速率 {number}：{text}",
+    # the evaluation's warnings and the reasons no decision can be given, by their code (tcms_daq.analysis.notices)
+    "notice.skipped_loop_not_reported": "跳过的第 {loop} 个循环未报告：{error}",
+    "notice.angle_span_implausible": "在 ±{torque} N·m 的试验中角度跨度仅 {span}″，按角秒计不合理地小（若为度则为 "
+                                     "{as_degrees}″，若为弧度则为 {as_radians}″）：angle_arcsec 是否为度或弧度？",
+    "notice.reduced_amplitude": "幅值不足：扭矩在 t = {time} s 处于 {torque} N·m 换向，为典型值 {typical} N·m 的 {share}"
+                                "（一个循环至少需要 {needed}）：经过该点的循环不参与评定",
+    "notice.sampling_too_coarse": "采样对该循环过粗：评定扭矩处相邻样本相差 {gap} N·m，空程在 ±{level} N·m 处读取"
+                                  "（应不大于 {want} N·m）：请提高采样率或降低加载速率",
+    "notice.drift_corrected": "循环不闭合：换向点处的角度漂移 {rate}″/s（{span} s 内 {closure}″），使背隙改变 {bias}″："
+                              "结果已作漂移修正（修正后背隙 {corrected}″，未修正 {uncorrected}″）",
+    "notice.drift_corrected_one_loop": "循环不闭合：换向点处的角度漂移 {rate}″/s（{span} s 内 {closure}″），使背隙改变 "
+                                       "{bias}″：结果已作漂移修正（修正后背隙 {corrected}″，未修正 {uncorrected}″）；"
+                                       "仅一个循环，无法评定修正的不确定度",
+    "notice.drift_one_loop_undecidable": "由单个循环修正了 {rate}″/s 的角度漂移：无法评定该修正的不确定度",
+    "notice.drift_not_significant": "换向点处的角度可能漂移 {rate}″/s（± {u}″/s，不显著：未修正）；它会使背隙改变 {bias}″",
+    "notice.rigidity_interval_clipped_positive": "正向刚度区间被截短：扭矩仅达到 {reached} N·m，区间要求 {asked} N·m",
+    "notice.rigidity_interval_clipped_negative": "负向刚度区间被截短：扭矩仅达到 {reached} N·m，区间要求 {asked} N·m",
+    "notice.uncertainty_not_evaluated": "未评定不确定度：{error}",
+    "notice.rigidity_far_from_catalogue": "扭转刚度 {measured} N·m/arcmin 是 {reducer} 样本值 {expected} N·m/arcmin 的 "
+                                          "{ratio} 倍",
+    "notice.rigidity_unit_mixup": "扭转刚度 {measured} N·m/arcmin 是 {reducer} 样本值 {expected} N·m/arcmin 的 {ratio} "
+                                  "倍：如同角度单位为 {unit}（× {factor}）而非角秒",
+    "notice.loop_left_out_gap": "第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
+    "notice.loop_of_stage_left_out_gap": "第 {stage} 阶段的第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
     "fleet.title": "TCMS-DAQ 试验台群",
     "fleet.subtitle": "共用此数据库的所有试验台",
     "fleet.back": "← 试验台仪表板",
@@ -593,6 +630,57 @@ def catalogue(lang: str = "en") -> dict[str, str]:
     words = {**EN, **CATALOGUES.get(lang, {})}
     words.update({f"certificate.{k}": v for k, v in certificate_text.catalogue(lang).items()})
     return words
+
+
+def notice_text(notice: Mapping[str, Any], lang: str = "en") -> str:
+    """A warning or reason of the core (``{"code", "params", "text"}``, :mod:`tcms_daq.analysis.notices`) in
+    ``lang``: the catalogue's ``notice.<code>`` filled with its params, else the core's English text; a stage's
+    notice (a test at several positions or rates) says which stage."""
+    body = str(notice.get("text") or "")
+    code, params = notice.get("code"), notice.get("params") or {}
+    template = CATALOGUES.get(lang, {}).get(f"notice.{code}") if code else None
+    if template is not None:
+        with contextlib.suppress(KeyError, IndexError, ValueError):
+            body = template.format(**params)
+    stage = notice.get("stage")
+    if isinstance(stage, Mapping) and stage.get("kind") in ("position", "rate"):
+        body = text(f"notice.stage_{stage['kind']}", lang, number=stage.get("number"), text=body)
+    return body
+
+
+_CHECKED = {"rigidity_nm_per_arcmin": ("res.rigidity", " N·m/arcmin"), "lost_motion_arcsec": ("res.lost_motion", "″"),
+            "backlash_arcsec": ("res.backlash", "″")}
+
+
+def check_label(check: Mapping[str, Any], lang: str = "en") -> str:
+    """A verdict check's requirement in ``lang`` ("扭转刚度 ≥ 235.2 N·m/arcmin"); the core's English ``label``
+    in English or for a check of another shape."""
+    label = str(check.get("label") or check.get("quantity") or "")
+    found = _CHECKED.get(str(check.get("quantity")))
+    sign = {">=": "≥", "<=": "≤"}.get(str(check.get("comparison")))
+    limit = check.get("limit")
+    if lang == "en" or found is None or sign is None or not isinstance(limit, int | float):
+        return label
+    return f"{text(found[0], lang).split(' / ')[0]} {sign} {float(limit):.4g}{found[1]}"
+
+
+def rule_text(rule: object, lang: str = "en") -> str:
+    """A decision rule's name in ``lang`` (guarded, simple; another as it is)."""
+    return text(f"rule.{rule}", lang) if rule in ("guarded", "simple") else str(rule)
+
+
+def warnings_text(results: Mapping[str, Any], lang: str = "en") -> list[str]:
+    """The warnings of a results document in ``lang`` (English as the core wrote them when a code is unknown)."""
+    return [notice_text(n, lang) for n in notices_in(results)]
+
+
+def reasons_text(verdict: Mapping[str, Any], lang: str = "en") -> list[str]:
+    """Why a verdict is undecided whatever the values (``reasons``), in ``lang``."""
+    reasons = [str(r) for r in verdict.get("reasons") or []]
+    kept = verdict.get("reason_notices")
+    if isinstance(kept, list) and len(kept) == len(reasons):
+        return [notice_text(n, lang) for n in kept]
+    return reasons
 
 
 def text(key: str, lang: str = "en", **fields: Any) -> str:

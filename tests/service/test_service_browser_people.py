@@ -385,3 +385,61 @@ def test_an_admin_changes_the_bench_settings_on_the_page(settings_factory):
             assert errors == []
         finally:
             browser.close()
+
+
+def _degrees_record_results() -> dict:
+    """The core's results of a record whose angle column is in degrees (a triangle of ±300 N·m over a spring of
+    290 N·m/arcmin with 10″ of play): a coded warning, and a verdict undecided for that reason."""
+    import json
+
+    import numpy as np
+
+    from tcms_daq.analysis import evaluate
+    from tcms_daq.analysis.evaluation import Limits
+
+    t = np.arange(0.0, 4 * 4 * 300 / 250.0, 1 / 200.0)
+    phase = (t % (4 * 300 / 250.0)) / (4 * 300 / 250.0)
+    torque = 300.0 * np.where(phase < 0.25, 4 * phase, np.where(phase < 0.75, 2 - 4 * phase, 4 * phase - 4))
+    angle_arcsec = torque / 290.0 * 60.0 + np.where(np.gradient(torque) > 0, -5.0, 5.0)
+    ev = evaluate(t, torque, angle_arcsec / 3600.0, rated_torque_nm=300.0,
+                  limits=Limits(rigidity_min_nm_per_arcmin=200.0))
+    return json.loads(json.dumps(ev.to_dict()))
+
+
+@pytest.mark.timeout(120)
+def test_warnings_reasons_and_verdicts_in_chinese(settings_factory):
+    """The core's English warning and its reason for an undecided verdict, shown in Chinese from their codes
+    (issue 26 item 2) on the dashboard (browser language zh-CN) and in the report (?lang=zh); English stays the
+    core's own text."""
+    from playwright.sync_api import sync_playwright
+
+    results = _degrees_record_results()
+    assert results["verdict"]["decision"] == "undecided" and len(results["notices"]) == 1
+    settings = settings_factory()
+    with open_store(None, settings.data_dir, bench_id="line-a", bench_name="Line A") as store:
+        store.create_run("degrees", {"reducer": "RV-110E", "serial_number": "SN-DEG", "max_torque_nm": 300.0},
+                         ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec"))
+        store.set_status("degrees", "completed", results=results)
+    runner = ScriptedRunner()
+    runner.bench_id = "line-a"
+    with serve(settings, runner=runner) as srv, sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_context(locale="zh-CN", viewport={"width": WIDTH, "height": 900}).new_page()
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.goto(f"{srv.base}/?token={TOKEN}")
+            page.wait_for_selector("#results td.undecided")
+            shown = page.inner_text("#results")
+            assert "无法判定" in shown and "简单接受" in shown, shown
+            assert "按角秒计不合理地小（若为度则为 134.1″" in shown and "警告" in shown, shown
+            assert "implausibly small" not in shown and "扭转刚度 ≥ 200 N·m/arcmin" in shown
+            assert "无法判定" in page.inner_text("#history")
+            assert page.evaluate(OVERFLOWING, "#results td, #results th") == []
+            assert errors == []
+        finally:
+            browser.close()
+        zh = httpx.get(f"{srv.base}/api/tests/degrees/report", params={"lang": "zh"}, timeout=60).text
+        assert "按角秒计不合理地小" in zh and "简单接受" in zh and "扭转刚度 ≥ 200 N·m/arcmin" in zh
+        en = httpx.get(f"{srv.base}/api/tests/degrees/report", params={"lang": "en"}, timeout=60).text
+        assert "implausibly small for arcsec (in degrees it would be 134.1″" in en and "simple rule" in en

@@ -385,9 +385,10 @@
       }
       const d = decisionOf(verdict);
       // the decision first: it is what the operator looks for
-      rows.unshift([t("res.decision"), DECISION_WORD[d] + (verdict.rule ? " (" + t("res.rule", { rule: verdict.rule }) + ")" : ""), d]);
+      rows.unshift([t("res.decision"), DECISION_WORD[d] + (verdict.rule ? " (" + t("res.rule", { rule: TcmsI18n.rule(verdict.rule) }) + ")" : ""), d,
+                    TcmsI18n.reasons(verdict).join(" · ")]);
     }
-    for (const w of res.warnings || []) rows.push([t("res.warning"), String(w), "warning"]);
+    for (const w of TcmsI18n.warnings(res)) rows.push([t("res.warning"), w, "warning"]);
     if (!rows.length) {
       for (const [k, v] of Object.entries(res)) {
         if (v === null || typeof v === "object") continue;

@@ -44,8 +44,32 @@ const TcmsI18n = (() => {
     });
   }
 
+  /** A warning or reason of the core ({code, params, text}; tcms_daq/analysis/notices.py) in this page's language:
+   * the catalogue's notice.<code> with its params, else the core's English text; a stage's notice says which. */
+  function notice(n) {
+    const key = "notice." + n.code;
+    let body = n.code && lang !== "en" && Object.prototype.hasOwnProperty.call(all[lang] || {}, key)
+      ? t(key, n.params || {}) : String(n.text || "");
+    if (n.stage && (n.stage.kind === "position" || n.stage.kind === "rate")) {
+      body = t("notice.stage_" + n.stage.kind, { number: n.stage.number, text: body });
+    }
+    return body;
+  }
+  /** The warnings of a results document in this page's language (its notices when they match one to one). */
+  function warnings(res) {
+    const texts = res.warnings || [], kept = res.notices;
+    return Array.isArray(kept) && kept.length === texts.length ? kept.map(notice) : texts.map(String);
+  }
+  /** Why a verdict is undecided whatever the values, in this page's language. */
+  function reasons(verdict) {
+    const texts = verdict.reasons || [], kept = verdict.reason_notices;
+    return Array.isArray(kept) && kept.length === texts.length ? kept.map(notice) : texts.map(String);
+  }
+  /** A decision rule's name (guarded, simple). */
+  function rule(name) { return name === "guarded" || name === "simple" ? t("rule." + name) : String(name); }
+
   /** `path` with this page's language (?lang=), for reports and certificates. */
   function withLang(path) { return path + (path.includes("?") ? "&" : "?") + "lang=" + lang; }
 
-  return { lang, t, apply, bindSwitch, withLang };
+  return { lang, t, apply, bindSwitch, withLang, notice, warnings, reasons, rule };
 })();
