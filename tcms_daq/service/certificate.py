@@ -35,7 +35,7 @@ from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision
 from tcms_daq.service import fonts
 from tcms_daq.service.certificate_text import catalogue
 from tcms_daq.service.loop_figure import loop_figure_svg
-from tcms_daq.service.messages import check_label, warnings_text
+from tcms_daq.service.messages import check_label, source_text, warnings_text
 from tcms_daq.store import StoredRun
 
 TEMPLATE = "certificate.typ"
@@ -128,7 +128,7 @@ def _result_rows(d: _Doc) -> list[dict[str, str]]:
         shown = with_u(d, d.results.get(key), entry, unit)
         dominant = entry.get("dominant") if entry else None
         rows.append({"label": d.t[f"q_{key}"], "text": shown,
-                     "dominant": str(dominant) if dominant else ("—" if entry else d.t["u_not_stated"])})
+                     "dominant": source_text(dominant, d.lang) if dominant else ("—" if entry else d.t["u_not_stated"])})
     return rows
 
 
@@ -287,7 +287,7 @@ def certificate_document(record: StoredRun, issued_at: datetime | None = None, l
         "loop_caption": caption,
         "results": _result_rows(d),
         "summary": summary,
-        "u_note": d.say("u_note", basis=without_paths(str(basis)) if basis else t["basis_none"]),
+        "u_note": d.say("u_note", basis=without_paths(source_text(basis, d.lang)) if basis else t["basis_none"]),
         "stages": _stages(d),
         "decision_rule": _rule(d),
         "checks": _checks(d),

@@ -11,6 +11,7 @@ names; values may hold ``{name}`` fields. A key a language lacks falls back to E
 from __future__ import annotations
 
 import contextlib
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -91,6 +92,8 @@ EN: dict[str, str] = {
     "dash.discrepancy": "Model discrepancy",
     "dash.bench_model": "bench model",
     "dash.find_effects": "Find missing effects",
+    "dash.missing_effects": "missing effects",
+    "dash.missing_effects_hint": "compare this stored run with the bench model (POST /api/discrepancy)",
     "dash.apply_effects": "Add to the bench model",
     "dash.discrepancy_report": "discrepancy report",
     "dash.analysing": "analysing run {id} …",
@@ -378,6 +381,8 @@ ZH: dict[str, str] = {
     "dash.discrepancy": "模型偏差",
     "dash.bench_model": "试验台模型",
     "dash.find_effects": "查找缺失效应",
+    "dash.missing_effects": "缺失效应",
+    "dash.missing_effects_hint": "将这次已存储的试验与试验台模型比较（POST /api/discrepancy）",
     "dash.apply_effects": "加入试验台模型",
     "dash.discrepancy_report": "偏差报告",
     "dash.analysing": "正在分析试验 {id} …",
@@ -485,6 +490,23 @@ ZH: dict[str, str] = {
     "notice.rigidity_unit_mixup": "扭转刚度 {measured} N·m/arcmin 是 {reducer} 样本值 {expected} N·m/arcmin 的 {ratio} "
                                   "倍：如同角度单位为 {unit}（× {factor}）而非角秒",
     "notice.loop_left_out_gap": "第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
+    # the uncertainty budget's sources by the core's own names (tcms_daq/uncertainty), and by SOURCE_PATTERNS
+    "source.torque scale": "扭矩标度",
+    "source.torque zero": "扭矩零点",
+    "source.angle scale": "角度标度",
+    "source.angle absolute": "角度绝对误差",
+    "source.compensation scale residual": "补偿标度残差",
+    "source.compensation torsion residual": "补偿扭转残差",
+    "source.temperature": "温度",
+    "source.drift correction": "漂移修正",
+    "source.noise within the one loop (loop-to-loop repeatability not assessed)": "单个循环内的噪声（未评定循环间重复性）",
+    "source.interpolation": "细分误差（信号周期 {period}″）",
+    "source.interpolation_sine": "细分误差（信号周期 {period}″），正弦分量",
+    "source.interpolation_cosine": "细分误差（信号周期 {period}″），余弦分量",
+    "source.repeatability": "重复性（循环间，n = {n}）",
+    "source.basis_declared": "声明的测量链：{where}",
+    "source.basis_type_a_config": "仅 A 类（{config} 中未声明不确定度）",
+    "source.basis_type_a_cli": "仅 A 类（未给出 --uncertainty 文件）",
     "notice.loop_of_stage_left_out_gap": "第 {stage} 阶段的第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
     "fleet.title": "TCMS-DAQ 试验台群",
     "fleet.subtitle": "共用此数据库的所有试验台",
@@ -630,6 +652,34 @@ def catalogue(lang: str = "en") -> dict[str, str]:
     words = {**EN, **CATALOGUES.get(lang, {})}
     words.update({f"certificate.{k}": v for k, v in certificate_text.catalogue(lang).items()})
     return words
+
+
+#: the budget's source names and the uncertainty basis that carry a number or a name, as (regular expression of the
+#: core's English, catalogue key)
+SOURCE_PATTERNS: tuple[tuple[str, str], ...] = (
+    (r"^declared chain: (?P<where>.+)$", "source.basis_declared"),
+    (r"^type A only \(no uncertainty declared in (?P<config>.+)\)$", "source.basis_type_a_config"),
+    (r"^type A only \(no --uncertainty file\)$", "source.basis_type_a_cli"),
+    (r"^interpolation error \((?P<period>[^″]+)″ period\)$", "source.interpolation"),
+    (r"^interpolation error \((?P<period>[^″]+)″ period\), sine$", "source.interpolation_sine"),
+    (r"^interpolation error \((?P<period>[^″]+)″ period\), cosine$", "source.interpolation_cosine"),
+    (r"^repeatability \(loop-to-loop, n = (?P<n>\d+)\)$", "source.repeatability"),
+)
+
+
+def source_text(name: object, lang: str = "en") -> str:
+    """An uncertainty source's name or the budgets' basis (the core's English) in ``lang``; the text itself when
+    the catalogue lacks it."""
+    words = CATALOGUES.get(lang, {})
+    if lang == "en" or not isinstance(name, str):
+        return str(name)
+    if f"source.{name}" in words:
+        return words[f"source.{name}"]
+    for pattern, key in SOURCE_PATTERNS:
+        found = re.match(pattern, name)
+        if found and key in words:
+            return words[key].format(**found.groupdict())
+    return name
 
 
 def notice_text(notice: Mapping[str, Any], lang: str = "en") -> str:

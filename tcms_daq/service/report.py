@@ -13,7 +13,7 @@ import numpy as np
 from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import NOT_STATED, with_uncertainty
 from tcms_daq.service.loop_figure import evaluated_mask
-from tcms_daq.service.messages import check_label, reasons_text, rule_text, text, warnings_text
+from tcms_daq.service.messages import check_label, reasons_text, rule_text, source_text, text, warnings_text
 from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
@@ -243,7 +243,8 @@ def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
                 shown = with_uncertainty(float(value), entry, "")
                 if not isinstance(entry, Mapping):
                     shown = shown.replace(NOT_STATED, t("res.u_not_stated"))
-                dominant = t("report.dominant", name=entry.get("dominant")) if isinstance(entry, Mapping) else ""
+                dominant = (t("report.dominant", name=source_text(entry.get("dominant"), lang))
+                            if isinstance(entry, Mapping) else "")
             else:
                 shown, dominant = _fmt(float(value)), ""
             scatter = t("report.std", value=f"{float(spread):.2g}") if isinstance(spread, int | float) else ""
@@ -252,7 +253,7 @@ def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
     if rows:
         basis = results.get("uncertainty_basis")
         parts.append("<table class='results'>" + "".join(rows) + "</table>")
-        parts.append(f"<p class='muted'>{html.escape(t('report.u_note', basis=str(basis or NOT_STATED)))}</p>")
+        parts.append(f"<p class='muted'>{html.escape(t('report.u_note', basis=source_text(basis or NOT_STATED, lang)))}</p>")
     verdict = results.get("verdict")
     if isinstance(verdict, Mapping):
         rows = []

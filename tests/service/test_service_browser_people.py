@@ -129,6 +129,12 @@ def test_dashboard_in_chinese_and_english_at_1280(settings_factory, sim_config, 
             assert "扭转刚度 / N·m/arcmin" in results and "空程" in results and "背隙" in results, results
             # a value to the decimal place of its U ("306.0 ± 2.6"), never six significant digits
             assert re.search(r"扭转刚度 / N·m/arcmin\s+\d+\.\d ± \d\.\d \(k = \d\.\d\d\)", results), results
+            # the budget's sources, the decision rule and the buttons in Chinese too (the core names them in English)
+            assert "主要分量：" in results and not re.search(r"interpolation|noise within|repeatability|torque scale",
+                                                             results), results
+            assert "保护带规则" in results or "简单接受规则" in results, results
+            page.wait_for_selector("#history button.find-effects")
+            assert page.inner_text("#history button.find-effects") == "缺失效应"
             page.wait_for_function("document.querySelectorAll('#history tbody tr').length > 0")
             assert "已完成" in page.inner_text("#history")
             _check_layout(page)

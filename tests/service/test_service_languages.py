@@ -23,8 +23,9 @@ def _fields(template: str) -> set[str]:
 
 
 def _core_notice(key: str) -> bool:
-    """A translation of one of the core's coded warnings (their English is the core's own text)."""
-    return key.startswith("notice.") and not key.startswith("notice.stage_")
+    """A translation of one of the core's coded warnings or budget source names (their English is the core's
+    own text)."""
+    return (key.startswith("notice.") and not key.startswith("notice.stage_")) or key.startswith("source.")
 
 
 @pytest.mark.parametrize("module", [messages, certificate_text])
@@ -63,7 +64,7 @@ def _core_notices() -> dict[str, set[str] | None]:
 def test_every_coded_warning_of_the_core_has_its_chinese_with_its_params():
     core = _core_notices()
     assert {"drift_corrected", "reduced_amplitude", "loop_left_out_gap", "rigidity_unit_mixup"} <= set(core)
-    zh = {k.removeprefix("notice."): v for k, v in messages.ZH.items() if _core_notice(k)}
+    zh = {k.removeprefix("notice."): v for k, v in messages.ZH.items() if k.startswith("notice.") and _core_notice(k)}
     for code, params in core.items():
         translated = [k for k in zh if k.startswith(code[:-1])] if code.endswith("*") else [code] if code in zh else []
         assert translated, f"no Chinese for the core's warning {code}"
@@ -145,3 +146,23 @@ def test_tcms_certificate_lang_zh(tmp_path):
                           timeout=120)
     assert done.returncode == 0, done.stderr
     assert "试验证书" in pdf_text(out.read_bytes()) and "扭转刚度" in pdf_text(out.read_bytes())
+
+
+def test_uncertainty_sources_in_chinese_by_the_cores_own_names():
+    from pathlib import Path
+
+    import tcms_daq
+
+    core = "".join(p.read_text(encoding="utf-8") for p in (Path(tcms_daq.__file__).parent / "uncertainty").glob("*.py"))
+    for key in messages.ZH:
+        if key.startswith("source.") and key not in {k for _, k in messages.SOURCE_PATTERNS}:
+            assert f'"{key.removeprefix("source.")}"' in core, f"{key}: the core names no such source"
+    assert messages.source_text("interpolation error (72″ period), sine", "zh") == "细分误差（信号周期 72″），正弦分量"
+    assert messages.source_text("repeatability (loop-to-loop, n = 3)", "zh") == "重复性（循环间，n = 3）"
+    assert messages.source_text("torque scale", "zh") == "扭矩标度"
+    assert messages.source_text("torque scale", "en") == "torque scale"
+    assert messages.source_text("a source of a later version", "zh") == "a source of a later version"
+    assert messages.source_text("declared chain: bench config bench-sim.toml", "zh") == \
+        "声明的测量链：bench config bench-sim.toml"
+    assert messages.source_text("type A only (no uncertainty declared in bench.toml)", "zh") == \
+        "仅 A 类（bench.toml 中未声明不确定度）"

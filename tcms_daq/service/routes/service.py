@@ -51,9 +51,11 @@ def favicon() -> FileResponse:
 def messages_js(store: Store) -> Response:
     """The pages' message catalogues, one per language (tcms_daq/service/messages.py), and the bench's default
     language (its admin's setting; null: the browser's), as a script."""
-    from tcms_daq.service.messages import LANGUAGES, catalogue
+    from tcms_daq.service.messages import LANGUAGES, SOURCE_PATTERNS, catalogue
 
     doc = {lang: catalogue(lang) for lang in LANGUAGES}
     body = ("window.TCMS_MESSAGES = " + json.dumps(doc, ensure_ascii=False, sort_keys=True) + ";\n"
-            "window.TCMS_DEFAULT_LANG = " + json.dumps(stored_settings(store).default_language) + ";\n")
+            "window.TCMS_DEFAULT_LANG = " + json.dumps(stored_settings(store).default_language) + ";\n"
+            "window.TCMS_SOURCE_PATTERNS = " + json.dumps([[p.replace("(?P<", "(?<"), k] for p, k in SOURCE_PATTERNS],
+                                                          ensure_ascii=False) + ";\n")
     return Response(body, media_type="text/javascript; charset=utf-8", headers={"Cache-Control": "no-cache"})

@@ -365,7 +365,7 @@
       if (uncertain) {
         const entry = unc[key];
         const notes = [];
-        if (entry && entry.dominant) notes.push(t("res.dominant", { name: entry.dominant }));
+        if (entry && entry.dominant) notes.push(t("res.dominant", { name: TcmsI18n.source(entry.dominant) }));
         if (typeof std[key] === "number") notes.push(t("res.std", { value: fmt2(std[key]) }));
         rows.push([label, fmtU(res[key], entry), "", notes.join(" · ")]);
       } else {
@@ -375,7 +375,7 @@
     for (const k of ["k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"]) {
       if (typeof res[k] === "number") rows.push([k.slice(0, 2).toUpperCase() + " / N·m/rad", fmtU(res[k], unc[k]), ""]);
     }
-    if (res.uncertainty_basis) rows.push([t("res.u_basis"), res.uncertainty_basis, "muted"]);
+    if (res.uncertainty_basis) rows.push([t("res.u_basis"), TcmsI18n.source(res.uncertainty_basis), "muted"]);
     const verdict = res.verdict;
     if (verdict && typeof verdict === "object") {
       for (const [name, c] of Object.entries(verdict.checks || {})) {
@@ -506,8 +506,8 @@
       button.type = "button";
       button.className = "find-effects";
       button.dataset.run = id;
-      button.textContent = "missing effects";
-      button.title = "compare this stored run with the bench model (POST /api/discrepancy)";
+      button.textContent = t("dash.missing_effects");
+      button.title = t("dash.missing_effects_hint");
       button.addEventListener("click", () => discrepancyOfStoredRun(id));
       tr.cells[tr.cells.length - 1].appendChild(button);
     }

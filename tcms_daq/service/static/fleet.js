@@ -218,8 +218,8 @@
       button.type = "button";
       button.className = "find-effects";
       button.dataset.run = id;
-      button.textContent = "missing effects";
-      button.title = "compare this stored run with the bench model (POST /api/discrepancy)";
+      button.textContent = t("dash.missing_effects");
+      button.title = t("dash.missing_effects_hint");
       button.addEventListener("click", () => discrepancyOf(id, button));
       cell.appendChild(button);
     }

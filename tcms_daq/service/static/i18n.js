@@ -65,11 +65,22 @@ const TcmsI18n = (() => {
     const texts = verdict.reasons || [], kept = verdict.reason_notices;
     return Array.isArray(kept) && kept.length === texts.length ? kept.map(notice) : texts.map(String);
   }
+  /** An uncertainty source's name (the core's English) in this page's language; the name when none is known. */
+  function source(name) {
+    if (lang === "en" || typeof name !== "string") return String(name);
+    const own = all[lang] || {};
+    if (Object.prototype.hasOwnProperty.call(own, "source." + name)) return own["source." + name];
+    for (const [pattern, key] of window.TCMS_SOURCE_PATTERNS || []) {
+      const found = new RegExp(pattern).exec(name);
+      if (found && Object.prototype.hasOwnProperty.call(own, key)) return t(key, found.groups || {});
+    }
+    return name;
+  }
   /** A decision rule's name (guarded, simple). */
   function rule(name) { return name === "guarded" || name === "simple" ? t("rule." + name) : String(name); }
 
   /** `path` with this page's language (?lang=), for reports and certificates. */
   function withLang(path) { return path + (path.includes("?") ? "&" : "?") + "lang=" + lang; }
 
-  return { lang, t, apply, bindSwitch, withLang, notice, warnings, reasons, rule };
+  return { lang, t, apply, bindSwitch, withLang, notice, warnings, reasons, rule, source };
 })();
