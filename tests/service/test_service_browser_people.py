@@ -18,6 +18,7 @@ import pytest
 from svc_helpers import TOKEN, ScriptedRunner, _u_entry, results_with_uncertainty, serve
 from test_service_browser_fleet import _seed
 
+from tcms_daq.service import messages
 from tcms_daq.service.users import hash_password
 from tcms_daq.store import open_store
 
@@ -161,6 +162,9 @@ def test_fleet_table_fits_1280_and_no_result_cell_overflows(settings_factory, tm
 
     settings = settings_factory()
     _seed(settings.data_dir)
+    with open_store(None, settings.data_dir) as store:
+        store.append_audit("erik", "plan.save", role="engineer", target="incoming RV-110E", before="v1", after="v2")
+        store.append_audit("olga", "user.login_locked", detail="from 127.0.0.1")
     with serve(settings, runner=ScriptedRunner()) as srv, sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
         try:
@@ -181,8 +185,15 @@ def test_fleet_table_fits_1280_and_no_result_cell_overflows(settings_factory, tm
             assert page.evaluate(OUTSIDE_PANEL) == []
             assert page.evaluate(BROKEN_INSIDE_A_WORD, "#runs th, #runs td") == []
             assert page.evaluate("document.documentElement.scrollWidth") <= WIDTH
+            # the audit trail's actions in the page's language (the code stays the cell's title)
+            actions = page.eval_on_selector_all("#audit tbody td[title]", "els => els.map(e => [e.title, e.textContent])")
+            assert actions, "no audit entry shown"
+            for code, shown in actions:
+                assert shown == messages.catalogue(lang).get(f"action.{code}", code), (code, shown)
             headers = page.inner_text("#runs thead")
             assert ("扭转刚度" in headers and "背隙" in headers) if lang == "zh" else "backlash" in headers
+            if lang == "zh":  # no English left on the page's own headings and hints
+                assert not re.search(r"Missing effects|stored run|press", page.inner_text("body"))
             _keep(page, f"screenshot-fleet-{lang}.png", tmp_path)
             assert errors == []
         finally:

@@ -773,7 +773,7 @@
     const who = $("who");
     try {
       const me = await api("GET", "/api/me");
-      who.innerHTML = escapeHtml(t("dash.signed_in_as", { name: me.name, role: me.role })) +
+      who.innerHTML = escapeHtml(t("dash.signed_in_as", { name: me.name, role: t("role." + me.role) })) +
         (me.via === "session" ? ` <button type="button" id="sign-out">${escapeHtml(t("dash.sign_out"))}</button>` : "");
       $("login-box").hidden = true;
       const out = $("sign-out");
