@@ -11,6 +11,7 @@ import pytest
 from svc_helpers import ScriptedRunner, results_with_uncertainty, serve
 from test_service_certificate import pdf_text
 
+from tcms_daq.analysis import evaluate
 from tcms_daq.service import certificate_text, messages
 from tcms_daq.service.fonts import cjk_fonts
 from tcms_daq.store import open_store
@@ -92,7 +93,10 @@ def _stored_run(data_dir) -> str:
                                    "user": "olga", "plan": {"id": 1, "name": "incoming", "version": 2}}, CHANNELS)
         store.append_samples("run-1", [{"time_s": t, "torque_nm": torque, "angle_arcsec": angle,
                                         "encoder_arcsec": angle}])
-        store.set_status("run-1", "completed", results=results_with_uncertainty())
+        # with a warning of the core (its English and its code): a record whose angle column is in degrees
+        degrees = evaluate(t, torque, angle / 3600.0, rated_torque_nm=300.0).to_dict()
+        results = {**results_with_uncertainty(), "warnings": degrees["warnings"], "notices": degrees["notices"]}
+        store.set_status("run-1", "completed", results=results)
     return "run-1"
 
 
@@ -105,8 +109,10 @@ def test_report_and_certificate_in_chinese_and_english(settings_factory):
         assert "incoming v2" in english and "olga" in english
         chinese = httpx.get(f"{srv.base}/api/tests/{run_id}/report", params={"lang": "zh"}, timeout=60).text
         assert '<html lang="zh-CN">' in chinese
-        for word in ("扭转刚度 / N·m/arcmin", "空程 / arcsec", "背隙 / arcsec", "滞回曲线", "合格判定"):
+        for word in ("扭转刚度 / N·m/arcmin", "空程 / arcsec", "背隙 / arcsec", "滞回曲线", "合格判定",
+                     "按角秒计不合理地小"):
             assert word in chinese, word
+        assert "implausibly small for arcsec" in english and "implausibly small" not in chinese
         by_browser = httpx.get(f"{srv.base}/api/tests/{run_id}/report", timeout=60,
                                headers={"Accept-Language": "zh-CN,zh;q=0.9"}).text
         assert "扭转刚度" in by_browser
@@ -116,8 +122,9 @@ def test_report_and_certificate_in_chinese_and_english(settings_factory):
         pdf = httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf", params={"lang": "zh"}, timeout=120)
         assert pdf.status_code == 200, pdf.text
         text = pdf_text(pdf.content)
-        for word in ("试验证书", "扭转刚度", "空程", "背隙", "委托方与被测件", "SN-7"):
+        for word in ("试验证书", "扭转刚度", "空程", "背隙", "委托方与被测件", "SN-7", "若为度则为"):
             assert word in text, word
+        assert "implausibly" not in text
         assert "Test certificate" in pdf_text(httpx.get(f"{srv.base}/api/tests/{run_id}/certificate.pdf",
                                                         timeout=120).content)
 
