@@ -48,6 +48,7 @@ from tcms_daq.acquisition.record import (
     empty_samples,
 )
 from tcms_daq.analysis.gaps import ANGLE_DATUM_COLUMN, TORQUE_INTERVAL_COLUMN, GapLimits, exclude_gapped_loops
+from tcms_daq.analysis.notices import prepend_warnings
 from tcms_daq.drivers.base import DeviceFault, InstrumentError, LoaderStatus, Positioner
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure.plan import Move, Plan
@@ -349,7 +350,7 @@ class TestRun:
             raise ProcedureError(exclusion.reason)
         evaluation = self.evaluate(exclusion.samples)
         if exclusion.warnings and isinstance(evaluation, dict):
-            evaluation["warnings"] = [*exclusion.warnings, *(evaluation.get("warnings") or [])]
+            prepend_warnings(evaluation, exclusion.warnings)
         return evaluation
 
     # -- the phases ----------------------------------------------------------------------------------

@@ -29,10 +29,11 @@ from scipy.ndimage import uniform_filter1d
 from tcms_daq.analysis import harmonic, plausibility
 from tcms_daq.analysis.interpolation import MAX_SPAN_FRACTION, angle_at_torque, fit_window
 from tcms_daq.analysis.noise import white_noise_std
+from tcms_daq.analysis.notices import Notice, notices_of
 from tcms_daq.analysis.segmentation import TIP_VALID_FRACTION, Branch, Loop, segment_loops, turning_points
 from tcms_daq.analysis.tips import MIN_FLANK_SAMPLES, TipPoint, tip_point
 from tcms_daq.errors import DataFormatError, EvaluationError
-from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
+from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_DEG, ARCSEC_PER_RAD
 
 MIN_SAMPLES = 20
 CLIP_WARNING = 0.02  # warn when the rigidity interval had to end more than 2 % below what was asked
@@ -105,6 +106,7 @@ class Limits:
         verdict: dict[str, Any] = {"passed": overall == "pass", "decision": overall, "rule": rule, "checks": checks}
         if refusals:
             verdict["reasons"] = list(refusals)
+            verdict["reason_notices"] = notices_of(refusals)
         return verdict
 
 
@@ -211,6 +213,7 @@ class Evaluation:
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = jsonable(asdict(self))
+        out["notices"] = notices_of(self.warnings)  # the warnings' codes, for their translation
         return out
 
 
@@ -452,7 +455,8 @@ def _evaluate_loops(loops: list[Loop], ctx: LoopContext, warnings: list[str]) ->
         except EvaluationError as exc:
             if k >= skip:
                 raise
-            warnings.append(f"skipped loop {k} not reported: {exc}")
+            warnings.append(Notice("skipped_loop_not_reported", "skipped loop {loop} not reported: {error}",
+                                   loop=str(k), error=str(exc)))
     return out
 
 
@@ -464,25 +468,28 @@ def _plausibility(ctx: LoopContext, used: list[Loop], means: dict[str, Any], war
     cond, lm_nm = ctx.cond, ctx.settings.lost_motion_torque_nm
     span = plausibility.implausible_span(ctx.angle_arcsec)
     if span is not None:
-        message = (
-            f"angle span {span:.3g}″ over a ±{ctx.test_torque_nm:.4g} N·m test is implausibly small for arcsec "
-            f"({plausibility.unit_hint(span)}): is angle_arcsec in degrees or radians?")
+        message = Notice(
+            "angle_span_implausible", "angle span {span}″ over a ±{torque} N·m test is implausibly small for arcsec "
+            "(in degrees it would be {as_degrees}″, in radians {as_radians}″): is angle_arcsec in degrees or radians?",
+            span=f"{span:.3g}", torque=f"{ctx.test_torque_nm:.4g}", as_degrees=f"{span * ARCSEC_PER_DEG:.4g}",
+            as_radians=f"{span * ARCSEC_PER_RAD:.4g}")
         warnings.append(message)
         undecidable.append(message)
     tips = turning_points(cond.torque_smooth_nm, cond.scale_nm)
     reduced, typical = plausibility.reduced_turning_points(tips, TIP_VALID_FRACTION)
     for tp in reduced:
-        warnings.append(
-            f"reduced amplitude: the torque turns at {tp.torque_nm:+.4g} N·m at t = {float(ctx.time_s[tp.index]):.2f} s, "
-            f"{abs(tp.torque_nm) / typical:.0%} of the typical {typical:.4g} N·m (a loop needs "
-            f"{TIP_VALID_FRACTION:.0%}): the loop(s) through it are not evaluated")
+        warnings.append(Notice(
+            "reduced_amplitude", "reduced amplitude: the torque turns at {torque} N·m at t = {time} s, {share} of the "
+            "typical {typical} N·m (a loop needs {needed}): the loop(s) through it are not evaluated",
+            torque=f"{tp.torque_nm:+.4g}", time=f"{float(ctx.time_s[tp.index]):.2f}",
+            share=f"{abs(tp.torque_nm) / typical:.0%}", typical=f"{typical:.4g}", needed=f"{TIP_VALID_FRACTION:.0%}"))
     branches = [b for lp in used for b in (lp.first, lp.second)]
     gap = plausibility.coarsest_sampling_nm(cond.torque_smooth_nm, branches, np.array([0.0, lm_nm, -lm_nm]))
     if gap > plausibility.COARSE_FRACTION * lm_nm:
-        warnings.append(
-            f"sampling too coarse for the loop: {gap:.3g} N·m between the samples at the evaluation levels, the lost "
-            f"motion is read at ±{lm_nm:.4g} N·m (want at most {plausibility.COARSE_FRACTION * lm_nm:.3g} N·m): "
-            "sample faster or load more slowly")
+        warnings.append(Notice(
+            "sampling_too_coarse", "sampling too coarse for the loop: {gap} N·m between the samples at the evaluation "
+            "levels, the lost motion is read at ±{level} N·m (want at most {want} N·m): sample faster or load more "
+            "slowly", gap=f"{gap:.3g}", level=f"{lm_nm:.4g}", want=f"{plausibility.COARSE_FRACTION * lm_nm:.3g}"))
     rigidity = means.get("rigidity_nm_per_arcmin")
     if rigidity is None or not rigidity > 0.0:
         return None
@@ -509,19 +516,23 @@ def _plausibility(ctx: LoopContext, used: list[Loop], means: dict[str, Any], war
         "corrected": significant,
     }
     if significant:
-        warnings.append(
-            f"loop does not close: the angle at the turning points drifts by {drift.rate_arcsec_per_s:+.3g}″/s "
-            f"({drift.closure_arcsec:+.3g}″ over {drift.span_s:.3g} s); this moves the backlash by {bias:+.3g}″: the "
-            f"results are drift-corrected (drift-corrected backlash {backlash - bias:.4g}″, uncorrected {backlash:.4g}″)"
-            + ("" if assessed else "; the correction's uncertainty cannot be assessed from one loop"))
+        drift_text = {"rate": f"{drift.rate_arcsec_per_s:+.3g}", "closure": f"{drift.closure_arcsec:+.3g}",
+                      "span": f"{drift.span_s:.3g}", "bias": f"{bias:+.3g}", "corrected": f"{backlash - bias:.4g}",
+                      "uncorrected": f"{backlash:.4g}"}
+        warnings.append(Notice(
+            "drift_corrected" if assessed else "drift_corrected_one_loop",
+            "loop does not close: the angle at the turning points drifts by {rate}″/s ({closure}″ over {span} s); "
+            "this moves the backlash by {bias}″: the results are drift-corrected (drift-corrected backlash "
+            "{corrected}″, uncorrected {uncorrected}″)"
+            + ("" if assessed else "; the correction's uncertainty cannot be assessed from one loop"), **drift_text))
         if not assessed:
-            undecidable.append(f"angle drift of {drift.rate_arcsec_per_s:+.3g}″/s corrected from one loop: the "
-                               "correction's uncertainty cannot be assessed")
+            undecidable.append(Notice("drift_one_loop_undecidable", "angle drift of {rate}″/s corrected from one "
+                                      "loop: the correction's uncertainty cannot be assessed", rate=drift_text["rate"]))
     elif large:
-        warnings.append(
-            f"the angle at the turning points may drift by {drift.rate_arcsec_per_s:+.3g}″/s (± "
-            f"{drift.rate_u_arcsec_per_s:.2g}″/s, not significant: not corrected); it would move the backlash by "
-            f"{bias:+.3g}″")
+        warnings.append(Notice(
+            "drift_not_significant", "the angle at the turning points may drift by {rate}″/s (± {u}″/s, not "
+            "significant: not corrected); it would move the backlash by {bias}″",
+            rate=f"{drift.rate_arcsec_per_s:+.3g}", u=f"{drift.rate_u_arcsec_per_s:.2g}", bias=f"{bias:+.3g}"))
     return closure
 
 
@@ -710,10 +721,10 @@ def _upper_ends(index: int, loop: Loop, ctx: LoopContext, warnings: list[str], t
         # jump from the tip to a level just short of it when a torque scale error moves the tip across it
         hi = reached if reached <= ctx.hi_nm * (1.0 + TO_THE_TIP) else ctx.hi_nm
         if hi < ctx.hi_nm * (1.0 - CLIP_WARNING):
-            warnings.append(
-                f"rigidity interval clipped on the {name} side: torque reached {reached:.4g} Nm, "
-                f"interval asks for {ctx.hi_nm:.4g} Nm"
-            )
+            warnings.append(Notice(
+                f"rigidity_interval_clipped_{name}", "rigidity interval clipped on the {side} side: torque reached "
+                "{reached} Nm, interval asks for {asked} Nm", side=name, reached=f"{reached:.4g}",
+                asked=f"{ctx.hi_nm:.4g}"))
         his[sign] = hi
     return his
 

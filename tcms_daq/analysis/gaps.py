@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tcms_daq.analysis.notices import Notice
 from tcms_daq.samples import Samples
 
 __all__ = ["ANGLE_DATUM_COLUMN", "TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops",
@@ -224,12 +225,16 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
     if not held:  # the gaps are outside the evaluated loops
         return GapExclusion(samples, gaps)
     drop = np.zeros(len(t), dtype=bool)
-    warnings = []
+    warnings: list[str] = []
     for (s, k), loop_gaps in sorted(held.items()):
         drop |= (keys[:, 0] == s) & (keys[:, 1] == k)
-        where = f"loop {k}" + (f" of stage {s + 1}" if "stage_index" in samples.extra else "")
-        warnings.append(f"{where} left out, not evaluated across a gap: "
-                        + "; ".join(g.describe() for g in loop_gaps))
+        described = "; ".join(g.describe() for g in loop_gaps)
+        if "stage_index" in samples.extra:
+            warnings.append(Notice("loop_of_stage_left_out_gap", "loop {loop} of stage {stage} left out, not "
+                                   "evaluated across a gap: {gaps}", loop=str(k), stage=str(s + 1), gaps=described))
+        else:
+            warnings.append(Notice("loop_left_out_gap", "loop {loop} left out, not evaluated across a gap: {gaps}",
+                                   loop=str(k), gaps=described))
     reason = None
     for s in np.unique(keys[evaluated, 0]):
         in_stage = evaluated & (keys[:, 0] == s)

@@ -26,6 +26,7 @@ from pydantic import ValidationError
 
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.analysis.gaps import exclude_gapped_loops
+from tcms_daq.analysis.notices import prepend_warnings
 from tcms_daq.cli.options import add_bench_config_options, add_decision_rule_option
 from tcms_daq.config import BenchConfig, ReducerSpec, load_bench_config, load_reducers_for
 from tcms_daq.errors import TcmsError
@@ -276,7 +277,7 @@ def evaluate_plan_run(result: SimulatedRun, rule: str | None = None) -> dict[str
 
     out = evaluate_plan(result.evaluated, result.plan, result.reducer, **_uncertainty_options(result, rule))
     if result.gap_warnings:
-        out["warnings"] = [*result.gap_warnings, *(out.get("warnings") or [])]
+        prepend_warnings(out, result.gap_warnings)
     if result.stage_truths is not None:
         for entry, truth in zip(out.get("positions") or out.get("rates") or [], result.stage_truths, strict=True):
             entry["truth"] = {k: v for k, v in truth.items() if k != "physics"}

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from tcms_daq.analysis import Evaluation, Limits, evaluate
 from tcms_daq.analysis.evaluation import EvaluationSettings, decision_of, overall_decision
+from tcms_daq.analysis.notices import Notice, notices_in
 from tcms_daq.config import ChainUncertainty, ReducerSpec
 from tcms_daq.errors import DataFormatError, EvaluationError
 from tcms_daq.samples import Samples
@@ -59,7 +60,7 @@ def evaluate_test(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec:
     try:
         budgets = evaluation_budgets(time_s, torque_nm, angle_arcsec, settings, chain, nominal=ev)
     except EvaluationError as exc:
-        ev.warnings.append(f"uncertainty not evaluated: {exc}")
+        ev.warnings.append(Notice("uncertainty_not_evaluated", "uncertainty not evaluated: {error}", error=str(exc)))
         ev.uncertainty_basis = uncertainty_basis(chain, no_chain_basis)
     else:
         attach(ev, budgets, uncertainty_basis(chain, no_chain_basis))
@@ -83,13 +84,14 @@ def catalogue_warnings(ev: Evaluation, reducer: ReducerSpec) -> list[str]:
     ratio = measured / expected
     if 1.0 / FAR_FROM_CATALOGUE <= ratio <= FAR_FROM_CATALOGUE:
         return []
-    message = (f"rigidity {measured:.4g} N·m/arcmin is {ratio:.3g} × the catalogue's {expected:.4g} N·m/arcmin of "
-               f"{reducer.name}")
+    params = {"measured": f"{measured:.4g}", "ratio": f"{ratio:.3g}", "expected": f"{expected:.4g}",
+              "reducer": reducer.name}
+    template = "rigidity {measured} N·m/arcmin is {ratio} × the catalogue's {expected} N·m/arcmin of {reducer}"
     for unit, factor in UNIT_MIXUPS:
         if factor / 1.5 <= ratio <= factor * 1.5:
-            message += f": {UNIT_MIXUP_TEXT} {unit} (× {factor:g}), not arcsec"
-            break
-    return [message]
+            return [Notice("rigidity_unit_mixup", template + ": " + UNIT_MIXUP_TEXT + " {unit} (× {factor}), not arcsec",
+                           **params, unit=unit, factor=f"{factor:g}")]
+    return [Notice("rigidity_far_from_catalogue", template, **params)]
 
 
 def evaluate_for_reducer(samples: Samples, reducer: ReducerSpec, test_torque_nm: float | None = None, *,
@@ -189,6 +191,8 @@ def summarise_plan(kind: str, stages: list[Any], results: list[dict[str, Any]]) 
     out["n_loops"] = int(sum(r.get("n_loops", 0) for r in results))
     label = "position" if kind == "positions" else "rate"
     out["warnings"] = [f"{label} {i + 1}: {w}" for i, r in enumerate(results) for w in r.get("warnings", [])]
+    out["notices"] = [{**n, "stage": {"kind": label, "number": i + 1}} for i, r in enumerate(results)
+                      for n in notices_in(r)]
     entries = [stage_entry(r, s) for r, s in zip(results, stages, strict=True)]
     out["plan"] = kind
     if kind == "positions":

@@ -35,6 +35,7 @@ from tcms_daq.service.routes import ROUTERS
 from tcms_daq.service.routes.service import STATIC_DIR
 from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
 from tcms_daq.service.settings import ServiceSettings
+from tcms_daq.service.signin_limit import SignInLimiter
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
 from tcms_daq.store import Store, open_store
 from tcms_daq.store.base import SamplesRetired
@@ -195,6 +196,7 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
     app.state.api_token = token
     app.state.api_token_source = token_source
     app.state.settings = settings
+    app.state.signin_limiter = SignInLimiter()
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -35,6 +35,7 @@ from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision
 from tcms_daq.service import fonts
 from tcms_daq.service.certificate_text import catalogue
 from tcms_daq.service.loop_figure import loop_figure_svg
+from tcms_daq.service.messages import check_label, source_text, warnings_text
 from tcms_daq.store import StoredRun
 
 TEMPLATE = "certificate.typ"
@@ -84,6 +85,7 @@ class _Doc:
     def __init__(self, record: StoredRun, lang: str):
         self.record = record
         self.t = catalogue(lang)
+        self.lang = lang
         self.ident = record.identity()
         self.results: Mapping[str, Any] = record.results or {}
         snapshot = record.config_snapshot or {}
@@ -126,7 +128,7 @@ def _result_rows(d: _Doc) -> list[dict[str, str]]:
         shown = with_u(d, d.results.get(key), entry, unit)
         dominant = entry.get("dominant") if entry else None
         rows.append({"label": d.t[f"q_{key}"], "text": shown,
-                     "dominant": str(dominant) if dominant else ("—" if entry else d.t["u_not_stated"])})
+                     "dominant": source_text(dominant, d.lang) if dominant else ("—" if entry else d.t["u_not_stated"])})
     return rows
 
 
@@ -175,7 +177,7 @@ def _checks(d: _Doc) -> list[dict[str, str]]:
             continue
         expanded = check.get("U") if check.get("U") is not None else check.get("guard_band")
         band = _number(check.get("guard_band"))
-        rows.append({"label": str(check.get("label") or name), "value": rounded(check.get("value"), expanded),
+        rows.append({"label": check_label(check, d.lang) or str(name), "value": rounded(check.get("value"), expanded),
                      "guard_band": d.t["guard_none"] if not band else round_to_uncertainty(band, band)[1],
                      "decision": decision_of(check) or "none",
                      "decision_text": d.t.get(f"decision_{decision_of(check) or 'none'}", "—")})
@@ -285,13 +287,13 @@ def certificate_document(record: StoredRun, issued_at: datetime | None = None, l
         "loop_caption": caption,
         "results": _result_rows(d),
         "summary": summary,
-        "u_note": d.say("u_note", basis=without_paths(str(basis)) if basis else t["basis_none"]),
+        "u_note": d.say("u_note", basis=without_paths(source_text(basis, d.lang)) if basis else t["basis_none"]),
         "stages": _stages(d),
         "decision_rule": _rule(d),
         "checks": _checks(d),
         "verdict": verdict,
         "verdict_text": t.get(f"decision_{verdict}", verdict).upper(),
-        "warnings": [without_paths(str(w)) for w in d.results.get("warnings") or [] if w],
+        "warnings": [without_paths(w) for w in warnings_text(d.results, d.lang) if w],
         "instruments": _instruments(d),
         "traceability": d.config.traceability or t["traceability_default"],
         "compensation": [[t["compensation_version"], str(version) if version is not None else t["not_recorded"]],

@@ -10,8 +10,12 @@ names; values may hold ``{name}`` fields. A key a language lacks falls back to E
 
 from __future__ import annotations
 
+import contextlib
+import re
+from collections.abc import Mapping
 from typing import Any
 
+from tcms_daq.analysis.notices import notices_in
 from tcms_daq.service import certificate_text
 
 LANGUAGES: tuple[str, ...] = ("en", "zh")
@@ -60,13 +64,36 @@ EN: dict[str, str] = {
     "dash.start": "Start test",
     "dash.abort": "Abort",
     "dash.plan_name": "plan name",
-    "dash.save_plan": "Save as plan",
+    "dash.save_plan": "Save plan",
     "dash.plan_saved": "plan {name} saved as version {version}",
     "dash.plan_option": "{name} v{version}",
+    "dash.plan_editor": "Plan editor",
+    "dash.plan_note": "what changed (note)",
+    "dash.edit_plan": "Edit plan",
+    "dash.editing_plan": "editing {name} v{version}: saving makes version {next}",
+    "dash.plan_name_missing": "a plan needs a name",
+    "dash.decision_rule": "Decision rule",
+    "dash.rule_bench": "bench default",
+    "dash.rule_guarded": "guarded (U)",
+    "dash.rule_simple": "simple",
+    "dash.move_velocity": "Moves",
+    "dash.move_velocity_hint": "output speed of the moves between positions, °/s (positions only)",
+    "dash.settings": "Bench settings",
+    "dash.set_session_h": "Sign-in lasts / h",
+    "dash.set_lock_user": "Lock a user after failures",
+    "dash.set_lock_address": "Lock an address after failures",
+    "dash.set_lock_s": "Counted over / s",
+    "dash.set_language": "Default language",
+    "dash.set_language_browser": "the browser's",
+    "dash.set_name": "Display name",
+    "dash.save_settings": "Save settings",
+    "dash.settings_saved": "settings saved",
     "dash.test_id": "Test",
     "dash.discrepancy": "Model discrepancy",
     "dash.bench_model": "bench model",
     "dash.find_effects": "Find missing effects",
+    "dash.missing_effects": "missing effects",
+    "dash.missing_effects_hint": "compare this stored run with the bench model (POST /api/discrepancy)",
     "dash.apply_effects": "Add to the bench model",
     "dash.discrepancy_report": "discrepancy report",
     "dash.analysing": "analysing run {id} …",
@@ -152,6 +179,33 @@ EN: dict[str, str] = {
     "verdict.pass": "pass",
     "verdict.fail": "fail",
     "verdict.undecided": "undecided",
+    "rule.guarded": "guarded",
+    # the audit trail's actions (their codes in English) and the roles
+    "action.test.start": "test.start",
+    "action.test.abort": "test.abort",
+    "action.compensation.upload": "compensation.upload",
+    "action.compensation.rollback": "compensation.rollback",
+    "action.compensation.from_model": "compensation.from_model",
+    "action.bench_model.apply": "bench_model.apply",
+    "action.bench_model.move": "bench_model.move",
+    "action.plan.save": "plan.save",
+    "action.user.add": "user.add",
+    "action.user.disable": "user.disable",
+    "action.user.enable": "user.enable",
+    "action.user.token": "user.token",
+    "action.user.login": "user.login",
+    "action.user.login_failed": "user.login_failed",
+    "action.user.login_locked": "user.login_locked",
+    "action.settings.change": "settings.change",
+    "role.operator": "operator",
+    "role.engineer": "engineer",
+    "role.admin": "admin",
+    "role.automation": "automation",
+    "rule.simple": "simple",
+    # a warning of one stage of a test at several positions or rates; the warnings themselves are the core's
+    # English texts (tcms_daq.analysis.notices), translated by their code below in the other languages
+    "notice.stage_position": "position {number}: {text}",
+    "notice.stage_rate": "rate {number}: {text}",
     # fleet page
     "fleet.title": "TCMS-DAQ fleet",
     "fleet.subtitle": "every bench sharing this run store",
@@ -222,6 +276,9 @@ EN: dict[str, str] = {
     "fleet.col_at": "time (UTC)",
     "fleet.col_user": "user",
     "fleet.col_action": "action",
+    "fleet.missing_effects": "Missing effects",
+    "fleet.missing_effects_note": "a stored run against the bench model",
+    "fleet.missing_effects_hint": "press “missing effects” on a run",
     "fleet.col_target": "target",
     "fleet.col_before": "before",
     "fleet.col_after": "after",
@@ -323,13 +380,36 @@ ZH: dict[str, str] = {
     "dash.start": "开始试验",
     "dash.abort": "中止",
     "dash.plan_name": "方案名称",
-    "dash.save_plan": "保存为方案",
+    "dash.save_plan": "保存方案",
     "dash.plan_saved": "方案 {name} 已保存为第 {version} 版",
     "dash.plan_option": "{name} 第{version}版",
+    "dash.plan_editor": "方案编辑",
+    "dash.plan_note": "修改说明",
+    "dash.edit_plan": "编辑方案",
+    "dash.editing_plan": "正在编辑 {name} 第{version}版：保存后成为第 {next} 版",
+    "dash.plan_name_missing": "方案需要名称",
+    "dash.decision_rule": "判定规则",
+    "dash.rule_bench": "试验台默认",
+    "dash.rule_guarded": "保护带（U）",
+    "dash.rule_simple": "简单接受",
+    "dash.move_velocity": "换位速度",
+    "dash.move_velocity_hint": "各测试位置之间移动时的输出端速度，°/s（仅多位置试验）",
+    "dash.settings": "试验台设置",
+    "dash.set_session_h": "登录有效期 / h",
+    "dash.set_lock_user": "用户失败几次后锁定",
+    "dash.set_lock_address": "地址失败几次后锁定",
+    "dash.set_lock_s": "计数时间窗 / s",
+    "dash.set_language": "默认语言",
+    "dash.set_language_browser": "跟随浏览器",
+    "dash.set_name": "显示名称",
+    "dash.save_settings": "保存设置",
+    "dash.settings_saved": "设置已保存",
     "dash.test_id": "试验",
     "dash.discrepancy": "模型偏差",
     "dash.bench_model": "试验台模型",
     "dash.find_effects": "查找缺失效应",
+    "dash.missing_effects": "缺失效应",
+    "dash.missing_effects_hint": "将这次已存储的试验与试验台模型比较（POST /api/discrepancy）",
     "dash.apply_effects": "加入试验台模型",
     "dash.discrepancy_report": "偏差报告",
     "dash.analysing": "正在分析试验 {id} …",
@@ -413,6 +493,71 @@ ZH: dict[str, str] = {
     "verdict.pass": "合格",
     "verdict.fail": "不合格",
     "verdict.undecided": "无法判定",
+    "rule.guarded": "保护带",
+    "action.test.start": "开始试验",
+    "action.test.abort": "中止试验",
+    "action.compensation.upload": "上传补偿",
+    "action.compensation.rollback": "回滚补偿",
+    "action.compensation.from_model": "由模型生成补偿",
+    "action.bench_model.apply": "应用试验台模型",
+    "action.bench_model.move": "变更试验台模型版本",
+    "action.plan.save": "保存方案",
+    "action.user.add": "添加用户",
+    "action.user.disable": "停用用户",
+    "action.user.enable": "启用用户",
+    "action.user.token": "签发令牌",
+    "action.user.login": "登录",
+    "action.user.login_failed": "登录失败",
+    "action.user.login_locked": "登录锁定",
+    "action.settings.change": "更改设置",
+    "role.operator": "操作员",
+    "role.engineer": "工程师",
+    "role.admin": "管理员",
+    "role.automation": "自动化",
+    "rule.simple": "简单接受",
+    "notice.stage_position": "位置 {number}：{text}",
+    "notice.stage_rate": "速率 {number}：{text}",
+    # the evaluation's warnings and the reasons no decision can be given, by their code (tcms_daq.analysis.notices)
+    "notice.skipped_loop_not_reported": "跳过的第 {loop} 个循环未报告：{error}",
+    "notice.angle_span_implausible": "在 ±{torque} N·m 的试验中角度跨度仅 {span}″，按角秒计不合理地小（若为度则为 "
+                                     "{as_degrees}″，若为弧度则为 {as_radians}″）：angle_arcsec 是否为度或弧度？",
+    "notice.reduced_amplitude": "幅值不足：扭矩在 t = {time} s 处于 {torque} N·m 换向，为典型值 {typical} N·m 的 {share}"
+                                "（一个循环至少需要 {needed}）：经过该点的循环不参与评定",
+    "notice.sampling_too_coarse": "采样对该循环过粗：评定扭矩处相邻样本相差 {gap} N·m，空程在 ±{level} N·m 处读取"
+                                  "（应不大于 {want} N·m）：请提高采样率或降低加载速率",
+    "notice.drift_corrected": "循环不闭合：换向点处的角度漂移 {rate}″/s（{span} s 内 {closure}″），使背隙改变 {bias}″："
+                              "结果已作漂移修正（修正后背隙 {corrected}″，未修正 {uncorrected}″）",
+    "notice.drift_corrected_one_loop": "循环不闭合：换向点处的角度漂移 {rate}″/s（{span} s 内 {closure}″），使背隙改变 "
+                                       "{bias}″：结果已作漂移修正（修正后背隙 {corrected}″，未修正 {uncorrected}″）；"
+                                       "仅一个循环，无法评定修正的不确定度",
+    "notice.drift_one_loop_undecidable": "由单个循环修正了 {rate}″/s 的角度漂移：无法评定该修正的不确定度",
+    "notice.drift_not_significant": "换向点处的角度可能漂移 {rate}″/s（± {u}″/s，不显著：未修正）；它会使背隙改变 {bias}″",
+    "notice.rigidity_interval_clipped_positive": "正向刚度区间被截短：扭矩仅达到 {reached} N·m，区间要求 {asked} N·m",
+    "notice.rigidity_interval_clipped_negative": "负向刚度区间被截短：扭矩仅达到 {reached} N·m，区间要求 {asked} N·m",
+    "notice.uncertainty_not_evaluated": "未评定不确定度：{error}",
+    "notice.rigidity_far_from_catalogue": "扭转刚度 {measured} N·m/arcmin 是 {reducer} 样本值 {expected} N·m/arcmin 的 "
+                                          "{ratio} 倍",
+    "notice.rigidity_unit_mixup": "扭转刚度 {measured} N·m/arcmin 是 {reducer} 样本值 {expected} N·m/arcmin 的 {ratio} "
+                                  "倍：如同角度单位为 {unit}（× {factor}）而非角秒",
+    "notice.loop_left_out_gap": "第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
+    # the uncertainty budget's sources by the core's own names (tcms_daq/uncertainty), and by SOURCE_PATTERNS
+    "source.torque scale": "扭矩标度",
+    "source.torque zero": "扭矩零点",
+    "source.angle scale": "角度标度",
+    "source.angle absolute": "角度绝对误差",
+    "source.compensation scale residual": "补偿标度残差",
+    "source.compensation torsion residual": "补偿扭转残差",
+    "source.temperature": "温度",
+    "source.drift correction": "漂移修正",
+    "source.noise within the one loop (loop-to-loop repeatability not assessed)": "单个循环内的噪声（未评定循环间重复性）",
+    "source.interpolation": "细分误差（信号周期 {period}″）",
+    "source.interpolation_sine": "细分误差（信号周期 {period}″），正弦分量",
+    "source.interpolation_cosine": "细分误差（信号周期 {period}″），余弦分量",
+    "source.repeatability": "重复性（循环间，n = {n}）",
+    "source.basis_declared": "声明的测量链：{where}",
+    "source.basis_type_a_config": "仅 A 类（{config} 中未声明不确定度）",
+    "source.basis_type_a_cli": "仅 A 类（未给出 --uncertainty 文件）",
+    "notice.loop_of_stage_left_out_gap": "第 {stage} 阶段的第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
     "fleet.title": "TCMS-DAQ 试验台群",
     "fleet.subtitle": "共用此数据库的所有试验台",
     "fleet.back": "← 试验台仪表板",
@@ -482,6 +627,9 @@ ZH: dict[str, str] = {
     "fleet.col_at": "时间（UTC）",
     "fleet.col_user": "用户",
     "fleet.col_action": "操作",
+    "fleet.missing_effects": "缺失效应",
+    "fleet.missing_effects_note": "已存储的试验与试验台模型比较",
+    "fleet.missing_effects_hint": "在某次试验上点击“缺失效应”",
     "fleet.col_target": "对象",
     "fleet.col_before": "变更前",
     "fleet.col_after": "变更后",
@@ -540,10 +688,11 @@ ZH: dict[str, str] = {
 CATALOGUES: dict[str, dict[str, str]] = {"en": EN, "zh": ZH}
 
 
-def language(requested: str | None, accept_language: str | None = None) -> str:
+def language(requested: str | None, accept_language: str | None = None, default: str | None = None) -> str:
     """The language to answer in: ``requested`` (``?lang=``: ``en``, ``zh``, ``zh-CN`` …) when it names one of
-    :data:`LANGUAGES`, else the first of the ``Accept-Language`` header's that does, else English."""
-    for candidate in [requested or "", *[part.split(";")[0] for part in (accept_language or "").split(",")]]:
+    :data:`LANGUAGES`, else ``default`` (the bench's, set by its admin), else the first of the
+    ``Accept-Language`` header's that does, else English."""
+    for candidate in [requested or "", default or "", *[part.split(";")[0] for part in (accept_language or "").split(",")]]:
         primary = candidate.strip().lower().split("-")[0]
         if primary in LANGUAGES:
             return primary
@@ -556,6 +705,85 @@ def catalogue(lang: str = "en") -> dict[str, str]:
     words = {**EN, **CATALOGUES.get(lang, {})}
     words.update({f"certificate.{k}": v for k, v in certificate_text.catalogue(lang).items()})
     return words
+
+
+#: the budget's source names and the uncertainty basis that carry a number or a name, as (regular expression of the
+#: core's English, catalogue key)
+SOURCE_PATTERNS: tuple[tuple[str, str], ...] = (
+    (r"^declared chain: (?P<where>.+)$", "source.basis_declared"),
+    (r"^type A only \(no uncertainty declared in (?P<config>.+)\)$", "source.basis_type_a_config"),
+    (r"^type A only \(no --uncertainty file\)$", "source.basis_type_a_cli"),
+    (r"^interpolation error \((?P<period>[^″]+)″ period\)$", "source.interpolation"),
+    (r"^interpolation error \((?P<period>[^″]+)″ period\), sine$", "source.interpolation_sine"),
+    (r"^interpolation error \((?P<period>[^″]+)″ period\), cosine$", "source.interpolation_cosine"),
+    (r"^repeatability \(loop-to-loop, n = (?P<n>\d+)\)$", "source.repeatability"),
+)
+
+
+def source_text(name: object, lang: str = "en") -> str:
+    """An uncertainty source's name or the budgets' basis (the core's English) in ``lang``; the text itself when
+    the catalogue lacks it."""
+    words = CATALOGUES.get(lang, {})
+    if lang == "en" or not isinstance(name, str):
+        return str(name)
+    if f"source.{name}" in words:
+        return words[f"source.{name}"]
+    for pattern, key in SOURCE_PATTERNS:
+        found = re.match(pattern, name)
+        if found and key in words:
+            return words[key].format(**found.groupdict())
+    return name
+
+
+def notice_text(notice: Mapping[str, Any], lang: str = "en") -> str:
+    """A warning or reason of the core (``{"code", "params", "text"}``, :mod:`tcms_daq.analysis.notices`) in
+    ``lang``: the catalogue's ``notice.<code>`` filled with its params, else the core's English text; a stage's
+    notice (a test at several positions or rates) says which stage."""
+    body = str(notice.get("text") or "")
+    code, params = notice.get("code"), notice.get("params") or {}
+    template = CATALOGUES.get(lang, {}).get(f"notice.{code}") if code else None
+    if template is not None:
+        with contextlib.suppress(KeyError, IndexError, ValueError):
+            body = template.format(**params)
+    stage = notice.get("stage")
+    if isinstance(stage, Mapping) and stage.get("kind") in ("position", "rate"):
+        body = text(f"notice.stage_{stage['kind']}", lang, number=stage.get("number"), text=body)
+    return body
+
+
+_CHECKED = {"rigidity_nm_per_arcmin": ("res.rigidity", " N·m/arcmin"), "lost_motion_arcsec": ("res.lost_motion", "″"),
+            "backlash_arcsec": ("res.backlash", "″")}
+
+
+def check_label(check: Mapping[str, Any], lang: str = "en") -> str:
+    """A verdict check's requirement in ``lang`` ("扭转刚度 ≥ 235.2 N·m/arcmin"); the core's English ``label``
+    in English or for a check of another shape."""
+    label = str(check.get("label") or check.get("quantity") or "")
+    found = _CHECKED.get(str(check.get("quantity")))
+    sign = {">=": "≥", "<=": "≤"}.get(str(check.get("comparison")))
+    limit = check.get("limit")
+    if lang == "en" or found is None or sign is None or not isinstance(limit, int | float):
+        return label
+    return f"{text(found[0], lang).split(' / ')[0]} {sign} {float(limit):.4g}{found[1]}"
+
+
+def rule_text(rule: object, lang: str = "en") -> str:
+    """A decision rule's name in ``lang`` (guarded, simple; another as it is)."""
+    return text(f"rule.{rule}", lang) if rule in ("guarded", "simple") else str(rule)
+
+
+def warnings_text(results: Mapping[str, Any], lang: str = "en") -> list[str]:
+    """The warnings of a results document in ``lang`` (English as the core wrote them when a code is unknown)."""
+    return [notice_text(n, lang) for n in notices_in(results)]
+
+
+def reasons_text(verdict: Mapping[str, Any], lang: str = "en") -> list[str]:
+    """Why a verdict is undecided whatever the values (``reasons``), in ``lang``."""
+    reasons = [str(r) for r in verdict.get("reasons") or []]
+    kept = verdict.get("reason_notices")
+    if isinstance(kept, list) and len(kept) == len(reasons):
+        return [notice_text(n, lang) for n in kept]
+    return reasons
 
 
 def text(key: str, lang: str = "en", **fields: Any) -> str:

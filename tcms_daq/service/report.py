@@ -13,7 +13,7 @@ import numpy as np
 from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import NOT_STATED, with_uncertainty
 from tcms_daq.service.loop_figure import evaluated_mask
-from tcms_daq.service.messages import text
+from tcms_daq.service.messages import check_label, reasons_text, rule_text, source_text, text, warnings_text
 from tcms_daq.store import StoredRun
 from tcms_daq.units import ARCSEC_PER_ARCMIN
 
@@ -243,7 +243,8 @@ def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
                 shown = with_uncertainty(float(value), entry, "")
                 if not isinstance(entry, Mapping):
                     shown = shown.replace(NOT_STATED, t("res.u_not_stated"))
-                dominant = t("report.dominant", name=entry.get("dominant")) if isinstance(entry, Mapping) else ""
+                dominant = (t("report.dominant", name=source_text(entry.get("dominant"), lang))
+                            if isinstance(entry, Mapping) else "")
             else:
                 shown, dominant = _fmt(float(value)), ""
             scatter = t("report.std", value=f"{float(spread):.2g}") if isinstance(spread, int | float) else ""
@@ -252,7 +253,7 @@ def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
     if rows:
         basis = results.get("uncertainty_basis")
         parts.append("<table class='results'>" + "".join(rows) + "</table>")
-        parts.append(f"<p class='muted'>{html.escape(t('report.u_note', basis=str(basis or NOT_STATED)))}</p>")
+        parts.append(f"<p class='muted'>{html.escape(t('report.u_note', basis=source_text(basis or NOT_STATED, lang)))}</p>")
     verdict = results.get("verdict")
     if isinstance(verdict, Mapping):
         rows = []
@@ -262,15 +263,17 @@ def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
             guard_text = (" " + t("report.guard_band", value=_fmt(float(guard)))
                           if isinstance(guard, int | float) and guard else "")
             rows.append(
-                f"<tr class='{decision}'><th>{html.escape(str(check.get('label') or check))}</th>"
+                f"<tr class='{decision}'><th>{html.escape(check_label(check, lang))}</th>"
                 f"<td>{_fmt(check.get('value'), lang)}{html.escape(guard_text)}</td>"
                 f"<td>{html.escape(t(f'verdict.{decision}'))}</td></tr>"
             )
         decision = _decision(verdict)
         rule = verdict.get("rule")
-        rule_text = t("report.rule", rule=rule) if rule else ""
-        rows.append(f"<tr class='{decision}'><th>{html.escape(t('report.decision'))}</th><td>{html.escape(rule_text)}"
+        rule_words = t("report.rule", rule=rule_text(rule, lang)) if rule else ""
+        rows.append(f"<tr class='{decision}'><th>{html.escape(t('report.decision'))}</th><td>{html.escape(rule_words)}"
                     f"</td><td>{html.escape(t(f'res.{decision}'))}</td></tr>")
+        for reason in reasons_text(verdict, lang):
+            rows.append(f"<tr class='undecided'><th></th><td colspan='2'>{html.escape(reason)}</td></tr>")
         parts.append(f"<h3>{html.escape(t('report.acceptance'))}</h3><table class='verdict'>" + "".join(rows) + "</table>")
     parts.append(_stages_html(results, lang))
     loops = results.get("loops")
@@ -284,9 +287,9 @@ def _results_html(results: Mapping[str, Any], lang: str = "en") -> str:
             for lp in loops
         )
         parts.append(f"<h3>{html.escape(t('report.loops'))}</h3><table class='loops'><tr>{head}</tr>{body}</table>")
-    warnings = results.get("warnings")
-    if isinstance(warnings, list) and warnings:
-        parts.append(f"<h3>{html.escape(t('report.warnings'))}</h3><ul>" + "".join(f"<li>{html.escape(str(w))}</li>" for w in warnings) + "</ul>")
+    warnings = warnings_text(results, lang) if isinstance(results.get("warnings"), list) else []
+    if warnings:
+        parts.append(f"<h3>{html.escape(t('report.warnings'))}</h3><ul>" + "".join(f"<li>{html.escape(w)}</li>" for w in warnings) + "</ul>")
     details = "".join(
         f"<tr><th>{html.escape(k)}</th><td>{_fmt(v)}</td></tr>" for k, v in flatten_results(results)
     )

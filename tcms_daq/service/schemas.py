@@ -422,6 +422,8 @@ class BenchStatus(BaseModel):
     """``GET /api/bench``."""
 
     name: str
+    display_name: str | None = Field(None, description="the name the pages show (the admin's setting; null: "
+                                     "name)")
     id: str | None = Field(None, description="the bench's id ([bench] id): its runs are GET /api/tests?bench=<id>")
     config: str | None = None
     max_torque_nm: float

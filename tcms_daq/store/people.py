@@ -1,7 +1,7 @@
-"""People in the run store: users with roles, their API tokens and dashboard sessions, the audit trail and the
-saved test plans. Both backends inherit :class:`PeopleRecords`, written once over two primitives of theirs
-(``_people_query`` and ``_people_execute``, SQL with ``?`` placeholders), so users, audit and plans behave the
-same on SQLite and PostgreSQL. Users, plans and the audit trail are the plant's (shared by every bench of a
+"""People in the run store: users with roles, their API tokens and dashboard sessions, the audit trail, the
+saved test plans and the admin's run-time settings of each bench. Both backends inherit :class:`PeopleRecords`,
+written once over two primitives of theirs (``_people_query`` and ``_people_execute``, SQL with ``?``
+placeholders), so users, audit, plans and settings behave the same on SQLite and PostgreSQL. Users, plans and the audit trail are the plant's (shared by every bench of a
 PostgreSQL store); each audit entry names the bench it happened on.
 
 The audit trail is append-only: the tables refuse UPDATE and DELETE (triggers on both backends), and nothing in
@@ -76,6 +76,12 @@ CREATE TABLE IF NOT EXISTS plans (
     request TEXT NOT NULL,
     UNIQUE (name, version)
 );
+CREATE TABLE IF NOT EXISTS bench_settings (
+    bench_key TEXT PRIMARY KEY,
+    settings TEXT NOT NULL,
+    updated_at REAL NOT NULL,
+    updated_by TEXT NOT NULL
+);
 """
 
 #: the PostgreSQL migration that adds these tables (an entry of postgres_store.MIGRATIONS)
@@ -127,6 +133,16 @@ POSTGRES_MIGRATION = """
         note text NOT NULL,
         request jsonb NOT NULL,
         UNIQUE (name, version)
+    );
+"""
+
+#: the PostgreSQL migration that adds the admin's run-time settings of each bench (an entry of MIGRATIONS)
+POSTGRES_SETTINGS_MIGRATION = """
+    CREATE TABLE bench_settings (
+        bench_key text PRIMARY KEY,
+        settings jsonb NOT NULL,
+        updated_at double precision NOT NULL,
+        updated_by text NOT NULL
     );
 """
 
@@ -385,6 +401,23 @@ class PeopleRecords:
                 f"SELECT {_PLAN_COLUMNS} FROM plans p WHERE version = "
                 "(SELECT max(version) FROM plans q WHERE q.name = p.name) ORDER BY name")
         return [_plan(r) for r in rows]
+
+
+    # -- the admin's run-time settings of this bench --------------------------------------------------------------
+    def bench_settings(self) -> dict[str, Any]:
+        """The settings an admin stored for this bench (``{}`` when none; validated by the service's model)."""
+        rows = self._people_query("SELECT settings FROM bench_settings WHERE bench_key = ?", (self.bench_id or "",))
+        if not rows:
+            return {}
+        return dict(rows[0][0]) if isinstance(rows[0][0], dict) else dict(json.loads(rows[0][0]))
+
+    def put_bench_settings(self, settings: Mapping[str, Any], updated_by: str) -> None:
+        """Replace this bench's settings (one row per bench; the audit trail keeps what they were)."""
+        self._people_execute(
+            "INSERT INTO bench_settings (bench_key, settings, updated_at, updated_by) VALUES (?, ?, ?, ?) "
+            "ON CONFLICT (bench_key) DO UPDATE SET settings = excluded.settings, updated_at = excluded.updated_at, "
+            "updated_by = excluded.updated_by",
+            (self.bench_id or "", self._json_param(settings), time.time(), updated_by[:64]))
 
 
 _PLAN_COLUMNS = "id, name, version, created_at, created_by, note, request"

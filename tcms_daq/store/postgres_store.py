@@ -60,6 +60,7 @@ from tcms_daq.store.base import (
 )
 from tcms_daq.store.opening import redact_url
 from tcms_daq.store.people import POSTGRES_MIGRATION as _PEOPLE_MIGRATION
+from tcms_daq.store.people import POSTGRES_SETTINGS_MIGRATION as _SETTINGS_MIGRATION
 from tcms_daq.store.people import PeopleRecords
 
 log = logging.getLogger(__name__)
@@ -198,6 +199,7 @@ MIGRATIONS: tuple[str, ...] = (
     # they are written, so a page of the brief list reads a few hundred bytes a run instead of decompressing 15 kB;
     # runs written before keep NULL and are reduced when listed
     "ALTER TABLE runs ADD COLUMN results_brief jsonb",
+    _SETTINGS_MIGRATION,  # 6: the admin's run-time settings of each bench
 )
 #: the text search (``RunQuery.text``, ``ILIKE '%…%'`` on these columns) by trigrams: its own migration step
 _TEXT_SEARCH_INDEX = (

@@ -166,3 +166,79 @@ def test_cli_users_add_list_token_disable(tmp_path):
         assert store.user_of_token(token) is None  # disabled
         assert [e.action for e in store.audit()] == ["user.disable", "user.token", "user.add"]
         assert store.audit()[0].user.startswith("cli:")
+
+
+def test_admin_settings_validated_stored_audited_and_used(settings_factory):
+    settings = settings_factory()
+    tokens = _people(settings.data_dir)
+    with serve(settings, runner=ScriptedRunner()) as srv, srv.client() as service, \
+            _client(srv, tokens["admin"]) as admin, _client(srv, tokens["engineer"]) as engineer:
+        defaults = admin.get("/api/settings").json()
+        assert defaults["session_lifetime_h"] == 12.0 and defaults["default_language"] is None
+        for who in (engineer, service):  # the automation token administers nothing either
+            r = who.put("/api/settings", json={"lockout_s": 60})
+            assert r.status_code == 403 and "admin" in r.json()["detail"]
+        assert engineer.get("/api/settings").status_code == 403
+        for bad, field in (({"session_lifetime_h": 0}, "session_lifetime_h"), ({"lockout_s": 5}, "lockout_s"),
+                           ({"default_language": "fr"}, "default_language"), ({"colour": "red"}, "colour"),
+                           ({"lockout_failures_per_user": None}, "lockout_failures_per_user"),
+                           ({"bench_display_name": "a\nb"}, "bench_display_name")):
+            r = admin.put("/api/settings", json=bad)
+            assert r.status_code == 422 and field in r.json()["detail"], (bad, r.text)
+        r = admin.put("/api/settings", json={"session_lifetime_h": 1.5, "default_language": "zh",
+                                             "bench_display_name": "Line A · 刚度台"})
+        assert r.status_code == 200 and r.json()["lockout_s"] == 300, r.text
+        assert admin.get("/api/settings").json()["session_lifetime_h"] == 1.5
+        assert admin.put("/api/settings", json={"default_language": "zh"}).status_code == 200  # no change: no entry
+        entries = admin.get("/api/audit", params={"action": "settings"}).json()
+        assert len(entries) == 1 and entries[0]["user"] == "ada"
+        assert entries[0]["before"] == "session_lifetime_h=12.0 default_language=None bench_display_name=None"
+        assert entries[0]["after"] == "session_lifetime_h=1.5 default_language=zh bench_display_name=Line A · 刚度台"
+        # what the settings change: the session's lifetime, the pages' name and language, the report's language
+        with srv.client(None) as browser:
+            r = browser.post("/api/login", json={"name": "olga", "password": "olga-password"})
+            assert "max-age=5400" in r.headers["set-cookie"].lower()
+        assert service.get("/api/bench").json()["display_name"] == "Line A · 刚度台"
+        assert 'window.TCMS_DEFAULT_LANG = "zh";' in httpx.get(srv.base + "/i18n/messages.js").text
+
+
+def test_repeated_failed_sign_ins_get_429_with_retry_after_and_are_audited(settings_factory):
+    settings = settings_factory()
+    tokens = _people(settings.data_dir)
+    with serve(settings, runner=ScriptedRunner()) as srv, _client(srv, tokens["admin"]) as admin, \
+            srv.client(None) as browser:
+        assert admin.put("/api/settings", json={"lockout_failures_per_user": 3, "lockout_failures_per_address": 5,
+                                                "lockout_s": 600}).status_code == 200
+        for _ in range(3):
+            assert browser.post("/api/login", json={"name": "olga", "password": "wrong-pass"}).status_code == 401
+        # locked: even the right password is refused until the window has passed
+        r = browser.post("/api/login", json={"name": "olga", "password": "olga-password"})
+        assert r.status_code == 429 and "olga" in r.json()["detail"]
+        assert 590 <= int(r.headers["Retry-After"]) <= 600
+        # another user from the same address is not locked yet; two more failures lock the address
+        assert browser.post("/api/login", json={"name": "erik", "password": "erik-password"}).status_code == 200
+        for _ in range(2):
+            assert browser.post("/api/login", json={"name": "nobody", "password": "wrong-pass"}).status_code == 401
+        r = browser.post("/api/login", json={"name": "ada", "password": "ada-password"})
+        assert r.status_code == 429 and "127.0.0.1" in r.json()["detail"] and int(r.headers["Retry-After"]) > 0
+        locked = admin.get("/api/audit", params={"action": "user.login_locked"}).json()
+        assert [e["user"] for e in locked] == ["nobody", "olga"], locked
+        assert "127.0.0.1" in locked[1]["detail"]
+
+
+def test_the_sign_in_lock_ends_when_the_failures_leave_the_window():
+    from tcms_daq.service.admin_settings import AdminSettings
+    from tcms_daq.service.signin_limit import SignInLimiter
+
+    policy = AdminSettings(lockout_failures_per_user=2, lockout_failures_per_address=100, lockout_s=60)
+    limiter = SignInLimiter()
+    limiter.failed("Olga", "10.0.0.1", 0.0)
+    assert limiter.retry_after_s("olga", "10.0.0.2", 1.0, policy) is None
+    limiter.failed("olga", "10.0.0.2", 30.0)  # the name is counted whatever its case and address
+    assert limiter.retry_after_s("olga", "10.0.0.3", 30.0, policy) == 30  # until the first failure is 60 s old
+    assert limiter.retry_after_s("olga", "10.0.0.3", 59.5, policy) == 1
+    assert limiter.retry_after_s("olga", "10.0.0.3", 60.0, policy) is None
+    limiter.failed("olga", "10.0.0.2", 61.0)
+    assert limiter.retry_after_s("olga", "10.0.0.2", 61.0, policy) == 29
+    limiter.succeeded("olga")
+    assert limiter.retry_after_s("olga", "10.0.0.2", 61.0, policy) is None

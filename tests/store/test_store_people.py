@@ -54,3 +54,10 @@ def test_people_records_on_both_backends(store):
     assert [(p.name, p.version) for p in store.plans()] == [("incoming", 2), ("other", 1)]
     assert len(store.plans(all_versions=True)) == 3
     assert store.plan_by_name("incoming", 1).id == first.id and store.plan(10_000) is None
+
+
+def test_bench_settings_one_row_per_bench(store, tmp_path):
+    assert store.bench_settings() == {}
+    store.put_bench_settings({"lockout_s": 60, "default_language": "zh"}, "ada")
+    store.put_bench_settings({"lockout_s": 120, "default_language": None}, "ada")
+    assert store.bench_settings() == {"lockout_s": 120, "default_language": None}

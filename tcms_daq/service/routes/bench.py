@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
+from tcms_daq.service.admin_settings import stored_settings
 from tcms_daq.service.deps import Bench, Live, Manager, Store
 from tcms_daq.service.schemas import BenchStatus
 
@@ -17,6 +18,7 @@ def bench_status(bench: Bench, manager: Manager, live: Live, store: Store) -> Be
     return BenchStatus.model_validate({
         **bench.status(),
         "id": store.bench_id,
+        "display_name": stored_settings(store).bench_display_name,
         "active_test": manager.active_id,
         "live": {
             "acquisition_rate_samples_per_second": live.acquisition_rate_hz(),

@@ -4,21 +4,24 @@ audit trail (read only: nothing in the API changes or removes an entry)."""
 from __future__ import annotations
 
 import asyncio
+import time
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
 from fastapi import Path as PathParam
 
+from tcms_daq.service.admin_settings import stored_settings
 from tcms_daq.service.auth import SESSION_COOKIE, Principal, authenticate, require
 from tcms_daq.service.deps import Store, errors
 from tcms_daq.service.routes.tests import unix_seconds
 from tcms_daq.service.runner import RequestRejected
-from tcms_daq.service.schemas import AuditView, Login, Me, NewToken, NewUser, TokenIssued, UserView
+from tcms_daq.service.schemas import AuditView, ErrorBody, Login, Me, NewToken, NewUser, TokenIssued, UserView
+from tcms_daq.service.signin_limit import SignInLimiter
 from tcms_daq.service.testruns import UnknownRun
 from tcms_daq.service.users import audit, check_login, hash_password, new_api_token, new_secret
 from tcms_daq.store import StoreError
-from tcms_daq.store.people import SESSION_LIFETIME_S, AuditQuery
+from tcms_daq.store.people import AuditQuery
 
 router = APIRouter(prefix="/api", tags=["people"])
 
@@ -32,21 +35,38 @@ def _me(principal: Principal) -> Me:
               rights=sorted(r for r in RIGHTS if principal.may(r)))
 
 
-@router.post("/login", response_model=Me, responses=errors(401, 422))
+@router.post("/login", response_model=Me, responses={
+    **errors(401, 422), 429: {"model": ErrorBody, "description": "too many failed sign-ins of this user or from this "
+                              "address (the admin's lockout settings); Retry-After: seconds to wait"}})
 def login(body: Login, store: Store, request: Request, response: Response) -> Me:
     """Sign in with a user's name and password: sets the dashboard's session cookie (HttpOnly, SameSite=Strict,
-    one shift long). 401 for a wrong name or password or a disabled user (each failure is audited)."""
-    from fastapi import HTTPException
-
+    the admin's session lifetime). 401 for a wrong name or password or a disabled user (each failure is
+    audited); 429 with ``Retry-After`` while the user or the address is locked out after repeated failures (the
+    lock is audited when it begins)."""
+    limiter: SignInLimiter = request.app.state.signin_limiter
+    policy = stored_settings(store)
+    address = request.client.host if request.client else "unknown"
+    name = body.name[:64]
+    wait_s = limiter.retry_after_s(name, address, time.monotonic(), policy)
+    if wait_s is not None:
+        raise HTTPException(status_code=429, headers={"Retry-After": str(wait_s)},
+                            detail=f"too many failed sign-ins of {name!r} or from {address}: try again in "
+                                   f"{wait_s} s")
     if not check_login(store, body.name, body.password):
-        audit(store, body.name[:64], "user.login_failed",
-              detail=f"from {request.client.host if request.client else 'unknown'}")
+        audit(store, name, "user.login_failed", detail=f"from {address}")
+        now = time.monotonic()
+        limiter.failed(name, address, now)
+        locked_s = limiter.retry_after_s(name, address, now, policy)
+        if locked_s is not None:
+            audit(store, name, "user.login_locked",
+                  detail=f"from {address}: sign-in refused for {locked_s} s after repeated failures")
         raise HTTPException(status_code=401, detail="wrong user name or password (or the user is disabled)")
+    limiter.succeeded(name)
     user = store.user(body.name)
     assert user is not None
     session_id = new_secret()
-    store.add_session(user.name, session_id)
-    response.set_cookie(SESSION_COOKIE, session_id, max_age=int(SESSION_LIFETIME_S), httponly=True,
+    store.add_session(user.name, session_id, policy.session_lifetime_s)
+    response.set_cookie(SESSION_COOKIE, session_id, max_age=int(policy.session_lifetime_s), httponly=True,
                         samesite="strict", path="/")
     audit(store, Principal(user.name, user.role, "session"), "user.login")
     return _me(Principal(user.name, user.role, "session"))

@@ -8,6 +8,8 @@ from pathlib import Path
 from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse, PlainTextResponse, Response
 
+from tcms_daq.service.admin_settings import stored_settings
+from tcms_daq.service.deps import Store
 from tcms_daq.service.metrics import render
 from tcms_daq.service.schemas import Health
 
@@ -46,10 +48,14 @@ def favicon() -> FileResponse:
 
 
 @router.get("/i18n/messages.js", include_in_schema=False)
-def messages_js() -> Response:
-    """The pages' message catalogues, one per language (tcms_daq/service/messages.py), as a script."""
-    from tcms_daq.service.messages import LANGUAGES, catalogue
+def messages_js(store: Store) -> Response:
+    """The pages' message catalogues, one per language (tcms_daq/service/messages.py), and the bench's default
+    language (its admin's setting; null: the browser's), as a script."""
+    from tcms_daq.service.messages import LANGUAGES, SOURCE_PATTERNS, catalogue
 
     doc = {lang: catalogue(lang) for lang in LANGUAGES}
-    body = "window.TCMS_MESSAGES = " + json.dumps(doc, ensure_ascii=False, sort_keys=True) + ";\n"
+    body = ("window.TCMS_MESSAGES = " + json.dumps(doc, ensure_ascii=False, sort_keys=True) + ";\n"
+            "window.TCMS_DEFAULT_LANG = " + json.dumps(stored_settings(store).default_language) + ";\n"
+            "window.TCMS_SOURCE_PATTERNS = " + json.dumps([[p.replace("(?P<", "(?<"), k] for p, k in SOURCE_PATTERNS],
+                                                          ensure_ascii=False) + ";\n")
     return Response(body, media_type="text/javascript; charset=utf-8", headers={"Cache-Control": "no-cache"})

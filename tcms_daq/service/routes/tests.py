@@ -14,6 +14,7 @@ from pydantic import TypeAdapter
 from tcms_daq.analysis.evaluation import jsonable
 from tcms_daq.extras import require_extra
 from tcms_daq.service import exports
+from tcms_daq.service.admin_settings import stored_settings
 from tcms_daq.service.auth import AUTOMATION, Principal, require
 from tcms_daq.service.deps import Manager, RunWithSamplesDep, Store, StoredRunDep, errors
 from tcms_daq.service.messages import language
@@ -165,12 +166,14 @@ def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
 def get_certificate(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> Response:
     """The PDF test certificate: identity, parameters, the loop, results ± U with the decision rule, the verdict,
     the instruments with their calibration and the compensation version (``tcms certificate`` writes the same).
-    ``lang``: en or zh (default: the browser's Accept-Language, else English)."""
+    ``lang``: en or zh (default: the bench's default language, else the browser's Accept-Language, else
+    English)."""
     from tcms_daq.service.certificate import MissingFont, render_certificate
 
     try:
         pdf = render_certificate(run, store.read_columns(run.id),
-                                 lang=language(lang, request.headers.get("accept-language")))
+                                 lang=language(lang, request.headers.get("accept-language"),
+                                              stored_settings(store).default_language))
     except MissingFont as exc:
         raise HTTPException(status_code=503, detail=str(exc)) from None
     return Response(pdf, media_type="application/pdf",
@@ -180,9 +183,10 @@ def get_certificate(run: RunWithSamplesDep, store: Store, request: Request, lang
 @router.get("/{run_id}/report", response_class=HTMLResponse, responses=errors(404, 410))
 def get_report(run: RunWithSamplesDep, store: Store, request: Request, lang: Lang = None) -> HTMLResponse:
     """A self-contained HTML report: the loop, the results and the verdict. ``lang``: en or zh (default: the
-    browser's Accept-Language, else English)."""
+    bench's default language, else the browser's Accept-Language, else English)."""
     return HTMLResponse(render_report(run, store.read_columns(run.id),
-                                      lang=language(lang, request.headers.get("accept-language"))))
+                                      lang=language(lang, request.headers.get("accept-language"),
+                                                   stored_settings(store).default_language)))
 
 
 @router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 410, 422))

@@ -365,7 +365,7 @@
       if (uncertain) {
         const entry = unc[key];
         const notes = [];
-        if (entry && entry.dominant) notes.push(t("res.dominant", { name: entry.dominant }));
+        if (entry && entry.dominant) notes.push(t("res.dominant", { name: TcmsI18n.source(entry.dominant) }));
         if (typeof std[key] === "number") notes.push(t("res.std", { value: fmt2(std[key]) }));
         rows.push([label, fmtU(res[key], entry), "", notes.join(" · ")]);
       } else {
@@ -375,7 +375,7 @@
     for (const k of ["k1_nm_per_rad", "k2_nm_per_rad", "k3_nm_per_rad"]) {
       if (typeof res[k] === "number") rows.push([k.slice(0, 2).toUpperCase() + " / N·m/rad", fmtU(res[k], unc[k]), ""]);
     }
-    if (res.uncertainty_basis) rows.push([t("res.u_basis"), res.uncertainty_basis, "muted"]);
+    if (res.uncertainty_basis) rows.push([t("res.u_basis"), TcmsI18n.source(res.uncertainty_basis), "muted"]);
     const verdict = res.verdict;
     if (verdict && typeof verdict === "object") {
       for (const [name, c] of Object.entries(verdict.checks || {})) {
@@ -385,9 +385,10 @@
       }
       const d = decisionOf(verdict);
       // the decision first: it is what the operator looks for
-      rows.unshift([t("res.decision"), DECISION_WORD[d] + (verdict.rule ? " (" + t("res.rule", { rule: verdict.rule }) + ")" : ""), d]);
+      rows.unshift([t("res.decision"), DECISION_WORD[d] + (verdict.rule ? " (" + t("res.rule", { rule: TcmsI18n.rule(verdict.rule) }) + ")" : ""), d,
+                    TcmsI18n.reasons(verdict).join(" · ")]);
     }
-    for (const w of res.warnings || []) rows.push([t("res.warning"), String(w), "warning"]);
+    for (const w of TcmsI18n.warnings(res)) rows.push([t("res.warning"), w, "warning"]);
     if (!rows.length) {
       for (const [k, v] of Object.entries(res)) {
         if (v === null || typeof v === "object") continue;
@@ -507,8 +508,8 @@
       button.type = "button";
       button.className = "find-effects";
       button.dataset.run = id;
-      button.textContent = "missing effects";
-      button.title = "compare this stored run with the bench model (POST /api/discrepancy)";
+      button.textContent = t("dash.missing_effects");
+      button.title = t("dash.missing_effects_hint");
       button.addEventListener("click", () => discrepancyOfStoredRun(id));
       tr.cells[tr.cells.length - 1].appendChild(button);
     }
@@ -544,7 +545,7 @@
   async function syncBench() {
     try {
       const bench = await api("GET", "/api/bench");
-      $("bench-name").textContent = bench.name || "";
+      $("bench-name").textContent = bench.display_name || bench.name || "";
       if (bench.id && bench.id !== state.benchId) { state.benchId = bench.id; loadHistory(); }
       const sel = $("f-reducer");
       if (!sel.options.length) {
@@ -613,13 +614,42 @@
     if (positions) req.positions = /^\d+$/.test(positions) ? parseInt(positions, 10) : positions.split(",").map(Number);
     const rates = $("f-rates").value.trim();
     if (rates) { req.rates = rates.split(",").map(Number); delete req.rate_nm_per_s; }
+    const move = parseFloat($("f-move").value);
+    if (move > 0) req.move_velocity_deg_per_s = move;
+    if ($("f-rule").value) req.decision_rule = $("f-rule").value;
     if ($("f-serial").value.trim()) req.serial_number = $("f-serial").value.trim();
     if ($("f-operator").value.trim()) req.operator = $("f-operator").value.trim();
     return req;
   }
 
+  // ---- an error of the API shown in place: its text under the form or the plan editor, the field it names
+  // outlined (the validation's loc, else a field's name in the one-line detail) ----
+  const FIELD_IDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
+    rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates",
+    move_velocity_deg_per_s: "f-move", decision_rule: "f-rule", serial_number: "f-serial", operator: "f-operator",
+    name: "p-name", note: "p-note" };
+  function clearInvalid() {
+    for (const el of document.querySelectorAll(".invalid")) { el.classList.remove("invalid"); el.removeAttribute("aria-invalid"); }
+  }
+  function fieldOf(error) {
+    const loc = ((error.errors || [])[0] || {}).loc || [];
+    for (const part of [...loc].reverse()) if (FIELD_IDS[part]) return FIELD_IDS[part];
+    const names = Object.keys(FIELD_IDS).filter((k) => k.includes("_")).sort((a, b) => b.length - a.length);
+    for (const name of names) if (String(error.detail || "").includes(name)) return FIELD_IDS[name];
+    return null;
+  }
+  function showError(error, where) {
+    clearInvalid();
+    const id = fieldOf(error);
+    if (id) { $(id).classList.add("invalid"); $(id).setAttribute("aria-invalid", "true"); }
+    if (where === "plan") { $("plan-error").textContent = error.message; message(""); }
+    else { $("plan-error").textContent = ""; message(error.message, true); }
+  }
+  $("test-form").addEventListener("input", (ev) => { if (ev.target.classList) ev.target.classList.remove("invalid"); });
+
   $("test-form").addEventListener("submit", async (ev) => {
     ev.preventDefault();
+    clearInvalid();
     const req = formRequest();
     const planId = $("f-plan").value;
     try {
@@ -633,7 +663,7 @@
         setTestState(res.id, res.status);
       }
       message(t("dash.started", { id: res.id }));
-    } catch (e) { message(e.message, true); }
+    } catch (e) { showError(e, "test"); }
   });
 
   $("abort").addEventListener("click", async () => {
@@ -642,10 +672,12 @@
     catch (e) { message(e.message, true); }
   });
 
-  // ---- saved plans: the picker fills the form (its test fields fixed) and starts the plan; "save as plan"
-  // keeps the form's test as the next version of a named plan ----
+  // ---- saved plans: the picker fills the form (its test fields fixed) and starts the plan; the editor keeps the
+  // form's test as the next version of a named plan ("Edit plan" opens a picked plan's fields for its next
+  // version; an operator, without the right plan.edit, sees no editor) ----
   const PLAN_FIELDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
-    rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates" };
+    rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates",
+    move_velocity_deg_per_s: "f-move", decision_rule: "f-rule" };
   async function loadPlans(selectId) {
     let plans = [];
     try { plans = await api("GET", "/api/plans"); } catch (e) { return; }
@@ -673,18 +705,69 @@
       el.value = v === undefined || v === null ? "" : Array.isArray(v) ? v.join(",") : String(v);
     }
     if (plan) form.classList.toggle("stepped", plan.request.profile === "stepped");
+    $("edit-plan").hidden = !plan || !state.mayEditPlans;
   }
-  $("f-plan").addEventListener("change", showPlan);
+  $("f-plan").addEventListener("change", () => { clearInvalid(); $("plan-error").textContent = ""; showPlan(); });
+  $("edit-plan").addEventListener("click", () => {
+    const plan = (state.plans || new Map()).get($("f-plan").value);
+    if (!plan) return;
+    $("f-plan").value = "";  // the form is the plan's test again, free to change; saving makes its next version
+    showPlan();
+    $("p-name").value = plan.name;
+    $("p-note").value = "";
+    $("p-note").focus();
+    message(t("dash.editing_plan", { name: plan.name, version: plan.version, next: plan.version + 1 }));
+  });
   $("save-plan").addEventListener("click", async () => {
+    clearInvalid();
     const name = $("p-name").value.trim();
-    if (!name) { $("p-name").focus(); return; }
+    if (!name) {
+      showError(Object.assign(new Error(t("dash.plan_name_missing")), { errors: [{ loc: ["body", "name"] }] }), "plan");
+      $("p-name").focus();
+      return;
+    }
     const req = formRequest();
     delete req.serial_number; delete req.operator;
     try {
-      const saved = await api("POST", "/api/plans", { name, request: req });
+      const saved = await api("POST", "/api/plans", { name, note: $("p-note").value.trim(), request: req });
+      $("plan-error").textContent = "";
+      $("p-note").value = "";
       message(t("dash.plan_saved", { name: saved.name, version: saved.version }));
       await loadPlans(saved.id);
-    } catch (e) { message(e.message, true); }
+    } catch (e) { showError(e, "plan"); }
+  });
+
+  // ---- the bench's settings (GET/PUT /api/settings), for an admin: errors under the form, the field outlined ----
+  const SETTINGS = ["bench_display_name", "default_language", "session_lifetime_h", "lockout_failures_per_user",
+    "lockout_failures_per_address", "lockout_s"];
+  async function loadSettings(mayEdit) {
+    $("settings-box").hidden = !mayEdit;
+    if (!mayEdit) return;
+    try {
+      const current = await api("GET", "/api/settings");
+      for (const key of SETTINGS) $("s-" + key).value = current[key] === null ? "" : String(current[key]);
+    } catch (e) { $("settings-error").textContent = e.message; }
+  }
+  $("settings-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    for (const el of $("settings-form").querySelectorAll(".invalid")) el.classList.remove("invalid");
+    const change = {};
+    for (const key of SETTINGS) {
+      const el = $("s-" + key), raw = el.value.trim();
+      change[key] = el.type === "number" ? (raw === "" ? null : Number(raw)) : (raw === "" ? null : raw);
+    }
+    try {
+      const saved = await api("PUT", "/api/settings", change);
+      $("settings-error").textContent = "";
+      message(t("dash.settings_saved"));
+      $("bench-name").textContent = saved.bench_display_name || $("bench-name").textContent;
+    } catch (e) {
+      $("settings-error").textContent = e.message;
+      const loc = ((e.errors || [])[0] || {}).loc || [];
+      const key = [...loc].reverse().find((part) => SETTINGS.includes(part)) ||
+        SETTINGS.find((name) => String(e.detail || "").startsWith(name));
+      if (key) $("s-" + key).classList.add("invalid");
+    }
   });
 
   // ---- who is signed in (GET /api/me): the token's user, the session's, or a sign-in form ----
@@ -692,16 +775,25 @@
     const who = $("who");
     try {
       const me = await api("GET", "/api/me");
-      who.innerHTML = escapeHtml(t("dash.signed_in_as", { name: me.name, role: me.role })) +
+      who.innerHTML = escapeHtml(t("dash.signed_in_as", { name: me.name, role: t("role." + me.role) })) +
         (me.via === "session" ? ` <button type="button" id="sign-out">${escapeHtml(t("dash.sign_out"))}</button>` : "");
       $("login-box").hidden = true;
       const out = $("sign-out");
       if (out) out.addEventListener("click", async () => { try { await api("POST", "/api/logout"); } catch (e) { /* gone */ } whoAmI(); });
-      $("save-plan").disabled = !me.rights.includes("plan.edit");
+      state.mayEditPlans = me.rights.includes("plan.edit");
+      $("save-plan").disabled = !state.mayEditPlans;
+      $("plan-editor").hidden = !state.mayEditPlans;
+      showPlan();
       $("start").title = me.rights.includes("test.start") ? "" : t("dash.plan");
+      loadSettings(me.rights.includes("settings.edit"));
     } catch (e) {
       who.textContent = "";
       $("login-box").hidden = false;
+      state.mayEditPlans = false;  // a token typed into the form may still save a plan: the API decides
+      $("plan-editor").hidden = false;
+      $("save-plan").disabled = false;
+      showPlan();
+      loadSettings(false);
     }
   }
   $("login-form").addEventListener("submit", async (ev) => {

@@ -185,13 +185,16 @@
   });
 
   // ---- the audit trail (GET /api/audit: a signed-in user's or a token's; read only) ----
+  // an action's or a role's words (the code itself when the catalogue does not know it)
+  function word(kind, code) { const key = kind + "." + code, text = t(key); return text === key ? code : text; }
   async function loadAudit() {
     const body = $("audit").tBodies[0];
     let entries;
     try { entries = (await api("/api/audit?limit=50")).data; }
     catch (e) { body.innerHTML = `<tr><td colspan="7" class="muted">${esc(t("fleet.audit_needs_sign_in"))}</td></tr>`; return; }
     body.innerHTML = entries.map((e) => `<tr><td>${esc((e.at || "").replace("T", " ").slice(0, 19))}</td>` +
-      `<td>${esc(e.user)}${e.role ? ` <span class="muted">${esc(e.role)}</span>` : ""}</td><td>${esc(e.action)}</td>` +
+      `<td>${esc(e.user)}${e.role ? ` <span class="muted">${esc(word("role", e.role))}</span>` : ""}</td>` +
+      `<td title="${esc(e.action)}">${esc(word("action", e.action))}</td>` +
       `<td>${esc(e.target || "—")}</td><td class="wrap">${esc(e.before || "—")}</td><td class="wrap">${esc(e.after || "—")}</td>` +
       `<td>${esc(e.bench_id || "—")}</td></tr>`).join("") || `<tr><td colspan="7" class="muted">–</td></tr>`;
   }
@@ -200,7 +203,7 @@
   async function discrepancyOf(id, button) {
     const out = $("discrepancy-result");
     button.disabled = true;
-    out.textContent = "analysing run " + id + " …";
+    out.textContent = t("dash.analysing", { id });
     try {
       const d = await TcmsDiscrepancy.start(id);
       out.textContent = "run " + id + ": " + TcmsDiscrepancy.describe(d) + " (against bench model v" + d.model_version + ")";
@@ -221,8 +224,8 @@
       button.type = "button";
       button.className = "find-effects";
       button.dataset.run = id;
-      button.textContent = "missing effects";
-      button.title = "compare this stored run with the bench model (POST /api/discrepancy)";
+      button.textContent = t("dash.missing_effects");
+      button.title = t("dash.missing_effects_hint");
       button.addEventListener("click", () => discrepancyOf(id, button));
       cell.appendChild(button);
     }

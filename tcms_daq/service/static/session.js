@@ -29,7 +29,8 @@ const TcmsSession = (() => {
     return t ? path + (path.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(t) : path;
   }
 
-  /** A JSON request; resolves to {data, response}, throws Error("status: detail") when not ok. */
+  /** A JSON request; resolves to {data, response}, throws Error("status: detail") when not ok (the error keeps
+   * .status, .detail and the validation's .errors, so a page can show it by the field it names). */
   async function request(method, path, body) {
     const headers = { "X-Requested-By": "tcms" };  // a signed-in change must carry it (no cross-site forgery)
     const t = token();
@@ -41,7 +42,9 @@ const TcmsSession = (() => {
     try { data = await response.json(); } catch (e) { data = null; }
     if (!response.ok) {
       const detail = data && data.detail ? (typeof data.detail === "string" ? data.detail : JSON.stringify(data.detail)) : response.statusText;
-      throw new Error(`${response.status}: ${detail}`);
+      const error = new Error(`${response.status}: ${detail}`);
+      Object.assign(error, { status: response.status, detail, errors: (data && data.errors) || [] });
+      throw error;
     }
     return { data, response };
   }
