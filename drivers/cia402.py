@@ -80,35 +80,11 @@ class TorqueScaling:
         return value
 
 
-class CiA402Loader:
-    """The transport-independent half of a CiA 402 loader (``drivers.base.Loader``): validation, the state
-    walk to OPERATION ENABLED in profile torque mode, torque scaling, status decoding, the ramp-down on disable.
-
-    A transport subclass (CANopen SDO/PDO, Modbus registers) provides the primitives below; everything a
-    method validates is checked before its first primitive is called, so a rejected command sends nothing.
-    Torque in N·m at this interface, ‰ of the rated torque on the wire; positive torque twists positive.
-    """
-
-    name: str
-    scaling: TorqueScaling | None
-
-    def __init__(self, *, name: str, max_torque_nm: float | None, torque_slope_nm_per_s: float,
-                 state_timeout_s: float, clock: Clock, timebase: Timebase = REAL_TIME):
-        self.name = name
-        self.max_torque_nm = max_torque_nm
-        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
-        self.state_timeout_s = float(state_timeout_s)
-        self.clock = clock
-        self.timebase = timebase
-        self.scaling = None
-        self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
-        # profile position (moves between the positions of a multi-position test): position actual 0x6064 and
-        # target 0x607A count this many per revolution of the output; a move is refused above the torque window
-        self.counts_per_rev = 1 << 20
-        self.move_torque_window_nm: float | None = None  # None: 1 % of the rated torque
-        self._position_mode = False  # a move was started and enable() has not returned to profile torque
-
-    # -- transport primitives (subclasses) ---------------------------------------------------------------
+class CiA402Wire:
+    """What a transport gives the CiA 402 state machine (:class:`CiA402Loader`): one primitive per wire access —
+    read the statusword, error code, torque, process data and mode display; write a setting, the target, the
+    controlword; wait for a statusword. CANopen maps them onto SDO/PDO (``drivers.cia402_canopen``), Modbus onto
+    registers (``drivers.cia402_modbus``). Torque in ‰ of the rated torque, as on the wire."""
 
     def _ensure_ready(self) -> None:
         """Before a command: re-establish a lost link (bounded) or raise Disconnected."""
@@ -155,6 +131,35 @@ class CiA402Loader:
         """(the first statusword after ``since`` satisfying ``predicate`` or None after ``timeout_s``,
         the last statusword seen)."""
         raise NotImplementedError
+
+
+class CiA402Loader(CiA402Wire):
+    """The transport-independent half of a CiA 402 loader (``drivers.base.Loader``): validation, the state
+    walk to OPERATION ENABLED in profile torque mode, torque scaling, status decoding, the ramp-down on disable.
+
+    A transport subclass (CANopen SDO/PDO, Modbus registers) provides the primitives of :class:`CiA402Wire`; everything a
+    method validates is checked before its first primitive is called, so a rejected command sends nothing.
+    Torque in N·m at this interface, ‰ of the rated torque on the wire; positive torque twists positive.
+    """
+
+    name: str
+    scaling: TorqueScaling | None
+
+    def __init__(self, *, name: str, max_torque_nm: float | None, torque_slope_nm_per_s: float,
+                 state_timeout_s: float, clock: Clock, timebase: Timebase = REAL_TIME):
+        self.name = name
+        self.max_torque_nm = max_torque_nm
+        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
+        self.state_timeout_s = float(state_timeout_s)
+        self.clock = clock
+        self.timebase = timebase
+        self.scaling = None
+        self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
+        # profile position (moves between the positions of a multi-position test): position actual 0x6064 and
+        # target 0x607A count this many per revolution of the output; a move is refused above the torque window
+        self.counts_per_rev = 1 << 20
+        self.move_torque_window_nm: float | None = None  # None: 1 % of the rated torque
+        self._position_mode = False  # a move was started and enable() has not returned to profile torque
 
     # -- shared logic ------------------------------------------------------------------------------------
 
