@@ -441,7 +441,7 @@
       const m = await api("GET", "/api/model");
       $("model-version").textContent = "v" + m.version;
       $("model-version").title = m.terms.length
-        ? "accepted effects: " + m.terms.map((t) => t.name).join(", ") : "the catalogue reducer's model alone";
+        ? t("dash.model_effects", { names: m.terms.map((term) => term.name).join(", ") }) : t("dash.model_alone");
     } catch (e) { /* shown as it was */ }
   }
 
@@ -450,7 +450,7 @@
     if (!d) return;
     let body = {};
     if (d.names_provisional) {
-      if (!window.confirm("Structure remains that these effects do not explain: add them anyway?")) return;
+      if (!window.confirm(t("dash.confirm_provisional"))) return;
       body = { accept_provisional: true };
     }
     $("apply-effects").disabled = true;
@@ -460,7 +460,7 @@
       $("apply-effects").hidden = true;
       await loadModel();
     } catch (e) {
-      message("apply: " + e.message, true);
+      message(t("dash.apply_error", { error: e.message }), true);
       $("apply-effects").disabled = false;
     }
   });
@@ -563,7 +563,7 @@
       }
       $("live-rate").textContent = Math.round(bench.live.acquisition_rate_samples_per_second);
       if (bench.not_ready) message(bench.not_ready, true);  // the safe start left the bench unsafe: no test yet
-    } catch (e) { message("bench status: " + e.message, true); }
+    } catch (e) { message(t("dash.bench_status_error", { error: e.message }), true); }
   }
   // The form's limits are the service's own (GET /api/bench → test_bounds), so the browser refuses what the
   // API would refuse, with the bench's numbers.
