@@ -1,6 +1,6 @@
 """What an admin of a bench sets while the service runs (``GET/PUT /api/settings``): the dashboard session's
 lifetime, the sign-in lockout, the pages' default language and the bench's display name. Validated here, once,
-then typed; kept in the run store (one row per bench, :meth:`PeopleRecords.put_bench_settings`); every change
+then typed; kept in the run store (one row per bench, :meth:`BenchSettingsRecords.put_bench_settings`); every change
 audited with the fields before and after."""
 
 from __future__ import annotations

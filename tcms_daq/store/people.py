@@ -1,7 +1,8 @@
 """People in the run store: users with roles, their API tokens and dashboard sessions, the audit trail, the
 saved test plans and the admin's run-time settings of each bench. Both backends inherit :class:`PeopleRecords`,
 written once over two primitives of theirs (``_people_query`` and ``_people_execute``, SQL with ``?``
-placeholders), so users, audit, plans and settings behave the same on SQLite and PostgreSQL. Users, plans and the audit trail are the plant's (shared by every bench of a
+placeholders), so users, audit, plans and settings behave the same on SQLite and PostgreSQL
+(:class:`BenchSettingsRecords` adds the settings to them). Users, plans and the audit trail are the plant's (shared by every bench of a
 PostgreSQL store); each audit entry names the bench it happened on.
 
 The audit trail is append-only: the tables refuse UPDATE and DELETE (triggers on both backends), and nothing in
@@ -403,7 +404,10 @@ class PeopleRecords:
         return [_plan(r) for r in rows]
 
 
-    # -- the admin's run-time settings of this bench --------------------------------------------------------------
+class BenchSettingsRecords(PeopleRecords):
+    """The people records and the admin's run-time settings of this bench (one row per bench); the class both
+    backends inherit."""
+
     def bench_settings(self) -> dict[str, Any]:
         """The settings an admin stored for this bench (``{}`` when none; validated by the service's model)."""
         rows = self._people_query("SELECT settings FROM bench_settings WHERE bench_key = ?", (self.bench_id or "",))

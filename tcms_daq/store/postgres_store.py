@@ -61,7 +61,7 @@ from tcms_daq.store.base import (
 from tcms_daq.store.opening import redact_url
 from tcms_daq.store.people import POSTGRES_MIGRATION as _PEOPLE_MIGRATION
 from tcms_daq.store.people import POSTGRES_SETTINGS_MIGRATION as _SETTINGS_MIGRATION
-from tcms_daq.store.people import PeopleRecords
+from tcms_daq.store.people import BenchSettingsRecords
 
 log = logging.getLogger(__name__)
 
@@ -232,7 +232,7 @@ def _jsonb(obj: Mapping[str, Any] | None) -> Jsonb | None:
     return None if obj is None else Jsonb(dict(obj), dumps=_json_text)
 
 
-class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, PeopleRecords):
+class PostgresRunStore(VersionedDocuments, StoredSamples, HeadlineSeries, BenchSettingsRecords):
     """The :class:`~tcms_daq.store.base.Store` on PostgreSQL; thread-safe (a connection per operation from the
     pool)."""
 

@@ -51,7 +51,7 @@ from tcms_daq.store.base import (
     text_sha256,
 )
 from tcms_daq.store.people import SQLITE_SCHEMA as _PEOPLE_SCHEMA
-from tcms_daq.store.people import PeopleRecords
+from tcms_daq.store.people import BenchSettingsRecords
 
 __all__ = ["ACTIVE_STATUSES", "FINAL_STATUSES", "RUN_STATUSES", "STORE_FILENAME", "BenchModelVersion",
            "CompensationVersion", "RunStore", "StoreError", "StoredRun", "new_run_id", "text_sha256"]
@@ -128,7 +128,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries, PeopleRecords):
+class RunStore(VersionedDocuments, StoredSamples, HeadlineSeries, BenchSettingsRecords):
     """SQLite (WAL) store of runs and samples; safe to use from several threads.
 
     Connections come from a small pool (WAL lets readers run beside the one writer): a call takes an idle one

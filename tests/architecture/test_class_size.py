@@ -20,11 +20,12 @@ ALLOWED: dict[str, tuple[int, str]] = {
     "tcms_daq/service/opcua.py:OpcUaBridge": (
         29, "the OPC UA server's address space: one method per node group it publishes and keeps current"),
     "tcms_daq/store/base.py:Store": (
-        42, "the run store's typing Protocol: every operation a store offers (SQLite and PostgreSQL implement it)"),
+        22, "the run store's typing Protocol: every operation a store offers on runs, samples and versioned "
+            "documents (SQLite and PostgreSQL implement it; people's records are its base PeopleStore)"),
     "tcms_daq/store/postgres_store.py:PostgresRunStore": (31, "the PostgreSQL implementation of Store"),
     "tcms_daq/store/sqlite_store.py:RunStore": (28, "the SQLite implementation of Store"),
     "tcms_daq/store/people.py:PeopleRecords": (
-        23, "users, roles, sessions and the audit trail: the records the service's people routes keep"),
+        21, "users, roles, sessions and the audit trail: the records the service's people routes keep"),
 }
 
 
