@@ -43,11 +43,11 @@
     try { answer = await api("/api/tests?" + query()); } catch (e) { message(e.message, true); return; }
     message("");
     state.total = parseInt(answer.total || "0", 10);
-    const shown = (answer.exact ? "" : "≈ ") + state.total;
-    $("total").textContent = shown;
+    const totalText = (answer.exact ? "" : "≈ ") + state.total;  // not `shown`: that names the cells' formatter
+    $("total").textContent = totalText;
     const limit = parseInt($("f-limit").value, 10);
     const first = state.total ? state.offset + 1 : 0;
-    $("page").textContent = t("fleet.page", { first, last: Math.min(state.offset + limit, state.total), total: shown });
+    $("page").textContent = t("fleet.page", { first, last: Math.min(state.offset + limit, state.total), total: totalText });
     $("prev").disabled = state.offset === 0;
     $("next").disabled = state.offset + limit >= state.total;
     const body = $("runs").tBodies[0];
