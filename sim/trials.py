@@ -262,7 +262,7 @@ class LoopAnalysis:
 
 class LoopRig(Protocol):
     """Where a closed loop runs: the bench with the hidden effects, its discrepancy analysis and its apply step.
-    ``InProcessRig`` (simulated bench and workflow called directly) and ``trials_service.ServiceRig`` (the
+    ``InProcessRig`` (simulated bench and workflow called directly) and ``tcms_daq.service.closed_loop.ServiceRig`` (the
     service over HTTP: POST /api/tests, /api/discrepancy, /api/discrepancy/{id}/apply)."""
 
     def analyse(self, design: TrialDesign, seed: int) -> LoopAnalysis:
@@ -375,7 +375,10 @@ def summarise(outcomes: list[TrialOutcome]) -> dict:
     }
 
 
-def main(argv: list[str] | None = None, prog: str = "python -m tcms_daq.sim.trials") -> int:
+def main(argv: list[str] | None = None, prog: str = "python -m tcms_daq.sim.trials",
+         rig: RigFactory = in_process) -> int:
+    """The trials' command; ``rig`` is where a closed loop runs (in process here; over HTTP from
+    ``python -m tcms_daq.service.closed_loop``)."""
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=5, help="seeds per case (default 5)")
     parser.add_argument("--first-seed", type=int, default=100)
@@ -388,18 +391,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m tcms_daq.sim.tria
     parser.add_argument("--closed-loop", type=float, action="append", metavar="SIZE",
                         help="run 1 → apply → run 2 for every catalogue case at SIZE × its typical amplitude "
                              "(repeatable); prints a Markdown table")
-    parser.add_argument("--service", action="store_true",
-                        help="with --closed-loop: each loop over HTTP on its own service (POST /api/tests, "
-                             "/api/discrepancy, /api/discrepancy/{id}/apply) instead of in process")
-    parser.add_argument("--sim-speed", type=float, default=None,
-                        help="with --service: simulated seconds per real second (default 40)")
     args = parser.parse_args(argv)
     if args.closed_loop:
-        rig: RigFactory = in_process
-        if args.service:
-            from tcms_daq.sim.trials_service import DEFAULT_SIM_SPEED, service_rig
-
-            rig = service_rig(args.sim_speed or DEFAULT_SIM_SPEED)
         names = [c for c in (args.case or CASES) if c in CASES and c != "null"]
         loops = []
         for c in names:

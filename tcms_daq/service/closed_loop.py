@@ -1,4 +1,4 @@
-"""The closed loop over the service: ``trials.closed_loop`` with a ``ServiceRig``.
+"""The closed loop over the service: ``tcms_daq.sim.trials.closed_loop`` with a ``ServiceRig``.
 
 Each case gets its own service (``create_app`` under uvicorn on a free loopback port, its own data directory) on
 a copy of the default simulated bench with the case's effects switched on in ``[sim.effects]``. A run is
@@ -8,7 +8,10 @@ a copy of the default simulated bench with the case's effects switched on in ``[
 bench model's next version) and run 2's analysis is against that version. Run 2 is new data: the same bench
 goes on (its noise and its clock continue), with run 2's programme.
 
-    python -m tcms_daq.sim.trials --closed-loop 0.5 --closed-loop 1 --service [--sim-speed 40]
+    python -m tcms_daq.service.closed_loop --closed-loop 0.5 --closed-loop 1 [--sim-speed 40] [--case NAME …]
+
+takes the options of ``python -m tcms_daq.sim.trials --closed-loop`` and prints the same table. (It lives with the
+service, a composition root, because it composes the app; the simulator's package does not import the service.)
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from typing import Any
 import httpx
 import tomli_w
 from tcms_daq.sim.trials import LoopAnalysis, LoopRig, RigFactory, TrialDesign
+from tcms_daq.sim.trials import main as trials_main
 
 from tcms_daq.discrepancy.model_file import parse_model
 
@@ -163,3 +167,18 @@ def service_rig(sim_speed: float = DEFAULT_SIM_SPEED,
         return serving(table, seed, sim_speed, sample_rate_hz)
 
     return factory
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m tcms_daq.service.closed_loop``: the trials' closed loop, each loop on its own service."""
+    import argparse
+
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--sim-speed", type=float, default=DEFAULT_SIM_SPEED,
+                        help="simulated seconds per real second (default 40)")
+    known, rest = parser.parse_known_args(argv)
+    return trials_main(rest, prog="python -m tcms_daq.service.closed_loop", rig=service_rig(known.sim_speed))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
