@@ -27,7 +27,12 @@ import numpy.typing as npt
 from scipy.ndimage import uniform_filter1d
 
 from tcms_daq.analysis import harmonic, plausibility
-from tcms_daq.analysis.interpolation import MAX_SPAN_FRACTION, angle_at_torque, fit_window
+from tcms_daq.analysis.interpolation import (
+    MAX_SPAN_FRACTION,
+    angle_at_torque,
+    fit_window,
+    spacing_bound_arcsec,
+)
 from tcms_daq.analysis.noise import white_noise_std
 from tcms_daq.analysis.notices import Notice, notices_of
 from tcms_daq.analysis.segmentation import TIP_VALID_FRACTION, Branch, Loop, segment_loops, turning_points
@@ -169,6 +174,9 @@ class LoopResult:
     k1_nm_per_rad: float | None = None
     k2_nm_per_rad: float | None = None
     k3_nm_per_rad: float | None = None
+    # standard uncertainty of the results from interpolating at the local sample spacing (result name → u in the
+    # result's unit; ``interpolation_u``)
+    interpolation_u: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -210,6 +218,8 @@ class Evaluation:
     uncertainty_basis: str | None = None
     # reasons no pass/fail decision can be given on this record (e.g. the angle column is not in arcsec)
     undecidable: list[str] = field(default_factory=list)
+    # the evaluated loops' mean interpolation_u per result (an error of the sampling, common to the loops)
+    interpolation_u: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = jsonable(asdict(self))
@@ -442,6 +452,7 @@ def evaluate(
         k2_nm_per_rad=hd.get("k2_nm_per_rad"),
         k3_nm_per_rad=hd.get("k3_nm_per_rad"),
         undecidable=undecidable,
+        interpolation_u={q: float(np.mean([r.interpolation_u[q] for r in used])) for q in used[0].interpolation_u},
     )
 
 
@@ -654,10 +665,18 @@ def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext,
         return angle_at_torque(ctx.time_s[sl], ctx.torque_nm[sl], ctx.angle_arcsec[sl], cond.torque_smooth_nm[sl],
                                branch.direction, levels.torque_nm, cond.window, cond.max_span_nm)
 
+    def branch_bounds(branch: Branch) -> np.ndarray:
+        sl = branch.slice
+        return spacing_bound_arcsec(ctx.torque_nm[sl], ctx.angle_arcsec[sl], cond.torque_smooth_nm[sl],
+                                    branch.direction, levels.torque_nm[:_EvaluationLevels.FIXED], cond.window,
+                                    cond.max_span_nm)
+
     up = branch_angles(loop.up)
     down = branch_angles(loop.down)
+    bounds = {}
     for branch, angles in ((loop.up, up), (loop.down, down)):
-        _read_at_tips(branch, angles, levels, tips, cond.max_span_nm)
+        at_tip = _read_at_tips(branch, angles, levels, tips, cond.max_span_nm)
+        bounds[branch.direction] = np.where(at_tip[:_EvaluationLevels.FIXED], 0.0, branch_bounds(branch))
     if np.isnan(up).any() or np.isnan(down).any():
         raise EvaluationError(f"loop {index}: a branch does not cover the evaluation torque levels")
     mid = 0.5 * (up + down)
@@ -668,6 +687,7 @@ def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext,
         a, b = (getattr(per_direction[name], q) for name, _ in SIDES)
         return None if a is None or b is None else 0.5 * (a + b)
 
+    interpolation_u = _interpolation_u(bounds[1], bounds[-1], per_direction, mid, levels)
     t = ctx.time_s
     rates = [_branch_rate(t, cond.torque_smooth_nm, b, ctx.test_torque_nm) for b in (loop.first, loop.second)]
     energy = levels.energy
@@ -686,20 +706,46 @@ def _evaluate_loop(index: int, is_evaluated: bool, loop: Loop, ctx: LoopContext,
         k1_nm_per_rad=both("k1_nm_per_rad"),
         k2_nm_per_rad=both("k2_nm_per_rad"),
         k3_nm_per_rad=both("k3_nm_per_rad"),
+        interpolation_u=interpolation_u,
     )
 
 
+def _interpolation_u(bound_up: np.ndarray, bound_down: np.ndarray, per_direction: dict[str, DirectionResult],
+                     mid: np.ndarray, levels: _EvaluationLevels) -> dict[str, float]:
+    """Standard uncertainties of one loop's results from the branches' interpolation at the sample spacing: each
+    level's error on each branch rectangular within ±its bound (u = bound/√3), independent, propagated through
+    backlash = θ↓(0) − θ↑(0), lost motion = m(+p) − m(−p) and K = ΔT/Δm with m = (θ↑ + θ↓)/2."""
+    L = _EvaluationLevels
+    u2 = (bound_up**2 + bound_down**2) / 3.0  # per level: both branches' u², not yet halved for the midline
+
+    out = {"backlash_arcsec": math.sqrt(u2[L.ZERO]),
+           "lost_motion_arcsec": 0.5 * math.sqrt(u2[L.LM_POS] + u2[L.LM_NEG])}
+    sides = []
+    for name, lo, hi in (("positive", L.LO_POS, L.HI_POS), ("negative", L.LO_NEG, L.HI_NEG)):
+        twist = abs(mid[hi] - mid[lo])
+        k = per_direction[name].rigidity_nm_per_arcmin
+        u_k = k / twist * 0.5 * math.sqrt(u2[lo] + u2[hi])
+        out[f"{name}_rigidity_nm_per_arcmin"] = u_k
+        sides.append(u_k)
+    out["rigidity_nm_per_arcmin"] = 0.5 * math.hypot(*sides)
+    return out
+
+
 def _read_at_tips(branch: Branch, angles: np.ndarray, levels: _EvaluationLevels, tips: dict[int, TipPoint],
-                  max_span_nm: float) -> None:
+                  max_span_nm: float) -> np.ndarray:
     """Angles of one branch at levels within the flank span of its tips, read from the tips' fits (in place): the
-    rigidity's upper ends at a sharp tip, and any level beyond what the smoothed branch reaches (NaN)."""
+    rigidity's upper ends at a sharp tip, and any level beyond what the smoothed branch reaches (NaN). Returns
+    which levels were read there."""
     upper = {_EvaluationLevels.HI_POS, _EvaluationLevels.HI_NEG}
+    read = np.zeros(angles.size, dtype=bool)
     for tip_index, before in ((branch.stop, True), (branch.start, False)):  # into the tip it ends at, out of the other
         tip = tips[tip_index]
         near = np.flatnonzero(np.abs(levels.torque_nm - tip.torque_nm) <= max_span_nm)
         for k in near:
             if np.isnan(angles[k]) or (k in upper and tip.sharp(before)):
                 angles[k] = tip.angle_on_flank(float(levels.torque_nm[k]), before)
+                read[k] = True
+    return read
 
 
 def _upper_ends(index: int, loop: Loop, ctx: LoopContext, warnings: list[str], tips: dict[int, TipPoint]
@@ -735,6 +781,7 @@ class _EvaluationLevels:
     below), then the Harmonic Drive region grids (``hd[(sign, region)]``), then the loop-area grid (``energy``)."""
 
     ZERO, LM_POS, LM_NEG, LO_POS, HI_POS, LO_NEG, HI_NEG = range(7)
+    FIXED = 7  # the levels above
 
     torque_nm: np.ndarray
     hd: dict[tuple[int, int], slice]

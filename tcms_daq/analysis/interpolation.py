@@ -12,13 +12,14 @@ what noiseless data need; noisy data get a longer window (see ``fit_window``). V
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 TARGET_STD_ARCSEC = 0.025  # aim for this std of a single interpolated angle
 MAX_SPAN_FRACTION = 0.02  # but a window never spans more than 2 % of the test torque
 MAX_WINDOW = 2000  # samples; beyond this more averaging gains nothing measurable
-MIN_SAMPLES_QUADRATIC = 8  # windows this long fit a parabola (no curvature bias in the lost-motion zone)
+MIN_SAMPLES_QUADRATIC = 5  # windows this long fit a parabola (no curvature bias in the lost-motion zone)
 QUADRATIC_DEGREE = 2
 
 
@@ -53,6 +54,42 @@ def _solve(u: np.ndarray, weight: np.ndarray, values: np.ndarray, degree: int) -
     return np.linalg.solve(normal, rhs)
 
 
+@dataclass(frozen=True)
+class _Windows:
+    """The samples each level's local fit uses: ``idx`` (levels, n) sample indices, ``weight`` which of them are
+    used, ``first`` the first sample at or past the level, ``reached`` whether the branch reaches it."""
+
+    levels: np.ndarray
+    idx: np.ndarray
+    weight: np.ndarray
+    first: np.ndarray
+    reached: np.ndarray
+
+    @property
+    def count(self) -> np.ndarray:
+        return np.asarray(self.weight.sum(axis=1))
+
+    @property
+    def quadratic(self) -> np.ndarray:
+        return np.asarray(self.count >= MIN_SAMPLES_QUADRATIC)
+
+
+def _windows(torque_nm: np.ndarray, torque_smooth_nm: np.ndarray, direction: int, levels_nm: np.ndarray,
+             window: int, max_span_nm: float) -> _Windows:
+    levels = np.atleast_1d(np.asarray(levels_nm, dtype=float))
+    n_samples = torque_nm.size
+    progress = np.maximum.accumulate(direction * torque_smooth_nm)
+    target = direction * levels
+    reached = (target >= progress[0]) & (target <= progress[-1])
+    first = np.clip(np.searchsorted(progress, target, side="left"), 1, n_samples - 1)
+    n = int(min(max(window, 2), n_samples))
+    start = np.clip(first - n // 2, 0, n_samples - n)
+    idx = start[:, None] + np.arange(n)[None, :]
+    weight = np.abs(torque_nm[idx] - levels[:, None]) <= 0.5 * max_span_nm
+    weight |= (idx == first[:, None]) | (idx == first[:, None] - 1)
+    return _Windows(levels, idx, weight, first, reached)
+
+
 def angle_at_torque(
     time_s: np.ndarray,
     torque_nm: np.ndarray,
@@ -70,18 +107,8 @@ def angle_at_torque(
     level, only those whose torque lies within ±max_span_nm/2 of the level, and always the two
     samples bracketing it.
     """
-    levels = np.atleast_1d(np.asarray(levels_nm, dtype=float))
-    n_samples = torque_nm.size
-    progress = np.maximum.accumulate(direction * torque_smooth_nm)
-    target = direction * levels
-    reached = (target >= progress[0]) & (target <= progress[-1])
-    first = np.clip(np.searchsorted(progress, target, side="left"), 1, n_samples - 1)
-    n = int(min(max(window, 2), n_samples))
-    start = np.clip(first - n // 2, 0, n_samples - n)
-    idx = start[:, None] + np.arange(n)[None, :]
-    weight = np.abs(torque_nm[idx] - levels[:, None]) <= 0.5 * max_span_nm
-    weight |= (idx == first[:, None]) | (idx == first[:, None] - 1)
-    count = weight.sum(axis=1)
+    w = _windows(torque_nm, torque_smooth_nm, direction, levels_nm, window, max_span_nm)
+    levels, idx, weight, reached = w.levels, w.idx, w.weight, w.reached
     # Time, exact, is the regressor: fitting torque and angle against it avoids the errors-in-variables bias of
     # regressing angle on noisy torque. u spans [−1, 1] over the samples used.
     t = time_s[idx]
@@ -90,7 +117,7 @@ def angle_at_torque(
     u = np.clip(2.0 * (t - t_lo) / (t_hi - t_lo) - 1.0, -1.0, 1.0)
     values = np.stack([torque_nm[idx], angle_arcsec[idx]], axis=2)
     coef = np.zeros((levels.size, QUADRATIC_DEGREE + 1, 2))
-    quadratic = count >= MIN_SAMPLES_QUADRATIC
+    quadratic = w.quadratic
     for degree, rows in ((QUADRATIC_DEGREE, quadratic), (1, ~quadratic)):
         if rows.any():
             coef[rows, : degree + 1] = _solve(u[rows], weight[rows].astype(float), values[rows], degree)
@@ -107,3 +134,39 @@ def angle_at_torque(
     out = p[:, 0] + p[:, 1] * u_star + p[:, 2] * u_star**2
     out[~reached] = np.nan
     return np.asarray(out, dtype=float)
+
+
+def spacing_bound_arcsec(
+    torque_nm: np.ndarray,
+    angle_arcsec: np.ndarray,
+    torque_smooth_nm: np.ndarray,
+    direction: int,
+    levels_nm: np.ndarray,
+    window: int,
+    max_span_nm: float = math.inf,
+) -> np.ndarray:
+    """Half-width (arcsec) of the error ``angle_at_torque`` can make at each level from the local sample spacing;
+    0 where the branch does not reach the level.
+
+    A straight line through samples spanning h of torque misses a branch of curvature θ'' = d²θ/dT² by at most
+    |θ''|·h²/8 between them (the largest gap between a parabola and its chord); with two samples that is linear
+    interpolation, Δ the torque step between them. A level read from a parabola has no curvature error (its
+    third-order error is not bounded here). θ'' is the curvature of a least-squares parabola θ(T) over the branch's
+    samples within ±max(2h, max_span_nm) of the level (the smoothed torque: the bound needs the shape, not an
+    unbiased slope).
+    """
+    w = _windows(torque_nm, torque_smooth_nm, direction, levels_nm, window, max_span_nm)
+    out = np.zeros(w.levels.size)
+    for k in np.flatnonzero(w.reached & ~w.quadratic):
+        used = w.idx[k][w.weight[k]]
+        h = float(np.ptp(torque_smooth_nm[used]))
+        if h <= 0.0:
+            continue
+        half = max(2.0 * h, max_span_nm if math.isfinite(max_span_nm) else 2.0 * h)
+        near = np.flatnonzero(np.abs(torque_smooth_nm - w.levels[k]) <= half)
+        if near.size < 4 or np.ptp(torque_smooth_nm[near]) <= 0.0:
+            continue
+        x = torque_smooth_nm[near] - w.levels[k]
+        curvature = 2.0 * float(np.polyfit(x, angle_arcsec[near], 2)[0])
+        out[k] = abs(curvature) * h * h / 8.0
+    return out

@@ -82,6 +82,41 @@ def _within_band(torque_smooth_nm: np.ndarray, index: int, lo: int, hi: int, spa
             max(new_hi, min(hi, index + MIN_FLANK_SAMPLES)))
 
 
+def _value(t: np.ndarray, y: np.ndarray, t_star: float) -> float:
+    a, b, _ = _line(t, y)
+    return a + b * t_star
+
+
+def _hinge(time_s: np.ndarray, torque_nm: np.ndarray, index: int, lo: int, hi: int) -> tuple[slice, slice, float]:
+    """Two torque lines meeting at a sharp tip: (samples of the rising flank, of the falling flank, the time t* they
+    meet, from the extreme sample's time). The extreme sample lies on one flank only (the true tip falls between
+    two samples): it is given to the flank whose lines then meet on its side of it, else to the better fit. With
+    dense samples this changes nothing measurable; with a few samples per flank (coarse sampling) counting it on
+    both flanks pulls the tip down by up to a quarter of a sample's torque step."""
+    t0 = float(time_s[index])
+    candidates = []
+    for b_sl, a_sl, side in ((slice(lo, index + 1), slice(index + 1, hi), 1.0),
+                             (slice(lo, index), slice(index, hi), -1.0)):
+        tb, ta = time_s[b_sl] - t0, time_s[a_sl] - t0
+        if tb.size < 2 or ta.size < 2:
+            continue
+        a1, b1, s1 = _line(tb, torque_nm[b_sl])
+        a2, b2, s2 = _line(ta, torque_nm[a_sl])
+        if b1 == b2:
+            continue
+        t_star = (a2 - a1) / (b1 - b2)
+        ssr = s1 * s1 * max(tb.size - 2, 1) + s2 * s2 * max(ta.size - 2, 1)
+        candidates.append((side * t_star < 0.0, ssr, b_sl, a_sl, t_star))  # False (consistent) sorts first
+    if not candidates:
+        b_sl, a_sl = slice(lo, index + 1), slice(index, hi)
+        a1, b1, _ = _line(time_s[b_sl] - t0, torque_nm[b_sl])
+        a2, b2, _ = _line(time_s[a_sl] - t0, torque_nm[a_sl])
+        t_star = (a2 - a1) / (b1 - b2) if b1 != b2 else 0.0
+    else:
+        _, _, b_sl, a_sl, t_star = min(candidates, key=lambda c: (c[0], c[1]))
+    return b_sl, a_sl, float(np.clip(t_star, time_s[lo] - t0, time_s[hi - 1] - t0))
+
+
 def tip_point(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, index: int, n: int,
               torque_noise_nm: float, torque_smooth_nm: np.ndarray | None = None,
               span_nm: float = math.inf) -> TipPoint:
@@ -117,13 +152,10 @@ def tip_point(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarra
 
     rising, falling = moving(before, 1.0), moving(after, -1.0)
     if rising and falling and before is not None and after is not None:
-        a1, b1 = before[0], before[1]
-        a2, b2 = after[0], after[1]
-        t_star = (a2 - a1) / (b1 - b2)
-        t_star = float(np.clip(t_star, time_s[lo] - t0, time_s[hi - 1] - t0))
-        torque_tip = a1 + b1 * t_star
-        angle_tip = 0.5 * (_at(time_s[before[6]] - t0, angle_arcsec[before[6]], t_star)
-                           + _at(time_s[after[6]] - t0, angle_arcsec[after[6]], t_star))
+        b_sl, a_sl, t_star = _hinge(time_s, torque_nm, index, lo, hi)
+        torque_tip = _value(time_s[b_sl] - t0, torque_nm[b_sl], t_star)
+        angle_tip = 0.5 * (_at(time_s[b_sl] - t0, angle_arcsec[b_sl], t_star)
+                           + _at(time_s[a_sl] - t0, angle_arcsec[a_sl], t_star))
     else:
         flat = [f for f, moves in ((before, rising), (after, falling)) if f is not None and not moves]
         sel = np.concatenate([np.arange(size)[f[6]] for f in flat]) if flat else np.array([index])

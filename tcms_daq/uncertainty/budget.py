@@ -6,6 +6,8 @@ For each result y (rigidity per direction and mean, lost motion, backlash, K1–
   size, ``BOOTSTRAP_DRAWS`` times, n − 1 degrees of freedom);
 - Type B from the declared chain (``tcms_daq.uncertainty.chain``): sensitivities c_i = ∂y/∂x_i by central
   differences through the same ``evaluate`` (±step, the step at least the input's u, as JCGM 100 5.1.3 allows);
+- Type B from the sampling: the interpolation error of the branches at the local sample spacing
+  (``Evaluation.interpolation_u``, from the branches' curvature: ``tcms_daq.analysis.interpolation``);
 - combined with GTC (the GUM Tree Calculator): u_c, Welch–Satterthwaite effective degrees of freedom, the
   t-based coverage factor k for 95 %, U = k·u_c.
 
@@ -30,6 +32,8 @@ from tcms_daq.uncertainty.chain import Input, chain_inputs
 COVERAGE_PROBABILITY = 95.0  # percent, as GTC's reporting.k_factor takes it
 BOOTSTRAP_DRAWS = 8
 BOOTSTRAP_SEED = 20_240_611
+SAMPLING_LINE = "interpolation at the local sample spacing"
+BIAS_LINE = "estimator bias at the measured noise"
 
 # result name → unit (the order results are reported in)
 RESULT_UNITS: dict[str, str] = {
@@ -196,14 +200,35 @@ def _sensitivities(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.n
     return out
 
 
-def _bootstrap_type_a(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
-                      settings: EvaluationSettings, nominal: Evaluation, names: list[str]) -> dict[str, float]:
-    """One loop: the standard deviation each result gets from the record's own noise (torque and angle noise as
-    measured), by re-evaluating with fresh noise of that size (a parametric bootstrap)."""
+@dataclass(frozen=True)
+class NoiseBootstrap:
+    """What the record's own noise does to a result (a parametric bootstrap): the draws' standard deviation
+    ``scatter`` (the within-record noise's Type A, correlations between loops included) and the mean shift
+    ``shift`` of the draws from the nominal value (the estimator's bias at this noise), over ``draws`` draws."""
+
+    scatter: float
+    shift: float
+    draws: int
+
+    @property
+    def shift_u(self) -> float:
+        """The standard uncertainty the bias line carries: the shift and its own standard error, combined."""
+        return math.hypot(self.shift, self.scatter / math.sqrt(self.draws))
+
+
+def _noise_bootstrap(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
+                     settings: EvaluationSettings, nominal: Evaluation, names: list[str]) -> dict[str, NoiseBootstrap]:
+    """The record re-evaluated ``BOOTSTRAP_DRAWS`` times with fresh noise of the measured size added (torque and
+    angle, white, as ``white_noise_std`` measured them). An estimator whose bias grows with the noise variance
+    (a nonlinear one: tips, crossings, curved branches) is biased by the same amount again in the draws, so the
+    mean shift estimates its bias at the record's own noise (SIMEX, Cook & Stefanski 1994, one step)."""
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     sigma_t = nominal.noise.get("torque_nm", 0.0)
     sigma_a = nominal.noise.get("angle_arcsec", 0.0)
+    values0 = result_values(nominal)
     draws: dict[str, list[float]] = {name: [] for name in names}
+    if sigma_t <= 0.0 and sigma_a <= 0.0:
+        return {}
     for _ in range(BOOTSTRAP_DRAWS):
         torque = torque_nm + sigma_t * rng.standard_normal(torque_nm.size)
         angle = angle_arcsec + sigma_a * rng.standard_normal(angle_arcsec.size)
@@ -214,7 +239,8 @@ def _bootstrap_type_a(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: n
         for name in names:
             if name in values:
                 draws[name].append(values[name])
-    return {name: float(np.std(v, ddof=1)) for name, v in draws.items() if len(v) >= 2}
+    return {name: NoiseBootstrap(float(np.std(v, ddof=1)), float(np.mean(v)) - values0[name], len(v))
+            for name, v in draws.items() if len(v) >= 2}
 
 
 def evaluation_budgets(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: npt.ArrayLike,
@@ -239,16 +265,30 @@ def evaluation_budgets(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_ar
     sens = _sensitivities(t, torque, angle, fixed, inputs, names)
     for name, contribution in _drift_correction(t, torque, angle, fixed, nominal, names).items():
         sens[name].append(contribution)
+    for name, u_sampling in nominal.interpolation_u.items():
+        if name in sens and u_sampling > 0.0:
+            sens[name].append(Contribution(SAMPLING_LINE, RESULT_UNITS[name], u_sampling, 1.0))
     n = nominal.n_loops
-    if n >= 2:
-        scatter = {name: _type_a(loop_values(nominal, name)) for name in names}
-        source = f"repeatability (loop-to-loop, n = {n})"
-    else:
-        within = _bootstrap_type_a(t, torque, angle, fixed, nominal, names)
-        scatter = {name: (within[name], BOOTSTRAP_DRAWS - 1.0) if name in within else (None, None) for name in names}
-        source = "noise within the one loop (loop-to-loop repeatability not assessed)"
-    return {name: combine(values[name], RESULT_UNITS[name], scatter[name][0], scatter[name][1], source, sens[name])
-            for name in names}
+    noise = _noise_bootstrap(t, torque, angle, fixed, nominal, names)
+    scatter: dict[str, tuple[float | None, float | None]] = {}
+    sources: dict[str, str] = {}
+    for name in names:
+        boot = noise.get(name)
+        loops = _type_a(loop_values(nominal, name)) if n >= 2 else (None, None)
+        # the loop-to-loop scatter, unless the record's noise alone scatters the result more (loops that share a
+        # turning point are correlated, and 2–3 degrees of freedom often understate it)
+        if boot is not None and (loops[0] is None or boot.scatter > loops[0]):
+            scatter[name] = (boot.scatter, boot.draws - 1.0)
+            sources[name] = (f"noise within the record ({boot.draws} re-evaluations with fresh noise"
+                             + (")" if n >= 2 else "; loop-to-loop repeatability not assessed)"))
+        else:
+            scatter[name] = loops
+            sources[name] = f"repeatability (loop-to-loop, n = {n})"
+        if boot is not None and boot.shift_u > 0.0:
+            sens[name].append(Contribution(BIAS_LINE, RESULT_UNITS[name], boot.shift_u, 1.0, dof=boot.draws - 1.0,
+                                            type="A"))  # a statistical evaluation of the draws
+    return {name: combine(values[name], RESULT_UNITS[name], scatter[name][0], scatter[name][1], sources[name],
+                          sens[name]) for name in names}
 
 
 def _drift_correction(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,

@@ -13,6 +13,7 @@ from tcms_daq.cli import main
 from tcms_daq.config import get_reducer, load_reducer_catalogue
 from tcms_daq.procedure.evaluation import evaluate_for_reducer
 from tcms_daq.samples import Samples
+from tcms_daq.uncertainty.budget import SAMPLING_LINE
 
 from .physics import Chain, Reducer, measure, triangle, twist_arcsec
 
@@ -116,7 +117,8 @@ def test_analyze_json_carries_uncertainty_decision_and_warnings(tmp_path, capsys
     d = json.loads(capsys.readouterr().out)
     assert d["uncertainty_basis"] == "type A only (no --uncertainty file)"
     assert d["verdict"]["rule"] == "simple"
-    assert all(line["type"] == "A" for e in d["uncertainty"].values() for line in e["budget"])
+    assert all(line["type"] == "A" or line["source"] == SAMPLING_LINE for e in d["uncertainty"].values()
+               for line in e["budget"])
 
 
 @pytest.mark.parametrize("content, message", [
