@@ -279,8 +279,8 @@ def evaluation_budgets(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_ar
         # turning point are correlated, and 2–3 degrees of freedom often understate it)
         if boot is not None and (loops[0] is None or boot.scatter > loops[0]):
             scatter[name] = (boot.scatter, boot.draws - 1.0)
-            sources[name] = (f"noise within the record ({boot.draws} re-evaluations with fresh noise"
-                             + (")" if n >= 2 else "; loop-to-loop repeatability not assessed)"))
+            sources[name] = (f"noise within the record ({boot.draws} re-evaluations with fresh noise)" if n >= 2
+                             else "noise within the one loop (loop-to-loop repeatability not assessed)")
         else:
             scatter[name] = loops
             sources[name] = f"repeatability (loop-to-loop, n = {n})"
