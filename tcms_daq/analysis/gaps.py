@@ -160,14 +160,13 @@ def find_angle_jumps(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np
                    n_bands - 1).astype(int)
 
     def compliance_of(steps: np.ndarray) -> float | None:
-        """Σ|Δangle| / Σ|Δtorque| of the steps without their largest angle steps (the jumps looked for): a
-        ratio of sums, not of single steps, since readings repeat when an instrument is polled faster than it
-        updates."""
+        """Σ|Δangle| / Σ|Δtorque| of the steps: a ratio of sums, not of single steps, since readings repeat when
+        an instrument is polled faster than it updates (the angle then moves in a few of them; a jump in the
+        band at most doubles it, the margin of ``jump_factor`` covers that)."""
         if steps.size < 5:
             return None
-        kept = steps[np.argsort(step_angle[steps])[:-max(1, steps.size // 50)]]
-        total_torque = float(step_torque[kept].sum())
-        return float(step_angle[kept].sum()) / total_torque if total_torque > 0 else None
+        total_torque = float(step_torque[steps].sum())
+        return float(step_angle[steps].sum()) / total_torque if total_torque > 0 else None
 
     overall = compliance_of(np.flatnonzero(joined))
     if overall is None:
