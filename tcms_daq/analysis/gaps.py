@@ -49,6 +49,7 @@ class GapLimits:
     #: an angle jump: a step above ``jump_factor`` × the compliance there × torque rate × time step + the floor
     jump_factor: float = 5.0
     jump_floor_arcsec: float = 1.0
+    jump_span_fraction: float = 0.05  # and above this share of the record's angle span
 
     def limit_for(self, periods_s: np.ndarray) -> float:
         """The gap limit (s) of a channel whose reading periods (s) are ``periods_s``."""
@@ -153,20 +154,33 @@ def find_angle_jumps(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np
         return []
     period = float(np.median(dt[joined]))
     rate = float(np.percentile(np.abs(d_torque[joined]) / np.maximum(dt[joined], period), 95))  # N·m/s
-    step_torque = np.abs(d_torque)
-    ratio = np.abs(d_angle) / np.maximum(step_torque, 0.1 * float(np.median(step_torque[joined])) + 1e-12)
+    step_torque, step_angle = np.abs(d_torque), np.abs(d_angle)
     n_bands = 20
     band = np.clip(((torque[:-1] + torque[1:]) / 2 - torque_lo) / (torque_hi - torque_lo) * n_bands, 0,
                    n_bands - 1).astype(int)
-    overall = float(np.median(ratio[joined]))
-    per_band = np.array([float(np.median(ratio[joined & (band == b)])) if np.count_nonzero(joined & (band == b)) >= 5
-                         else overall for b in range(n_bands)])
+
+    def compliance_of(steps: np.ndarray) -> float | None:
+        """Σ|Δangle| / Σ|Δtorque| of the steps: a ratio of sums, not of single steps, since readings repeat when
+        an instrument is polled faster than it updates (the angle then moves in a few of them; a jump in the
+        band at most doubles it, the margin of ``jump_factor`` covers that)."""
+        if steps.size < 5:
+            return None
+        total_torque = float(step_torque[steps].sum())
+        return float(step_angle[steps].sum()) / total_torque if total_torque > 0 else None
+
+    overall = compliance_of(np.flatnonzero(joined))
+    if overall is None:
+        return []
+    per_band = np.array([c if (c := compliance_of(np.flatnonzero(joined & (band == b)))) is not None else overall
+                         for b in range(n_bands)])
     padded = np.concatenate([[per_band[0]], per_band, [per_band[-1]]])
     compliance = np.maximum(np.maximum(padded[:-2], padded[1:-1]), padded[2:])  # arcsec per N·m, per band
     # the torque change a step may carry: at the run's rate over its time, or the measured one (readings that
     # bunch up after a stall carry a larger change than their stamps say)
     torque_change = np.maximum(rate * np.maximum(dt, period), step_torque)
-    allowed = settings.jump_factor * compliance[band] * torque_change + settings.jump_floor_arcsec
+    angle_lo, angle_hi = np.percentile(angle, [1, 99])
+    allowed = np.maximum(settings.jump_factor * compliance[band] * torque_change + settings.jump_floor_arcsec,
+                         settings.jump_span_fraction * (angle_hi - angle_lo))
     jumps = []
     for i in np.flatnonzero(joined & (np.abs(d_angle) > allowed)):
         pair = torque[i:i + 2]

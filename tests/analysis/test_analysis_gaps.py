@@ -111,7 +111,7 @@ def test_an_angle_jump_without_a_datum_change_is_a_break_too():
     jumps = find_angle_jumps(record.time_s, record.torque_nm, record.angle_arcsec)
     assert len(jumps) == 1 and jumps[0].kind == "angle jump"
     assert jumps[0].step_arcsec == pytest.approx(-(300 / RIGIDITY * 60 - FRICTION_ARCSEC / 2), abs=1.0)
-    assert jumps[0].allowed_arcsec < 10.0  # 10 × 0.2″/N·m × 500 N·m/s × 2 ms + 1″
+    assert jumps[0].allowed_arcsec < 25.0  # 5 % of the record's 430″ span (5 × 0.2″/N·m × 1 N·m + 1″ is less)
     out = exclude_gapped_loops(record.select(record.extra["loop_index"] >= 1))
     assert out.reason is None and out.excluded == [(0, 2)]
     assert "angle channel: a step of -55.8″ in 0.002 s" in out.warnings[0], out.warnings
