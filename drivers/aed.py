@@ -90,14 +90,6 @@ class AED(ReinitialisedOnReconnect, SerialInstrument):
 
     # -- connection and configuration (re-sent after a power cycle: ReinitialisedOnReconnect) --------------
 
-    def connect(self) -> None:
-        super().connect()
-        self.configure()
-
-    def close(self) -> None:
-        super().close()
-        self.forget_configuration()
-
     def reinitialise(self) -> None:
         self.link.send(b";")  # clear whatever half command the amplifier holds
         self._setting(b"COF3;")

@@ -105,6 +105,15 @@ class ReinitialisedOnReconnect:
         """Send the instrument's settings (the subclass's); raises InstrumentError when it refuses them."""
         raise NotImplementedError
 
+    def connect(self) -> None:
+        """Open the link (the next class in the MRO: the transport) and configure the instrument."""
+        super().connect()  # type: ignore[misc]  # a mixin: the transport class follows it in the MRO
+        self.configure()
+
+    def close(self) -> None:
+        super().close()  # type: ignore[misc]
+        self.forget_configuration()
+
     def configure(self) -> None:
         """Re-initialise now (again if the link was re-opened half-way through) and note the link's epoch."""
         if self._configured_epoch is not None and self._configured_epoch != self.link.reconnects:

@@ -19,6 +19,7 @@ from tcms_daq.drivers.base import (
     InstrumentTimeout,
     LoaderStatus,
 )
+from tcms_daq.drivers.options import CiA402Options
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.protocols.cia402 import (
@@ -145,20 +146,22 @@ class CiA402Loader(CiA402Wire):
     name: str
     scaling: TorqueScaling | None
 
-    def __init__(self, *, name: str, max_torque_nm: float | None, torque_slope_nm_per_s: float,
-                 state_timeout_s: float, clock: Clock, timebase: Timebase = REAL_TIME):
-        self.name = name
-        self.max_torque_nm = max_torque_nm
-        self.default_slope_nm_per_s = float(torque_slope_nm_per_s)
-        self.state_timeout_s = float(state_timeout_s)
+    def __init__(self, options: CiA402Options, *, clock: Clock, timebase: Timebase = REAL_TIME):
+        self.options = options
+        self.name = options.name
+        self.url = options.url
+        self.max_torque_nm = options.max_torque_nm
+        self.default_slope_nm_per_s = float(options.torque_slope_nm_per_s)
+        self.state_timeout_s = float(options.state_timeout_s)
         self.clock = clock
         self.timebase = timebase
         self.scaling = None
         self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
         # profile position (moves between the positions of a multi-position test): position actual 0x6064 and
         # target 0x607A count this many per revolution of the output; a move is refused above the torque window
-        self.counts_per_rev = 1 << 20
-        self.move_torque_window_nm: float | None = None  # None: 1 % of the rated torque
+        # (None: 1 % of the rated torque)
+        self.counts_per_rev = options.counts_per_rev
+        self.move_torque_window_nm: float | None = options.move_torque_window_nm
         self._position_mode = False  # a move was started and enable() has not returned to profile torque
 
     # -- shared logic ------------------------------------------------------------------------------------

@@ -103,13 +103,8 @@ class CiA402Canopen(CiA402Loader):
 
     def __init__(self, options: CiA402CanopenOptions, *, clock: Clock = time.monotonic,
                  timebase: Timebase = REAL_TIME):
-        super().__init__(name=options.name, max_torque_nm=options.max_torque_nm,
-                         torque_slope_nm_per_s=options.torque_slope_nm_per_s, state_timeout_s=options.state_timeout_s,
-                         clock=clock, timebase=timebase)
-        self.options = options
-        self.counts_per_rev = options.counts_per_rev
-        self.move_torque_window_nm = options.move_torque_window_nm
-        self.url = options.url
+        super().__init__(options, clock=clock, timebase=timebase)
+        self.options: CiA402CanopenOptions = options
         self.link = CanopenLink(options, parse_can_url(options.url, options.bitrate),
                                 str(options.eds or drive_eds_path()), timebase, self._configure_scaling)
         self.heartbeat_timeout_s = self.link.heartbeat_timeout_s

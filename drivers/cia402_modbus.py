@@ -61,13 +61,8 @@ class CiA402Modbus(CiA402Loader):
                  trace_packet: Callable[[bool, bytes], bytes] | None = None):
         """``register_map``: a map already loaded (else ``options.register_map``'s file); ``trace_packet``: sees
         every packet (tests)."""
-        super().__init__(name=options.name, max_torque_nm=options.max_torque_nm,
-                         torque_slope_nm_per_s=options.torque_slope_nm_per_s, state_timeout_s=options.state_timeout_s,
-                         clock=clock, timebase=timebase)
-        self.options = options
-        self.counts_per_rev = options.counts_per_rev
-        self.move_torque_window_nm = options.move_torque_window_nm
-        self.url = options.url
+        super().__init__(options, clock=clock, timebase=timebase)
+        self.options: CiA402ModbusOptions = options
         self.comm_timeout_ms = options.comm_timeout_ms
         self.abort_connection_option = options.abort_connection_option
         self._rearm = False  # re-arm the watchdog before the next command (after a reconnect)

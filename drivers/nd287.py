@@ -97,14 +97,6 @@ class ND287(ReinitialisedOnReconnect, SerialInstrument):
                          bytesize=serial.SEVENBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO)
         self.readings_per_read = int(readings_per_read)
 
-    def connect(self) -> None:
-        super().connect()
-        self.configure()
-
-    def close(self) -> None:
-        super().close()
-        self.forget_configuration()
-
     def reinitialise(self) -> None:
         """Output released (DC1: a display that was told to hold answers again) and its error text read (ENQ):
         a display that reports an error after its power-up says so in the log."""

@@ -50,6 +50,7 @@ class AEDOptions(SerialOptions):
 class CiA402Options(DriverOptions):
     """What both CiA 402 loaders take: limits, the default slope, state-change deadlines, the position scaling."""
 
+    name: str = Field("CiA 402 drive", min_length=1, description="the instrument's name in messages")
     max_torque_nm: float | None = Field(None, gt=0.0, description="never command more (N·m; 0x6072 on enable)")
     torque_slope_nm_per_s: float = Field(200.0, gt=0.0, description="default slope 0x6087 (N·m/s)")
     state_timeout_s: float = Field(2.0, gt=0.0, description="the longest wait for a state change (s)")
