@@ -17,6 +17,7 @@ from svc_helpers import TOKEN, loopback_config_with_loader, start_serve_process,
 from tcms_daq.sim.instruments.child import start_simulators
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 400, "cycles": 1, "rate_nm_per_s": 400}
+NEXT_REQUEST = {**REQUEST, "cycles": 2}  # the test after a fault
 FAULT_AFTER_S = 1.0  # real seconds into the test (speed 4: well inside the loading)
 
 # (loader, instrument, fault, what the abort reason names)
@@ -99,8 +100,8 @@ def benches(tmp_path_factory):
         bench.close()
 
 
-def _run(client: httpx.Client, on_the_way=None) -> dict:
-    r = client.post("/api/tests", json=REQUEST)
+def _run(client: httpx.Client, on_the_way=None, request: dict = REQUEST) -> dict:
+    r = client.post("/api/tests", json=request)
     assert r.status_code == 202, r.text
     run_id, started, done = r.json()["id"], time.monotonic(), False
     while True:
@@ -127,7 +128,9 @@ def _assert_left_safe_then_next_completes(bench: Bench) -> None:
     # the service shows the drive's real state (its status poll never stops, a trip or not)
     wait_for(lambda: _bench_loader_state(bench) == _control(bench.control, cmd="status")["drive"]["state"],
              timeout_s=15)
-    after = _run(bench.client)
+    # two loops: on a loaded machine a stall of the real-time bench leaves a gap, and the run rightly refuses to
+    # evaluate the loop holding it; one loop left is enough to show the bench works again
+    after = _run(bench.client, request=NEXT_REQUEST)
     assert after["status"] == "completed", after["error"]
     assert 250 < after["results"]["rigidity_nm_per_arcmin"] < 350
 
