@@ -137,11 +137,12 @@ def find_angle_jumps(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np
                      settings: GapLimits = GapLimits(), contiguous: np.ndarray | None = None) -> list[Gap]:
     """Steps of the angle between two joined readings larger than the physics allows: the reducer twists at most
     by its compliance at that torque × the torque change between them (the torque rate × the time between them,
-    or the measured change if larger), with ``jump_factor`` for margin and ``jump_floor_arcsec`` for the noise. The compliance at a torque is the record's own: the median of
-    |Δangle| / |Δtorque| over the steps in that torque band (20 bands over the 1st–99th percentiles; the largest of
-    a band and its neighbours, so the lost-motion band's high compliance covers its edges); the rate the record's
-    95th-percentile torque rate; the time at least the median reading period (stamps jitter). The medians are not
-    moved by the jumps they look for. Pure; [] for a record too short or without a torque span."""
+    or the measured change if larger), with ``jump_factor`` for margin and ``jump_floor_arcsec`` for the noise, and
+    at least ``jump_span_fraction`` of the record's angle span. The compliance at a torque is the record's own:
+    Σ|Δangle| / Σ|Δtorque| over the steps in that torque band (20 bands over the 1st–99th percentiles; the largest
+    of a band and its neighbours, so the lost-motion band's high compliance covers its edges); the rate the
+    record's 95th-percentile torque rate; the time at least the median reading period (stamps jitter). Pure; []
+    for a record too short or without a torque span."""
     t = np.asarray(time_s, dtype=float)
     torque = np.asarray(torque_nm, dtype=float)
     angle = np.asarray(angle_arcsec, dtype=float)
@@ -159,20 +160,19 @@ def find_angle_jumps(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np
     band = np.clip(((torque[:-1] + torque[1:]) / 2 - torque_lo) / (torque_hi - torque_lo) * n_bands, 0,
                    n_bands - 1).astype(int)
 
-    def compliance_of(steps: np.ndarray) -> float | None:
-        """Σ|Δangle| / Σ|Δtorque| of the steps: a ratio of sums, not of single steps, since readings repeat when
-        an instrument is polled faster than it updates (the angle then moves in a few of them; a jump in the
-        band at most doubles it, the margin of ``jump_factor`` covers that)."""
-        if steps.size < 5:
-            return None
-        total_torque = float(step_torque[steps].sum())
-        return float(step_angle[steps].sum()) / total_torque if total_torque > 0 else None
-
-    overall = compliance_of(np.flatnonzero(joined))
-    if overall is None:
+    # compliance as Σ|Δangle| / Σ|Δtorque| of the steps, a ratio of sums, not of single steps: readings repeat when
+    # an instrument is polled faster than it updates (the angle then moves in a few of them; a jump in a band at
+    # most doubles it, the margin of ``jump_factor`` covers that). A band with fewer than 5 steps or no torque
+    # change takes the record's overall compliance.
+    total_torque = float(step_torque[joined].sum())
+    if not total_torque > 0:
         return []
-    per_band = np.array([c if (c := compliance_of(np.flatnonzero(joined & (band == b)))) is not None else overall
-                         for b in range(n_bands)])
+    overall = float(step_angle[joined].sum()) / total_torque
+    steps_in = np.bincount(band[joined], minlength=n_bands)
+    torque_in = np.bincount(band[joined], weights=step_torque[joined], minlength=n_bands)
+    angle_in = np.bincount(band[joined], weights=step_angle[joined], minlength=n_bands)
+    usable = (steps_in >= 5) & (torque_in > 0)
+    per_band = np.where(usable, angle_in / np.where(usable, torque_in, 1.0), overall)
     padded = np.concatenate([[per_band[0]], per_band, [per_band[-1]]])
     compliance = np.maximum(np.maximum(padded[:-2], padded[1:-1]), padded[2:])  # arcsec per N·m, per band
     # the torque change a step may carry: at the run's rate over its time, or the measured one (readings that

@@ -80,15 +80,20 @@ class ServiceRig:
         self.sim_speed = sim_speed
         self.data_dir = data_dir  # the service's data directory (its store and analyses), when known
 
-    def _ok(self, response: httpx.Response, what: str) -> Any:
+    @staticmethod
+    def _checked(response: httpx.Response, what: str) -> httpx.Response:
+        """``response`` when it succeeded; RuntimeError naming ``what`` and the answer otherwise."""
         if response.status_code >= 300:
             raise RuntimeError(f"{what}: HTTP {response.status_code} {response.text[:300]}")
-        return response.json()
+        return response
+
+    def _ok(self, response: httpx.Response, what: str) -> Any:
+        return self._checked(response, what).json()
 
     def analyse(self, design: TrialDesign, seed: int) -> LoopAnalysis:
         doc = self.analyse_request(request_of(design), programme_s(design))
         toml = self.client.get(f"/api/discrepancy/{doc['id']}/model")
-        model = parse_model(self._ok_text(toml, "GET model"), f"analysis {doc['id']} model.toml")
+        model = parse_model(self._checked(toml, "GET model").text, f"analysis {doc['id']} model.toml")
         return LoopAnalysis(doc["verdict"], [e["name"] for e in doc["effects"]], model,
                             float(doc["cv_rms_after_arcsec"]), float(doc["noise_floor_arcsec"]), ref=doc["id"])
 
@@ -109,11 +114,6 @@ class ServiceRig:
         if status != "completed":
             raise RuntimeError(f"test {run_id} ended {status}")
         return self._ok(self.client.post("/api/discrepancy", json={"run_id": run_id}), "POST /api/discrepancy")
-
-    def _ok_text(self, response: httpx.Response, what: str) -> str:
-        if response.status_code >= 300:
-            raise RuntimeError(f"{what}: HTTP {response.status_code} {response.text[:300]}")
-        return response.text
 
     def apply(self, analysis: LoopAnalysis) -> str | None:
         r = self.client.post(f"/api/discrepancy/{analysis.ref}/apply")

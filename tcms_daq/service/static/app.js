@@ -504,14 +504,7 @@
     for (const tr of $("history").tBodies[0].rows) {
       const id = tr.title;  // the row names its run by time; the id is its title
       if (!id || tr.querySelector(".find-effects")) continue;
-      const button = document.createElement("button");
-      button.type = "button";
-      button.className = "find-effects";
-      button.dataset.run = id;
-      button.textContent = t("dash.missing_effects");
-      button.title = t("dash.missing_effects_hint");
-      button.addEventListener("click", () => discrepancyOfStoredRun(id));
-      tr.cells[tr.cells.length - 1].appendChild(button);
+      tr.cells[tr.cells.length - 1].appendChild(TcmsDiscrepancy.findEffectsButton(id, discrepancyOfStoredRun));
     }
   }
   new MutationObserver(addDiscrepancyButtons).observe($("history").tBodies[0], { childList: true });
@@ -624,10 +617,11 @@
 
   // ---- an error of the API shown in place: its text under the form or the plan editor, the field it names
   // outlined (the validation's loc, else a field's name in the one-line detail) ----
-  const FIELD_IDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
+  // a plan's test fields (the picker fills them, a saved plan keeps them)
+  const PLAN_FIELDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
     rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates",
-    move_velocity_deg_per_s: "f-move", decision_rule: "f-rule", serial_number: "f-serial", operator: "f-operator",
-    name: "p-name", note: "p-note" };
+    move_velocity_deg_per_s: "f-move", decision_rule: "f-rule" };
+  const FIELD_IDS = { ...PLAN_FIELDS, serial_number: "f-serial", operator: "f-operator", name: "p-name", note: "p-note" };
   function clearInvalid() {
     for (const el of document.querySelectorAll(".invalid")) { el.classList.remove("invalid"); el.removeAttribute("aria-invalid"); }
   }
@@ -675,9 +669,6 @@
   // ---- saved plans: the picker fills the form (its test fields fixed) and starts the plan; the editor keeps the
   // form's test as the next version of a named plan ("Edit plan" opens a picked plan's fields for its next
   // version; an operator, without the right plan.edit, sees no editor) ----
-  const PLAN_FIELDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
-    rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates",
-    move_velocity_deg_per_s: "f-move", decision_rule: "f-rule" };
   async function loadPlans(selectId) {
     let plans = [];
     try { plans = await api("GET", "/api/plans"); } catch (e) { return; }

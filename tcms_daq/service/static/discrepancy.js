@@ -24,6 +24,19 @@ const TcmsDiscrepancy = (() => {
       `${rms(d.cv_rms_after_arcsec)}`;
   }
 
+  // The "missing effects" button of a stored run (the dashboard's recent tests, the fleet list): a click calls
+  // onClick(id, button).
+  function findEffectsButton(id, onClick) {
+    const button = document.createElement("button");
+    button.type = "button";
+    button.className = "find-effects";
+    button.dataset.run = id;
+    button.textContent = TcmsI18n.t("dash.missing_effects");
+    button.title = TcmsI18n.t("dash.missing_effects_hint");
+    button.addEventListener("click", () => onClick(id, button));
+    return button;
+  }
+
   // Start an analysis of a stored run; resolves to the analysis (the API's document).
   function start(runId) { return api("POST", "/api/discrepancy", { run_id: runId }); }
 
@@ -89,5 +102,5 @@ const TcmsDiscrepancy = (() => {
     after.after(box);
   }
 
-  return { describe, start, history, offerRuns };
+  return { describe, start, history, offerRuns, findEffectsButton };
 })();

@@ -220,14 +220,7 @@
       const id = tr.dataset.id;
       const cell = tr.querySelector("td.files");
       if (!id || !cell || cell.querySelector(".find-effects")) continue;
-      const button = document.createElement("button");
-      button.type = "button";
-      button.className = "find-effects";
-      button.dataset.run = id;
-      button.textContent = t("dash.missing_effects");
-      button.title = t("dash.missing_effects_hint");
-      button.addEventListener("click", () => discrepancyOf(id, button));
-      cell.appendChild(button);
+      cell.appendChild(TcmsDiscrepancy.findEffectsButton(id, discrepancyOf));
     }
   }
   new MutationObserver(addDiscrepancyButtons).observe($("runs").tBodies[0], { childList: true });
