@@ -65,6 +65,9 @@ class DriveCanopenNode:
         self.node: canopen.LocalNode | None = None
         self._timer = PeriodicThread(self._cycle, self.tpdo_period_s, f"drive-canopen-{node_id}")
         self._send_lock = threading.Lock()
+        # one TPDO snapshot at a time, sent before the next is taken: the event timer and the RPDO handler both
+        # send, and a snapshot taken first but sent second would show the master a state the drive has left
+        self._tpdo_lock = threading.Lock()
         self._consumer: tuple[int, float] | None = None  # (master node id, timeout s)
         self._master_seen: float | None = None
         self._last_cycle: float | None = None
@@ -210,18 +213,19 @@ class DriveCanopenNode:
         if node is None or node.nmt.state != "OPERATIONAL" or self.fault == "mute":
             return
         d = self.drive
-        with d.lock:
-            values = (d.statusword(), d.torque_actual_permille(), d.position_counts(), d.mode_display(),
-                      d.error_code)
-        with self._send_lock:
-            tpdo1, tpdo2 = node.tpdo[1], node.tpdo[2]
-            if self.fault == "garbage":
-                self._net.send_message(tpdo1.cob_id, b"\xde\xad\x01")
-                return
-            tpdo1[0x6041].raw, tpdo1[0x6077].raw, tpdo1[0x6064].raw = values[0], values[1], values[2]
-            tpdo2[0x6061].raw, tpdo2[0x603F].raw = values[3], values[4]
-            tpdo1.transmit()
-            tpdo2.transmit()
+        with self._tpdo_lock:
+            with d.lock:
+                values = (d.statusword(), d.torque_actual_permille(), d.position_counts(), d.mode_display(),
+                          d.error_code)
+            with self._send_lock:
+                tpdo1, tpdo2 = node.tpdo[1], node.tpdo[2]
+                if self.fault == "garbage":
+                    self._net.send_message(tpdo1.cob_id, b"\xde\xad\x01")
+                    return
+                tpdo1[0x6041].raw, tpdo1[0x6077].raw, tpdo1[0x6064].raw = values[0], values[1], values[2]
+                tpdo2[0x6061].raw, tpdo2[0x603F].raw = values[3], values[4]
+                tpdo1.transmit()
+                tpdo2.transmit()
 
     def _cycle(self) -> None:
         """Every event-timer period: the TPDOs, and the heartbeat consumer's check of the master."""

@@ -147,6 +147,60 @@ def test_emcy_fault_and_reset(can_sims):
         assert drive.status().state == "OPERATION ENABLED"
 
 
+class _HeldOnce:
+    """A lock that holds up the drive's event-timer thread once, after it took its TPDO snapshot and before it
+    sends it (a loaded machine preempting the simulator there), until a newer state was sent or ``hold_s``."""
+
+    def __init__(self, lock, timer_thread: str, newer_sent: threading.Event, hold_s: float):
+        self.lock, self.timer_thread, self.newer_sent, self.hold_s = lock, timer_thread, newer_sent, hold_s
+        self.armed, self.holding = False, threading.Event()
+
+    def __enter__(self):
+        if self.armed and threading.current_thread().name == self.timer_thread:
+            self.armed = False
+            self.holding.set()
+            self.newer_sent.wait(self.hold_s)
+        return self.lock.__enter__()
+
+    def __exit__(self, *exc):
+        return self.lock.__exit__(*exc)
+
+
+def test_tpdos_leave_the_drive_in_the_order_of_its_states(can_sims):
+    """The event timer and the RPDO handler both send TPDOs: a FAULT snapshot the timer took before a fault
+    reset must not reach the master after the reset's SWITCH ON DISABLED (a loaded CI saw the next enable()
+    refused with the fault the reset had cleared)."""
+    node = can_sims.canopen
+    spy = can.Bus(interface="virtual", channel=can_sims.options.can_channel)
+    newer_sent = threading.Event()
+    held = _HeldOnce(node._send_lock, f"drive-canopen-{node.node_id}", newer_sent, hold_s=0.3)
+    try:
+        with _driver(can_sims) as drive:
+            drive.enable()
+            can_sims.inject("drive", 0x2310)
+            assert wait_until(lambda: drive.status().fault)
+            while spy.recv(0) is not None:  # what was sent before the fault
+                pass
+            node._send_lock = held
+            held.armed = True
+            assert held.holding.wait(2.0)  # the timer holds a FAULT snapshot
+            drive.fault_reset()
+            states = []
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                msg = spy.recv(0.05)
+                if msg is not None and msg.arbitration_id == 0x181:
+                    states.append("FAULT" if msg.data[0] & 0x08 else "other")
+                    if states[-1] == "other":
+                        newer_sent.set()
+            drive.enable()  # the state the master holds is the drive's
+            assert drive.status().state == "OPERATION ENABLED"
+    finally:
+        spy.shutdown()
+    first_reset = states.index("other")
+    assert "FAULT" not in states[first_reset:], states
+
+
 def test_heartbeat_loss_is_disconnected(can_sims):
     with _driver(can_sims, reconnect_attempts=1) as drive:
         drive.enable()
