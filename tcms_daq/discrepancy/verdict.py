@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from scipy.signal import lfilter
 
+from tcms_daq.analysis.notices import Notice, notices_of
 from tcms_daq.discrepancy.design import DesignData, branch_starts, reversals
 from tcms_daq.discrepancy.localise import angle_rate, equal_count_bins, periodogram, time_lines
 
@@ -587,25 +588,32 @@ class Verdict:
                 "names_provisional": self.provisional, "structure_removed_share": self.removed_share,
                 "structure_before": self.before.to_dict(), "structure_after": self.after.to_dict(),
                 "names_not_identified": self.not_identified, "unexplained": self.unexplained,
-                "words": self.words()}
+                "words": self.words(), "notices": notices_of(self.notices())}
+
+    def notices(self) -> list[Notice]:
+        """The verdict in sentences, each with its code (the pages translate them): what the verdict means, each
+        name that is not identified and why, and what remains."""
+        if self.verdict == "consistent":
+            said = [Notice("disc_consistent", "Measurement and simulation agree to within the noise: nothing to add.")]
+        elif self.verdict == "explained":
+            said = [Notice("disc_explained", "The named effects explain the discrepancy: what remains is noise.")]
+        elif self.verdict == "partially_explained":
+            said = [Notice("disc_partially_explained", "The named effects explain {share} of the discrepancy; "
+                           "structure remains that the catalogue does not describe, so the names are provisional.",
+                           share=f"{self.removed_share:.0%}")]
+        elif self.removed_share > 0:
+            said = [Notice("disc_unexplained_provisional", "The discrepancy is not explained by the catalogue (the "
+                           "names found remove little of it and are provisional).")]
+        else:
+            said = [Notice("disc_unexplained", "The discrepancy is not explained by the catalogue.")]
+        said += [Notice("disc_not_identified", "{name} takes up part of it, but is not identified: {why}.",
+                        name=name, why=why) for name, why in self.not_identified.items()]
+        if self.unexplained is not None:
+            said.append(Notice("disc_remains", "What remains: {summary}.", summary=self.unexplained["summary"]))
+        return said
 
     def words(self) -> str:
-        sentences = {
-            "consistent": "Measurement and simulation agree to within the noise: nothing to add.",
-            "explained": "The named effects explain the discrepancy: what remains is noise.",
-            "partially_explained": (f"The named effects explain {self.removed_share:.0%} of the discrepancy; "
-                                    "structure remains that the catalogue does not describe, so the names are "
-                                    "provisional."),
-            "unexplained": ("The discrepancy is not explained by the catalogue"
-                            + (" (the names found remove little of it and are provisional)" if self.removed_share > 0
-                               else "") + "."),
-        }
-        text = sentences[self.verdict]
-        for name, why in self.not_identified.items():
-            text += f" {name} takes up part of it, but is not identified: {why}."
-        if self.unexplained is not None:
-            text += " What remains: " + self.unexplained["summary"] + "."
-        return text
+        return " ".join(self.notices())
 
 
 def judge(data: DesignData, before: np.ndarray, after: np.ndarray, *, any_named: bool,

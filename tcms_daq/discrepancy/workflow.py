@@ -128,6 +128,7 @@ class DiscrepancyResult:
         out = {
             "verdict": verdict.pop("verdict"),
             "verdict_words": verdict.pop("words"),
+            "verdict_notices": verdict.pop("notices"),
             **verdict,
             "effects": [{**e.to_dict(), "provisional": self.verdict.provisional} for e in self.effects],
             "aliases": [a.to_dict() for a in self.aliases],

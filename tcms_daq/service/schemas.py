@@ -498,6 +498,9 @@ class DiscrepancyAnalysis(BaseModel):
     verdict: Literal["consistent", "explained", "partially_explained", "unexplained"] | None = Field(
         None, description="is what remains noise? (None: stored before verdicts existed)")
     verdict_words: str | None = None
+    verdict_notices: list[dict[str, Any]] = Field(
+        default_factory=list, description="verdict_words sentence by sentence as {code, params, text}: the pages "
+        "translate each from notice.<code> of the message catalogue")
     noise_floor_arcsec: float | None = None
     names_provisional: bool | None = None
     unexplained: dict[str, Any] | None = Field(

@@ -55,6 +55,21 @@ def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_con
             assert fleet.text_content("#discrepancy-result").startswith(f"run {run_id}: consistent")
             fleet.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 2",
                                     timeout=20_000)
+
+            # in Chinese: the verdict, its sentence (the core's coded notice) and the labels from the catalogue
+            zh = browser.new_page(viewport={"width": 1500, "height": 900})
+            zh.on("pageerror", lambda exc: errors.append(str(exc)))
+            zh.goto(f"{srv.base}/fleet?token={TOKEN}&lang=zh")
+            zh.wait_for_selector(button, timeout=20_000)
+            zh.click(button)
+            zh.wait_for_function(
+                "document.querySelector('#discrepancy-result').textContent.includes('对照试验台模型 v0')", timeout=90_000)
+            said = zh.text_content("#discrepancy-result")
+            assert said.startswith(f"试验 {run_id}：一致：测量与仿真在噪声范围内一致"), said
+            assert "识别出：无" in said and "留出数据 RMS" in said, said
+            zh.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 3",
+                                 timeout=20_000)
+            assert "一致" in zh.text_content("#discrepancy-history")
             assert errors == []
         finally:
             browser.close()

@@ -11,17 +11,23 @@ const TcmsDiscrepancy = (() => {
 
   async function api(method, path, body) { return (await TcmsSession.request(method, path, body)).data; }
 
+  // What an analysis found, in this page's language: the verdict and its sentences (verdict_notices, the core's
+  // English where the catalogue lacks a code), the names, the look-alikes and the held-out RMS before → after.
   function describe(d) {
+    const { t, notice } = TcmsI18n;
     const named = d.effects.length
-      ? "named: " + d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
-        .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ")
-      : "named: nothing (no catalogue effect improves the held-out error reliably)";
-    const aliases = d.aliases.map((a) => "; cannot be told apart: " + a.names.join(" / ") +
-      (a.separating_experiment ? " — to separate them: " + a.separating_experiment : "")).join("");
-    const verdict = d.verdict_words ? d.verdict.replace(/_/g, " ") + ": " + d.verdict_words + " " : "";
-    const provisional = d.names_provisional && d.effects.length ? " (provisional)" : "";
-    return `${verdict}${named}${provisional}${aliases}; held-out RMS ${rms(d.cv_rms_before_arcsec)} → ` +
-      `${rms(d.cv_rms_after_arcsec)}`;
+      ? t("disc.named", { names: d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
+        .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ") })
+      : t("disc.named_nothing");
+    const then = t("disc.then");
+    const aliases = d.aliases.map((a) => then + t("disc.aliases", { names: a.names.join(" / ") }) +
+      (a.separating_experiment ? " — " + t("disc.to_separate", { how: a.separating_experiment }) : "")).join("");
+    const sentences = Array.isArray(d.verdict_notices) && d.verdict_notices.length
+      ? d.verdict_notices.map(notice).join(" ") : (d.verdict_words || "");
+    const verdict = d.verdict ? t("disc.verdict_said", { verdict: t("disc.verdict." + d.verdict), text: sentences }) + " " : "";
+    const provisional = d.names_provisional && d.effects.length ? " " + t("disc.provisional") : "";
+    return verdict + named + provisional + aliases + then +
+      t("disc.held_out", { before: rms(d.cv_rms_before_arcsec), after: rms(d.cv_rms_after_arcsec) });
   }
 
   // The "missing effects" button of a stored run (the dashboard's recent tests, the fleet list): a click calls
@@ -53,8 +59,9 @@ const TcmsDiscrepancy = (() => {
       const names = (a.effects || []).map((e) => (typeof e === "string" ? e : e.name)).join(", ") || "—";
       tr.innerHTML = `<td>${escapeHtml((a.created_at || "").replace("T", " ").slice(0, 19))}</td>` +
         `<td>${escapeHtml(a.run_id)}</td><td>v${escapeHtml(String(a.model_version))}</td>` +
-        `<td>${escapeHtml(String(a.verdict || "").replace(/_/g, " "))}</td><td>${escapeHtml(names)} ` +
-        `<a href="${escapeHtml(withToken("/api/discrepancy/" + encodeURIComponent(a.id) + "/report"))}" target="_blank">report</a></td>`;
+        `<td>${escapeHtml(a.verdict ? TcmsI18n.t("disc.verdict." + a.verdict) : "")}</td><td>${escapeHtml(names)} ` +
+        `<a href="${escapeHtml(withToken("/api/discrepancy/" + encodeURIComponent(a.id) + "/report"))}" ` +
+        `target="_blank">${escapeHtml(TcmsI18n.t("disc.report"))}</a></td>`;
       tbody.appendChild(tr);
     }
     return items;

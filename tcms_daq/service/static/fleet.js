@@ -206,9 +206,10 @@
     out.textContent = t("dash.analysing", { id });
     try {
       const d = await TcmsDiscrepancy.start(id);
-      out.textContent = "run " + id + ": " + TcmsDiscrepancy.describe(d) + " (against bench model v" + d.model_version + ")";
+      out.textContent = t("disc.of_run", { id, text: TcmsDiscrepancy.describe(d) + " " +
+        t("dash.against_model", { version: d.model_version }) });
     } catch (e) {
-      out.textContent = "run " + id + ": " + e.message;
+      out.textContent = t("disc.of_run", { id, text: e.message });
     } finally {
       button.disabled = false;
       TcmsDiscrepancy.history($("discrepancy-history").tBodies[0]);
