@@ -73,3 +73,62 @@ def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_con
             assert errors == []
         finally:
             browser.close()
+
+
+@pytest.mark.timeout(180)
+def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
+    """Where an analysis cannot tell two effects apart, its suggested run is a button that starts exactly that
+    request. The analysis is the service's own, with an alias group and the suggestion the store makes for it
+    (``separating_request``) added on its way to the page: the default bench hides no such pair."""
+    from playwright.sync_api import sync_playwright
+
+    from tcms_daq.discrepancy import effects as fx
+    from tcms_daq.discrepancy.stored import separating_request
+
+    names = [fx.TIME_SKEW, fx.BACKLASH]
+    suggested = separating_request(fx.SECOND_RATE, REQUEST, reducer=REQUEST["reducer"],
+                                   max_torque_nm=REQUEST["max_torque_nm"], rate_nm_per_s=REQUEST["rate_nm_per_s"],
+                                   max_rate_nm_per_s=2000.0)
+    assert suggested is not None and suggested["rates"][0] == REQUEST["rate_nm_per_s"]
+
+    def with_alias(route):
+        if route.request.method != "POST":
+            route.continue_()
+            return
+        response = route.fetch()
+        doc = response.json()
+        doc["aliases"] = [{"names": names, "in_model": False, "separating_experiment": "a second loading rate"}]
+        doc["suggested_runs"] = [{"names": names, "kind": fx.SECOND_RATE, "why": "a skew grows with the rate",
+                                  "request": suggested}]
+        route.fulfill(response=response, json=doc)
+
+    settings = settings_factory(config_path=sim_config, sim_speed=20.0)
+    with serve(settings) as srv, srv.client() as c, sync_playwright() as pw:
+        run_id = c.post("/api/tests", json=REQUEST).json()["id"]
+        wait_for(lambda: c.get(f"/api/tests/{run_id}").json()["status"] == "completed", timeout_s=90)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1500, "height": 900})
+            errors: list[str] = []
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.route("**/api/discrepancy", with_alias)
+            page.goto(f"{srv.base}/?token={TOKEN}")
+            page.click(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
+            button = page.wait_for_selector("button.start-suggested[data-kind='second_rate']", timeout=90_000)
+            rates = " / ".join(f"{r:g}" for r in suggested["rates"])
+            assert button.text_content() == \
+                f"Start the run that separates time_skew / backlash: the same test at {rates} N·m/s"
+            assert "cannot be told apart: time_skew / backlash" in page.text_content("#discrepancy-result")
+            button.click()
+            started = page.wait_for_selector(".suggested-started", timeout=20_000)
+            new_id = started.get_attribute("data-run")
+            assert new_id and new_id != run_id and button.is_disabled()
+            run = c.get(f"/api/tests/{new_id}").json()
+            assert run["request"]["rates"] == suggested["rates"], run["request"]
+            assert run["request"]["max_torque_nm"] == REQUEST["max_torque_nm"]
+            c.post(f"/api/tests/{new_id}/abort")
+            wait_for(lambda: c.get(f"/api/tests/{new_id}").json()["status"] not in ("queued", "running"),
+                     timeout_s=60)
+            assert errors == []
+        finally:
+            browser.close()
