@@ -80,17 +80,25 @@ class Gap:
     def duration_s(self) -> float:
         return self.end_s - self.start_s
 
-    def describe(self) -> str:
-        where = (f"t = {self.start_s:.2f} … {self.end_s:.2f} s, torque {self.torque_lo_nm:.0f} … "
-                 f"{self.torque_hi_nm:.0f} N·m")
+    def describe(self) -> Notice:
+        """What the gap is, where and when, in words (a coded notice: the pages translate it)."""
+        where = {"t_from": f"{self.start_s:.2f}", "t_to": f"{self.end_s:.2f}", "torque_lo": f"{self.torque_lo_nm:.0f}",
+                 "torque_hi": f"{self.torque_hi_nm:.0f}"}
+        span = "(t = {t_from} … {t_to} s, torque {torque_lo} … {torque_hi} N·m)"
         if self.kind == "angle jump":
-            return (f"{self.channel} channel: a step of {self.step_arcsec:+.1f}″ in {self.duration_s:.3f} s, where "
-                    f"at most {self.allowed_arcsec:.1f}″ is plausible at this torque rate (the display's datum "
-                    f"changed?) ({where})")
+            return Notice("gap_angle_jump", "{channel} channel: a step of {step}″ in {duration} s, where at most "
+                          "{allowed}″ is plausible at this torque rate (the display's datum changed?) " + span,
+                          channel=self.channel, step=f"{self.step_arcsec:+.1f}", duration=f"{self.duration_s:.3f}",
+                          allowed=f"{self.allowed_arcsec:.1f}", **where)
         if self.kind == "new datum":
-            return (f"{self.channel} channel: new datum (the display was power-cycled and counts from another "
-                    f"zero) between two readings {self.duration_s:.2f} s apart ({where})")
-        return f"{self.channel} channel: no readings for {self.duration_s:.2f} s ({where})"
+            return Notice("gap_new_datum", "{channel} channel: new datum (the display was power-cycled and counts from "
+                          "another zero) between two readings {duration} s apart " + span,
+                          channel=self.channel, duration=f"{self.duration_s:.2f}", **where)
+        if self.channel == "torque":
+            return Notice("gap_torque_no_readings", "{channel} channel: no readings for {duration} s " + span,
+                          channel=self.channel, duration=f"{self.duration_s:.2f}", **where)
+        return Notice("gap_angle_no_readings", "{channel} channel: no readings for {duration} s " + span,
+                      channel=self.channel, duration=f"{self.duration_s:.2f}", **where)
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -226,7 +234,7 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
         return GapExclusion(samples)
     t = samples.time_s
     if loop is None:
-        return GapExclusion(samples, gaps, [f"gap: {g.describe()}" for g in gaps],
+        return GapExclusion(samples, gaps, [Notice("gap", "gap: {gap}", gap=g.describe()) for g in gaps],
                             reason=f"a gap in the data: {gaps[0].describe()}; nothing left to evaluate")
     stage = samples.extra.get("stage_index", np.zeros(len(t)))
     keys = np.stack([np.asarray(stage, dtype=float), np.asarray(loop, dtype=float)], axis=1)
@@ -242,7 +250,7 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
     warnings: list[str] = []
     for (s, k), loop_gaps in sorted(held.items()):
         drop |= (keys[:, 0] == s) & (keys[:, 1] == k)
-        described = "; ".join(g.describe() for g in loop_gaps)
+        described = [g.describe() for g in loop_gaps]
         if "stage_index" in samples.extra:
             warnings.append(Notice("loop_of_stage_left_out_gap", "loop {loop} of stage {stage} left out, not "
                                    "evaluated across a gap: {gaps}", loop=str(k), stage=str(s + 1), gaps=described))
@@ -276,12 +284,13 @@ def _join_datums(samples: Samples) -> tuple[Samples, list[str]]:
     if not joins.size:
         return samples, []
     angle = np.array(samples.angle_arcsec, dtype=float)
-    notes = []
+    notes: list[str] = []
     for j in joins:
         shift = angle[j] - angle[j + 1]
         same_stage = stage == stage[j]
         angle[j + 1:][same_stage[j + 1:]] += shift
-        notes.append(f"angle channel: the loops from t = {samples.time_s[j + 1]:.2f} s count from a new datum; "
-                     f"their angles are joined to the earlier loops at the turning point where they meet "
-                     f"(torque {samples.torque_nm[j]:.0f} N·m, shifted by {shift:+.1f}″)")
+        notes.append(Notice("angle_datum_joined", "angle channel: the loops from t = {time} s count from a new datum; "
+                            "their angles are joined to the earlier loops at the turning point where they meet "
+                            "(torque {torque} N·m, shifted by {shift}″)", time=f"{samples.time_s[j + 1]:.2f}",
+                            torque=f"{samples.torque_nm[j]:.0f}", shift=f"{shift:+.1f}"))
     return Samples(samples.time_s, samples.torque_nm, angle, dict(samples.extra)), notes

@@ -2,7 +2,9 @@
 API's ``warnings`` and every list of strings keep working) that also carries a ``code`` and the ``params`` its
 text was filled with, already formatted (numbers with their unit as the English text shows them). The pages,
 the report and the certificate translate a notice from the message catalogue (``notice.<code>`` with the same
-``{params}``) and show the English text when a language lacks the code; :func:`notices_of` is what a results
+``{params}``) and show the English text when a language lacks the code. A param may itself be a notice or a list
+of notices (the gaps a left-out loop holds): its English is the notices' texts joined by "; ", and each is
+translated by its own code; :func:`notices_of` is what a results
 document keeps of them (``results["notices"]``, ``verdict["reason_notices"]``), in the order of the texts."""
 
 from __future__ import annotations
@@ -11,14 +13,18 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 
+def _param_text(value: Any) -> str:
+    return "; ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+
+
 class Notice(str):
-    """English text with a stable ``code`` and its formatted ``params``."""
+    """English text with a stable ``code`` and its formatted ``params`` (strings, notices or lists of notices)."""
 
     code: str
-    params: dict[str, str]
+    params: dict[str, Any]
 
-    def __new__(cls, code: str, template: str, **params: str) -> Notice:
-        made = super().__new__(cls, template.format(**params))
+    def __new__(cls, code: str, template: str, **params: str | Notice | Sequence[Notice]) -> Notice:
+        made = super().__new__(cls, template.format(**{k: _param_text(v) for k, v in params.items()}))
         made.code = code
         made.params = dict(params)
         return made
@@ -27,7 +33,7 @@ class Notice(str):
         return (_rebuild, (str(self), self.code, self.params))
 
 
-def _rebuild(text: str, code: str, params: dict[str, str]) -> Notice:
+def _rebuild(text: str, code: str, params: dict[str, Any]) -> Notice:
     made = str.__new__(Notice, text)
     made.code = code
     made.params = dict(params)
@@ -35,9 +41,16 @@ def _rebuild(text: str, code: str, params: dict[str, str]) -> Notice:
 
 
 def notices_of(texts: Iterable[str]) -> list[dict[str, Any]]:
-    """``{"code", "params", "text"}`` per text, in order; a text without a code gets ``code`` None."""
-    return [{"code": getattr(t, "code", None), "params": dict(getattr(t, "params", {}) or {}), "text": str(t)}
-            for t in texts]
+    """``{"code", "params", "text"}`` per text, in order; a text without a code gets ``code`` None; a param that
+    is a notice is such a dict, a list of notices a list of them."""
+    return [_as_dict(t) for t in texts]
+
+
+def _as_dict(text: str) -> dict[str, Any]:
+    params = dict(getattr(text, "params", {}) or {})
+    return {"code": getattr(text, "code", None), "text": str(text),
+            "params": {k: (_as_dict(v) if isinstance(v, Notice) else [_as_dict(n) for n in v]
+                           if isinstance(v, list | tuple) else v) for k, v in params.items()}}
 
 
 def notices_in(results: Mapping[str, Any]) -> list[dict[str, Any]]:

@@ -120,6 +120,7 @@ EN: dict[str, str] = {
     "disc.report": "report",
     "disc.verdict_said": "{verdict}: {text}",
     "disc.then": "; ",
+    "notice_list_separator": "; ",
     "dash.model_saved": "bench model version {version}: {note}",
     "dash.live_torque": "Live torque",
     "dash.live_angle": "Live angle",
@@ -455,6 +456,7 @@ ZH: dict[str, str] = {
     "disc.report": "报告",
     "disc.verdict_said": "{verdict}：{text}",
     "disc.then": "；",
+    "notice_list_separator": "；",
     "dash.model_saved": "试验台模型第 {version} 版：{note}",
     "dash.live_torque": "实时扭矩",
     "dash.live_angle": "实时转角",
@@ -578,6 +580,15 @@ ZH: dict[str, str] = {
     "notice.rigidity_unit_mixup": "扭转刚度 {measured} N·m/arcmin 是 {reducer} 样本值 {expected} N·m/arcmin 的 {ratio} "
                                   "倍：如同角度单位为 {unit}（× {factor}）而非角秒",
     "notice.loop_left_out_gap": "第 {loop} 个循环含数据间隙，未参与评定：{gaps}",
+    "notice.gap": "数据间隙：{gap}",
+    "notice.gap_torque_no_readings": "扭矩通道：{duration} s 内无读数（t = {t_from} … {t_to} s，扭矩 {torque_lo} … {torque_hi} N·m）",
+    "notice.gap_angle_no_readings": "角度通道：{duration} s 内无读数（t = {t_from} … {t_to} s，扭矩 {torque_lo} … {torque_hi} N·m）",
+    "notice.gap_new_datum": "角度通道：新基准（显示器断电重启后从另一零点计数），两次读数相隔 {duration} s（t = {t_from} … "
+                            "{t_to} s，扭矩 {torque_lo} … {torque_hi} N·m）",
+    "notice.gap_angle_jump": "角度通道：{duration} s 内跳变 {step}″，而此扭矩速率下最多 {allowed}″ 合理（显示器基准变了？）"
+                             "（t = {t_from} … {t_to} s，扭矩 {torque_lo} … {torque_hi} N·m）",
+    "notice.angle_datum_joined": "角度通道：自 t = {time} s 起的循环从新基准计数；其角度在两者相接的换向点（扭矩 {torque} N·m）"
+                                 "与之前的循环衔接，平移 {shift}″",
     "notice.disc_consistent": "测量与仿真在噪声范围内一致：无需添加。",
     "notice.disc_explained": "所识别的效应解释了偏差：剩余部分为噪声。",
     "notice.disc_partially_explained": "所识别的效应解释了偏差的 {share}；仍有目录未描述的结构，因此这些名称是暂定的。",
@@ -792,8 +803,15 @@ def notice_text(notice: Mapping[str, Any], lang: str = "en") -> str:
     code, params = notice.get("code"), notice.get("params") or {}
     template = CATALOGUES.get(lang, {}).get(f"notice.{code}") if code else None
     if template is not None:
+        def param(value: Any) -> Any:  # a notice inside a notice (a left-out loop's gaps): each in lang
+            if isinstance(value, Mapping):
+                return notice_text(value, lang)
+            if isinstance(value, list):
+                return text("notice_list_separator", lang).join(str(param(v)) for v in value)
+            return value
+
         with contextlib.suppress(KeyError, IndexError, ValueError):
-            body = template.format(**params)
+            body = template.format(**{k: param(v) for k, v in params.items()})
     stage = notice.get("stage")
     if isinstance(stage, Mapping) and stage.get("kind") in ("position", "rate"):
         body = text(f"notice.stage_{stage['kind']}", lang, number=stage.get("number"), text=body)

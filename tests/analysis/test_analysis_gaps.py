@@ -4,6 +4,8 @@ complete. The records are made from a spring with a friction band (not from the 
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,9 @@ from tcms_daq.analysis.gaps import (
     find_angle_jumps,
     find_gaps,
 )
+from tcms_daq.analysis.notices import notices_of
 from tcms_daq.samples import Samples
+from tcms_daq.service.messages import notice_text
 
 RATE_HZ = 500.0
 T_MAX = 1000.0
@@ -90,6 +94,11 @@ def test_a_new_datum_is_a_break_however_short_and_its_loop_is_left_out():
     assert "loop 2 left out" in out.warnings[0] and "angle channel: new datum" in out.warnings[0]
     assert "t = 12.60 … 12.60 s" in out.warnings[0]
     assert len(out.warnings) == 2 and "count from a new datum" in out.warnings[1]  # loops 1 and 3 joined at −T
+    # in Chinese from their codes, the gap inside the left-out loop's warning too (as the store keeps them)
+    zh = [notice_text(n, "zh") for n in json.loads(json.dumps(notices_of(out.warnings)))]
+    assert zh[0].startswith("第 2 个循环含数据间隙，未参与评定：角度通道：新基准") and "t = 12.60 … 12.60 s" in zh[0]
+    assert zh[1].startswith("角度通道：自 t = ") and "channel" not in " ".join(zh), zh
+    assert [notice_text(n, "en") for n in notices_of(out.warnings)] == out.warnings
     # the loop after it counts from the new datum throughout: evaluated, and the rigidity is the clean one's
     ev = evaluate(out.samples.time_s, out.samples.torque_nm, out.samples.angle_arcsec, rated_torque_nm=T_MAX)
     clean = loops_record(3)

@@ -18,6 +18,8 @@ import pytest
 from svc_helpers import TOKEN, ScriptedRunner, _u_entry, results_with_uncertainty, serve
 from test_service_browser_fleet import _seed
 
+from tcms_daq.analysis.gaps import Gap
+from tcms_daq.analysis.notices import Notice, prepend_warnings
 from tcms_daq.service import messages
 from tcms_daq.service.users import hash_password
 from tcms_daq.store import open_store
@@ -443,6 +445,10 @@ def test_warnings_reasons_and_verdicts_in_chinese(settings_factory):
 
     results = _degrees_record_results()
     assert results["verdict"]["decision"] == "undecided" and len(results["notices"]) == 1
+    # a left-out loop's warning holds the gap's own coded description: both in Chinese
+    gap = Gap("torque", 12.0, 12.5, 100.0, 300.0).describe()
+    prepend_warnings(results, [Notice("loop_left_out_gap", "loop {loop} left out, not evaluated across a gap: {gaps}",
+                                      loop="2", gaps=[gap])])
     settings = settings_factory()
     with open_store(None, settings.data_dir, bench_id="line-a", bench_name="Line A") as store:
         store.create_run("degrees", {"reducer": "RV-110E", "serial_number": "SN-DEG", "max_torque_nm": 300.0},
@@ -462,6 +468,7 @@ def test_warnings_reasons_and_verdicts_in_chinese(settings_factory):
             assert "无法判定" in shown and "简单接受" in shown, shown
             assert "按角秒计不合理地小（若为度则为 134.1″" in shown and "警告" in shown, shown
             assert "implausibly small" not in shown and "扭转刚度 ≥ 200 N·m/arcmin" in shown
+            assert "第 2 个循环含数据间隙，未参与评定：扭矩通道：0.50 s 内无读数" in shown and "channel" not in shown, shown
             assert "无法判定" in page.inner_text("#history")
             assert page.evaluate(OVERFLOWING, "#results td, #results th") == []
             assert errors == []

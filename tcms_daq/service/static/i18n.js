@@ -48,8 +48,12 @@ const TcmsI18n = (() => {
    * the catalogue's notice.<code> with its params, else the core's English text; a stage's notice says which. */
   function notice(n) {
     const key = "notice." + n.code;
+    // a notice inside a notice (a left-out loop's gaps) in this language too
+    const param = (v) => (Array.isArray(v) ? v.map(param).join(t("notice_list_separator"))
+      : v && typeof v === "object" ? notice(v) : v);
+    const params = Object.fromEntries(Object.entries(n.params || {}).map(([k, v]) => [k, param(v)]));
     let body = n.code && lang !== "en" && Object.prototype.hasOwnProperty.call(all[lang] || {}, key)
-      ? t(key, n.params || {}) : String(n.text || "");
+      ? t(key, params) : String(n.text || "");
     if (n.stage && (n.stage.kind === "position" || n.stage.kind === "rate")) {
       body = t("notice.stage_" + n.stage.kind, { number: n.stage.number, text: body });
     }
