@@ -16,7 +16,6 @@ from tcms_daq.cli import main
 from tcms_daq.store import STORE_FILENAME, RunStore
 
 REQUEST = {"reducer": "RV-110E", "max_torque_nm": 500, "cycles": 1, "profile": "continuous", "rate_nm_per_s": 250}
-SMALL_LAG_S = 0.002  # one sample period of the simulated bench (500 Hz)
 PER_ANALYSIS_KEYS = {"id", "created_at", "report_url"}  # each analysis its own; the rest is the same work
 
 
@@ -112,10 +111,9 @@ def test_discrepancy_names_an_effect_hidden_in_the_simulated_bench(settings_fact
         assert _finished(c, run_1)["status"] == "completed"
         first = c.post("/api/discrepancy", json={"run_id": run_1}).json()
         assert first["model_version"] == 0
-        lags = [e for e in first["effects"] if e["name"] == "time_skew" and abs(e["parameters"]["skew_s"]) <= SMALL_LAG_S]
-        # the drift, and at most a small lag beside it (see run 2 below)
-        assert [e["name"] for e in first["effects"] if e not in lags] == ["thermal_drift"], (first["effects"],
-                                                                                           first["aliases"])
+        # only the drift (before the re-simulation's torque lost its play-operator lag, 1 in ~8 runs under CPU
+        # contention kept a small backlash/lag group beside it or named a lag in run 2)
+        assert [e["name"] for e in first["effects"]] == ["thermal_drift"], (first["effects"], first["aliases"])
         # the 10 % recovery is pinned on simulated-clock runs in tests/discrepancy; this run is paced by the
         # wall clock at 20x and, on a loaded CI machine, its batches (and so the fit) vary more
         drift = next(e for e in first["effects"] if e["name"] == "thermal_drift")
@@ -129,7 +127,7 @@ def test_discrepancy_names_an_effect_hidden_in_the_simulated_bench(settings_fact
         assert r.status_code == 200, r.text
         model = r.json()
         # the model gets what the analysis offered: its names, and the representative of any look-alike group it
-        # kept in the model (under CPU contention the 20x pacing can add a small lag's group: kept, not named)
+        # kept in the model
         offered = [e["name"] for e in first["effects"]] + [a["representative"] for a in first["aliases"] if a["in_model"]]
         assert model["version"] == 1 and sorted(t["name"] for t in model["terms"]) == sorted(offered), first["aliases"]
         assert model["history"][0]["analysis_id"] == first["id"] and model["history"][0]["run_id"] == run_1
@@ -141,20 +139,14 @@ def test_discrepancy_names_an_effect_hidden_in_the_simulated_bench(settings_fact
         assert _finished(c, run_2)["status"] == "completed"
         second = c.post("/api/discrepancy", json={"run_id": run_2}).json()
         assert second["model_version"] == 1
-        # consistent; or, open in issue 24, a small lag named on this paced bench's own data (1 in ~8 runs under
-        # CPU contention: re-simulating on the noisy measured torque near the reversals is suspected)
-        small_lag = [e for e in second["effects"] if e["name"] == "time_skew"
-                     and abs(e["parameters"]["skew_s"]) <= SMALL_LAG_S]
-        assert second["verdict"] == "consistent" and second["effects"] == [] or (
-            second["effects"] == small_lag and second["verdict"] == "explained"), (second["verdict_words"],
-                                                                                   second["effects"])
+        assert second["verdict"] == "consistent" and second["effects"] == [], (second["verdict_words"],
+                                                                                second["effects"])
         assert second["cv_rms_before_arcsec"] < 0.3
-        if not second["effects"]:
-            r = c.post(f"/api/discrepancy/{second['id']}/apply")
-            assert r.status_code == 422 and "nothing to add" in r.json()["detail"]
+        r = c.post(f"/api/discrepancy/{second['id']}/apply")
+        assert r.status_code == 422 and "nothing to add" in r.json()["detail"]
         listed = c.get("/api/discrepancy").json()
         assert [(a["id"], a["model_version"], a["verdict"]) for a in listed] == [
-            (second["id"], 1, second["verdict"]), (first["id"], 0, "explained")]
+            (second["id"], 1, "consistent"), (first["id"], 0, "explained")]
 
 
 @pytest.mark.timeout(180)
@@ -186,10 +178,5 @@ def test_a_measuring_chain_effect_moves_from_the_bench_model_into_the_compensato
         assert c.get(f"/api/tests/{run_2}").json()["compensation_version"] == version
         second = c.post("/api/discrepancy", json={"run_id": run_2}).json()
         assert second["model_version"] == 2
-        # consistent; or, open in issue 24, a small lag named on this paced bench's own data (1 in ~8 runs under
-        # CPU contention: re-simulating on the noisy measured torque near the reversals is suspected)
-        small_lag = [e for e in second["effects"] if e["name"] == "time_skew"
-                     and abs(e["parameters"]["skew_s"]) <= SMALL_LAG_S]
-        assert second["verdict"] == "consistent" and second["effects"] == [] or (
-            second["effects"] == small_lag and second["verdict"] == "explained"), (second["verdict_words"],
-                                                                                   second["effects"])
+        assert second["verdict"] == "consistent" and second["effects"] == [], (second["verdict_words"],
+                                                                                second["effects"])
