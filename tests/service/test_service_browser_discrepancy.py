@@ -4,6 +4,7 @@ run's row and shows it in words and in the analyses' history."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 import pytest
@@ -18,8 +19,10 @@ pytestmark = [
 ]
 
 
-@pytest.mark.timeout(180)
-def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_config):
+@contextlib.contextmanager
+def _service_with_a_stored_run(settings_factory, sim_config):
+    """(server, API client, headless Chromium, run id): the service on the simulated bench with one test made
+    over the API before any page is opened."""
     from playwright.sync_api import sync_playwright
 
     settings = settings_factory(config_path=sim_config, sim_speed=20.0)
@@ -28,51 +31,61 @@ def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_con
         wait_for(lambda: c.get(f"/api/tests/{run_id}").json()["status"] == "completed", timeout_s=90)
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
         try:
-            page = browser.new_page(viewport={"width": 1500, "height": 900})
-            errors: list[str] = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.goto(f"{srv.base}/?token={TOKEN}")
-            page.wait_for_selector(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
-            assert page.is_hidden("#discrepancy-history")  # no analyses yet: no empty table
-            page.click(f"#history button.find-effects[data-run='{run_id}']")
-            page.wait_for_selector("#discrepancy-link:not([hidden])", timeout=90_000)
-            said = page.text_content("#discrepancy-result")
-            assert said.startswith("consistent: Measurement and simulation agree"), said
-            assert "(against bench model v0)" in said
-            page.wait_for_selector(f"#discrepancy-history tr:has-text('{run_id}')", timeout=20_000)
-            assert "consistent" in page.text_content("#discrepancy-history")
-
-            fleet = browser.new_page(viewport={"width": 1500, "height": 900})
-            fleet.on("pageerror", lambda exc: errors.append(str(exc)))
-            fleet.goto(f"{srv.base}/fleet?token={TOKEN}")
-            button = f"#runs button.find-effects[data-run='{run_id}']"
-            fleet.wait_for_selector(button, timeout=20_000)
-            fleet.wait_for_selector(f"#discrepancy-history tr:has-text('{run_id}')", timeout=20_000)  # the history
-            fleet.click(button)
-            fleet.wait_for_function(
-                "document.querySelector('#discrepancy-result').textContent.includes('against bench model v0')",
-                timeout=90_000)
-            assert fleet.text_content("#discrepancy-result").startswith(f"run {run_id}: consistent")
-            fleet.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 2",
-                                    timeout=20_000)
-
-            # in Chinese: the verdict, its sentence (the core's coded notice) and the labels from the catalogue
-            zh = browser.new_page(viewport={"width": 1500, "height": 900})
-            zh.on("pageerror", lambda exc: errors.append(str(exc)))
-            zh.goto(f"{srv.base}/fleet?token={TOKEN}&lang=zh")
-            zh.wait_for_selector(button, timeout=20_000)
-            zh.click(button)
-            zh.wait_for_function(
-                "document.querySelector('#discrepancy-result').textContent.includes('对照试验台模型 v0')", timeout=90_000)
-            said = zh.text_content("#discrepancy-result")
-            assert said.startswith(f"试验 {run_id}：一致：测量与仿真在噪声范围内一致"), said
-            assert "识别出：无" in said and "留出数据 RMS" in said, said
-            zh.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 3",
-                                 timeout=20_000)
-            assert "一致" in zh.text_content("#discrepancy-history")
-            assert errors == []
+            yield srv, c, browser, run_id
         finally:
             browser.close()
+
+
+def _page(browser, errors: list[str]):
+    """A new 1500 × 900 page whose script errors land in ``errors``."""
+    page = browser.new_page(viewport={"width": 1500, "height": 900})
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    return page
+
+
+@pytest.mark.timeout(180)
+def test_dashboard_and_fleet_page_analyse_a_stored_run(settings_factory, sim_config):
+    with _service_with_a_stored_run(settings_factory, sim_config) as (srv, c, browser, run_id):
+        errors: list[str] = []
+        page = _page(browser, errors)
+        page.goto(f"{srv.base}/?token={TOKEN}")
+        page.wait_for_selector(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
+        assert page.is_hidden("#discrepancy-history")  # no analyses yet: no empty table
+        page.click(f"#history button.find-effects[data-run='{run_id}']")
+        page.wait_for_selector("#discrepancy-link:not([hidden])", timeout=90_000)
+        said = page.text_content("#discrepancy-result")
+        assert said.startswith("consistent: Measurement and simulation agree"), said
+        assert "(against bench model v0)" in said
+        page.wait_for_selector(f"#discrepancy-history tr:has-text('{run_id}')", timeout=20_000)
+        assert "consistent" in page.text_content("#discrepancy-history")
+
+        fleet = _page(browser, errors)
+        fleet.goto(f"{srv.base}/fleet?token={TOKEN}")
+        button = f"#runs button.find-effects[data-run='{run_id}']"
+        fleet.wait_for_selector(button, timeout=20_000)
+        fleet.wait_for_selector(f"#discrepancy-history tr:has-text('{run_id}')", timeout=20_000)  # the history
+        fleet.click(button)
+        fleet.wait_for_function(
+            "document.querySelector('#discrepancy-result').textContent.includes('against bench model v0')",
+            timeout=90_000)
+        assert fleet.text_content("#discrepancy-result").startswith(f"run {run_id}: consistent")
+        fleet.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 2",
+                                timeout=20_000)
+
+        # in Chinese: the verdict, its sentence (the core's coded notice) and the labels from the catalogue
+        zh = _page(browser, errors)
+        zh.goto(f"{srv.base}/fleet?token={TOKEN}&lang=zh")
+        zh.wait_for_selector(button, timeout=20_000)
+        zh.click(button)
+        zh.wait_for_function(
+            "document.querySelector('#discrepancy-result').textContent.includes('对照试验台模型 v0')", timeout=90_000)
+        said = zh.text_content("#discrepancy-result")
+        assert said.startswith(f"试验 {run_id}：一致：测量与仿真在噪声范围内一致"), said
+        assert "识别出：无" in said and "留出数据 RMS" in said, said
+        zh.wait_for_function("document.querySelectorAll('#discrepancy-history tbody tr').length === 3",
+                             timeout=20_000)
+        assert "一致" in zh.text_content("#discrepancy-history")
+        assert errors == []
 
 
 @pytest.mark.timeout(180)
@@ -80,8 +93,6 @@ def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
     """Where an analysis cannot tell two effects apart, its suggested run is a button that starts exactly that
     request. The analysis is the service's own, with an alias group and the suggestion the store makes for it
     (``separating_request``) added on its way to the page: the default bench hides no such pair."""
-    from playwright.sync_api import sync_playwright
-
     from tcms_daq.discrepancy import effects as fx
     from tcms_daq.discrepancy.stored import separating_request
 
@@ -102,33 +113,25 @@ def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
                                   "request": suggested}]
         route.fulfill(response=response, json=doc)
 
-    settings = settings_factory(config_path=sim_config, sim_speed=20.0)
-    with serve(settings) as srv, srv.client() as c, sync_playwright() as pw:
-        run_id = c.post("/api/tests", json=REQUEST).json()["id"]
-        wait_for(lambda: c.get(f"/api/tests/{run_id}").json()["status"] == "completed", timeout_s=90)
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
-        try:
-            page = browser.new_page(viewport={"width": 1500, "height": 900})
-            errors: list[str] = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.route("**/api/discrepancy", with_alias)
-            page.goto(f"{srv.base}/?token={TOKEN}")
-            page.click(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
-            button = page.wait_for_selector("button.start-suggested[data-kind='second_rate']", timeout=90_000)
-            rates = " / ".join(f"{r:g}" for r in suggested["rates"])
-            assert button.text_content() == \
-                f"Start the run that separates time_skew / backlash: the same test at {rates} N·m/s"
-            assert "cannot be told apart: time_skew / backlash" in page.text_content("#discrepancy-result")
-            button.click()
-            started = page.wait_for_selector(".suggested-started", timeout=20_000)
-            new_id = started.get_attribute("data-run")
-            assert new_id and new_id != run_id and button.is_disabled()
-            run = c.get(f"/api/tests/{new_id}").json()
-            assert run["request"]["rates"] == suggested["rates"], run["request"]
-            assert run["request"]["max_torque_nm"] == REQUEST["max_torque_nm"]
-            c.post(f"/api/tests/{new_id}/abort")
-            wait_for(lambda: c.get(f"/api/tests/{new_id}").json()["status"] not in ("queued", "running"),
-                     timeout_s=60)
-            assert errors == []
-        finally:
-            browser.close()
+    with _service_with_a_stored_run(settings_factory, sim_config) as (srv, c, browser, run_id):
+        errors: list[str] = []
+        page = _page(browser, errors)
+        page.route("**/api/discrepancy", with_alias)
+        page.goto(f"{srv.base}/?token={TOKEN}")
+        page.click(f"#history button.find-effects[data-run='{run_id}']", timeout=20_000)
+        button = page.wait_for_selector("button.start-suggested[data-kind='second_rate']", timeout=90_000)
+        rates = " / ".join(f"{r:g}" for r in suggested["rates"])
+        assert button.text_content() == \
+            f"Start the run that separates time_skew / backlash: the same test at {rates} N·m/s"
+        assert "cannot be told apart: time_skew / backlash" in page.text_content("#discrepancy-result")
+        button.click()
+        started = page.wait_for_selector(".suggested-started", timeout=20_000)
+        new_id = started.get_attribute("data-run")
+        assert new_id and new_id != run_id and button.is_disabled()
+        run = c.get(f"/api/tests/{new_id}").json()
+        assert run["request"]["rates"] == suggested["rates"], run["request"]
+        assert run["request"]["max_torque_nm"] == REQUEST["max_torque_nm"]
+        c.post(f"/api/tests/{new_id}/abort")
+        wait_for(lambda: c.get(f"/api/tests/{new_id}").json()["status"] not in ("queued", "running"),
+                 timeout_s=60)
+        assert errors == []
