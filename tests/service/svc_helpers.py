@@ -193,6 +193,21 @@ def wait_for(predicate: Callable[[], object], timeout_s: float = 20.0, interval_
         time.sleep(interval_s)
 
 
+GAP_REFUSAL = "left after leaving out the loops with a gap"  # the run's error when gaps left too few loops
+
+
+def completes_on_a_loaded_bench(run_test: Callable[[], dict], attempts: int = 3) -> dict:
+    """The first test of up to ``attempts`` that does not fail for gaps in the data: on a loaded machine a stall of
+    the real-time protocol bench leaves a gap, and a run rightly refuses to evaluate across it (issue 22); that
+    says nothing of whether the bench works again. Any other outcome is returned at once."""
+    for _ in range(attempts - 1):
+        run = run_test()
+        if not (run["status"] == "failed" and GAP_REFUSAL in (run.get("error") or "")):
+            return run
+        print(f"refused for gaps (a stall of the loaded bench), run again: {run['error']}")
+    return run_test()
+
+
 def start_serve_process(args: list[str], *, cwd=None, timeout_s: float = 300.0) -> tuple[subprocess.Popen, str]:
     """``tcms serve ARGS`` as a child process (token ``TOKEN``); (process, base URL) once it printed its URL (its
     readiness; a child that exits ends the wait at once, ``timeout_s`` is a ceiling for one that hangs)."""

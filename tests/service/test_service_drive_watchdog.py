@@ -23,7 +23,13 @@ from pathlib import Path
 import httpx
 import pytest
 import tomli_w
-from svc_helpers import TOKEN, loopback_config_with_loader, stop_process, wait_for
+from svc_helpers import (
+    TOKEN,
+    completes_on_a_loaded_bench,
+    loopback_config_with_loader,
+    stop_process,
+    wait_for,
+)
 from tcms_daq.sim.instruments.child import start_simulators
 
 from tcms_daq.config.loader import resolve_config_path
@@ -178,7 +184,7 @@ def _drive_stopped_by_itself(bench: ProtocolBench, since: float) -> tuple[float,
 
 
 def _next_test_completes(bench: ProtocolBench) -> None:
-    run = _finished(bench, _post(bench, NEXT), ceiling_s=300)
+    run = completes_on_a_loaded_bench(lambda: _finished(bench, _post(bench, NEXT), ceiling_s=300))
     assert run["status"] == "completed", run["error"]
     assert 250 < run["results"]["rigidity_nm_per_arcmin"] < 350
 
