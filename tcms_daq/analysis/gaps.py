@@ -25,13 +25,14 @@ import numpy as np
 from tcms_daq.analysis.notices import Notice
 from tcms_daq.samples import Samples
 
-__all__ = ["ANGLE_DATUM_COLUMN", "TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops",
+__all__ = ["ANGLE_DATUM_COLUMN", "TOO_FEW_LOOPS_LEFT", "TORQUE_INTERVAL_COLUMN", "Gap", "GapExclusion", "GapLimits", "exclude_gapped_loops",
            "find_angle_jumps", "find_gaps"]
 
 #: per aligned sample: time between the torque readings that bracket it (s); 0 when a reading has its stamp
 TORQUE_INTERVAL_COLUMN = "torque_interval_s"
 #: per angle reading: the datum it counts from (the power cycles of the angle display its driver noticed)
 ANGLE_DATUM_COLUMN = "angle_datum"
+TOO_FEW_LOOPS_LEFT = "left after leaving out the loops with a gap"  # in the reason of a run that cannot complete
 
 
 @dataclass(frozen=True)
@@ -82,23 +83,22 @@ class Gap:
 
     def describe(self) -> Notice:
         """What the gap is, where and when, in words (a coded notice: the pages translate it)."""
-        where = {"t_from": f"{self.start_s:.2f}", "t_to": f"{self.end_s:.2f}", "torque_lo": f"{self.torque_lo_nm:.0f}",
-                 "torque_hi": f"{self.torque_hi_nm:.0f}"}
         span = "(t = {t_from} … {t_to} s, torque {torque_lo} … {torque_hi} N·m)"
+        params = {"channel": self.channel, "t_from": f"{self.start_s:.2f}", "t_to": f"{self.end_s:.2f}",
+                  "torque_lo": f"{self.torque_lo_nm:.0f}", "torque_hi": f"{self.torque_hi_nm:.0f}"}
         if self.kind == "angle jump":
             return Notice("gap_angle_jump", "{channel} channel: a step of {step}″ in {duration} s, where at most "
                           "{allowed}″ is plausible at this torque rate (the display's datum changed?) " + span,
-                          channel=self.channel, step=f"{self.step_arcsec:+.1f}", duration=f"{self.duration_s:.3f}",
-                          allowed=f"{self.allowed_arcsec:.1f}", **where)
+                          step=f"{self.step_arcsec:+.1f}", duration=f"{self.duration_s:.3f}",
+                          allowed=f"{self.allowed_arcsec:.1f}", **params)
+        duration = f"{self.duration_s:.2f}"
         if self.kind == "new datum":
             return Notice("gap_new_datum", "{channel} channel: new datum (the display was power-cycled and counts from "
-                          "another zero) between two readings {duration} s apart " + span,
-                          channel=self.channel, duration=f"{self.duration_s:.2f}", **where)
+                          "another zero) between two readings {duration} s apart " + span, duration=duration, **params)
+        no_readings = "{channel} channel: no readings for {duration} s " + span
         if self.channel == "torque":
-            return Notice("gap_torque_no_readings", "{channel} channel: no readings for {duration} s " + span,
-                          channel=self.channel, duration=f"{self.duration_s:.2f}", **where)
-        return Notice("gap_angle_no_readings", "{channel} channel: no readings for {duration} s " + span,
-                      channel=self.channel, duration=f"{self.duration_s:.2f}", **where)
+            return Notice("gap_torque_no_readings", no_readings, duration=duration, **params)
+        return Notice("gap_angle_no_readings", no_readings, duration=duration, **params)
 
 
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
@@ -264,7 +264,7 @@ def exclude_gapped_loops(samples: Samples, settings: GapLimits = GapLimits()) ->
         left = np.unique(keys[in_stage & ~drop, 1]).size
         if left < settings.min_loops:
             where = f" in stage {int(s) + 1}" if "stage_index" in samples.extra else ""
-            reason = (f"{left} of {total} loops{where} left after leaving out the loops with a gap "
+            reason = (f"{left} of {total} loops{where} {TOO_FEW_LOOPS_LEFT} "
                       f"(at least {settings.min_loops} needed): {warnings[0]}")
             break
     kept, notes = _join_datums(samples.select(~drop))

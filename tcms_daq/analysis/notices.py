@@ -12,9 +12,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+LIST_SEPARATOR = "; "  # between the notices of a list param, in English (the catalogue's ``list_separator``)
+
 
 def _param_text(value: Any) -> str:
-    return "; ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+    return LIST_SEPARATOR.join(map(str, value)) if isinstance(value, list | tuple) else str(value)
 
 
 class Notice(str):

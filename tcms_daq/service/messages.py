@@ -15,7 +15,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from tcms_daq.analysis.notices import notices_in
+from tcms_daq.analysis.notices import LIST_SEPARATOR, notices_in
 from tcms_daq.service import certificate_text
 
 LANGUAGES: tuple[str, ...] = ("en", "zh")
@@ -119,8 +119,7 @@ EN: dict[str, str] = {
     "disc.of_run": "run {id}: {text}",
     "disc.report": "report",
     "disc.verdict_said": "{verdict}: {text}",
-    "disc.then": "; ",
-    "notice_list_separator": "; ",
+    "list_separator": LIST_SEPARATOR,
     "dash.model_saved": "bench model version {version}: {note}",
     "dash.live_torque": "Live torque",
     "dash.live_angle": "Live angle",
@@ -455,8 +454,7 @@ ZH: dict[str, str] = {
     "disc.of_run": "试验 {id}：{text}",
     "disc.report": "报告",
     "disc.verdict_said": "{verdict}：{text}",
-    "disc.then": "；",
-    "notice_list_separator": "；",
+    "list_separator": "；",
     "dash.model_saved": "试验台模型第 {version} 版：{note}",
     "dash.live_torque": "实时扭矩",
     "dash.live_angle": "实时转角",
@@ -807,7 +805,7 @@ def notice_text(notice: Mapping[str, Any], lang: str = "en") -> str:
             if isinstance(value, Mapping):
                 return notice_text(value, lang)
             if isinstance(value, list):
-                return text("notice_list_separator", lang).join(str(param(v)) for v in value)
+                return text("list_separator", lang).join(str(param(v)) for v in value)
             return value
 
         with contextlib.suppress(KeyError, IndexError, ValueError):

@@ -27,6 +27,7 @@ import tomli_w
 import uvicorn
 from tcms_daq.sim.instruments.child import stop_process
 
+from tcms_daq.analysis.gaps import TOO_FEW_LOOPS_LEFT
 from tcms_daq.config.loader import resolve_config_path
 from tcms_daq.service.app import ServiceSettings, create_app
 from tcms_daq.service.runner import RUN_CHANNELS, AcceptedTest, RequestRejected, RunOutcome
@@ -193,7 +194,7 @@ def wait_for(predicate: Callable[[], object], timeout_s: float = 20.0, interval_
         time.sleep(interval_s)
 
 
-GAP_REFUSAL = "left after leaving out the loops with a gap"  # the run's error when gaps left too few loops
+GAP_REFUSAL = TOO_FEW_LOOPS_LEFT  # in the run's error when gaps left too few loops
 
 
 def completes_on_a_loaded_bench(run_test: Callable[[], dict], attempts: int = 3) -> dict:

@@ -19,7 +19,7 @@ const TcmsDiscrepancy = (() => {
       ? t("disc.named", { names: d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
         .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ") })
       : t("disc.named_nothing");
-    const then = t("disc.then");
+    const then = t("list_separator");
     const aliases = d.aliases.map((a) => then + t("disc.aliases", { names: a.names.join(" / ") }) +
       (a.separating_experiment ? " — " + t("disc.to_separate", { how: a.separating_experiment }) : "")).join("");
     const sentences = Array.isArray(d.verdict_notices) && d.verdict_notices.length

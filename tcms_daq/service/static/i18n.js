@@ -49,7 +49,7 @@ const TcmsI18n = (() => {
   function notice(n) {
     const key = "notice." + n.code;
     // a notice inside a notice (a left-out loop's gaps) in this language too
-    const param = (v) => (Array.isArray(v) ? v.map(param).join(t("notice_list_separator"))
+    const param = (v) => (Array.isArray(v) ? v.map(param).join(t("list_separator"))
       : v && typeof v === "object" ? notice(v) : v);
     const params = Object.fromEntries(Object.entries(n.params || {}).map(([k, v]) => [k, param(v)]));
     let body = n.code && lang !== "en" && Object.prototype.hasOwnProperty.call(all[lang] || {}, key)
