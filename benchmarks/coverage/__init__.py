@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.coverage.families import CHAIN_TOML, FAMILIES, LOST_MOTION_PCT, Family, draw_run
+from benchmarks.coverage.families import CHAIN_TOML, FAMILIES, LOST_MOTION_PCT, Family, draw
+from benchmarks.coverage.physics import Record, Reducer
 from tcms_daq.analysis.evaluation import EvaluationSettings
 from tcms_daq.config.loader import load_chain_uncertainty
 from tcms_daq.config.models import ChainUncertainty
@@ -84,36 +85,59 @@ class FamilyResult:
     family: Family
     stats: dict[str, QuantityStats]
     failed: list[str]
+    twins: dict[str, QuantityStats] | None = None  # the antithetic twin of each run, in the same order
 
     def summary(self) -> dict[str, dict[str, float]]:
         return {q: s.summary() for q, s in self.stats.items()}
 
+    def paired_bias_over_U(self, quantity: str) -> tuple[float, float]:
+        """(mean, standard error) over the runs of error/U averaged with the antithetic twin's: the errors that are
+        linear in the gain errors and the noise cancel in each pair, what is left is the estimator's bias."""
+        if self.twins is None:
+            raise ValueError("run_family(..., twins=True) draws the twins")
+        own, twin = self.stats[quantity], self.twins[quantity]
+        pairs = 0.5 * (np.asarray(own.errors) / np.asarray(own.expanded)
+                       + np.asarray(twin.errors) / np.asarray(twin.expanded))
+        return float(pairs.mean()), float(pairs.std(ddof=1) / math.sqrt(pairs.size))
 
-def run_family(family: Family, runs: int, seed: int = SEED, chain: ChainUncertainty | None = None) -> FamilyResult:
-    """``runs`` runs of one family through the evaluation with its budget; the errors against the truth."""
+
+def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty) -> dict[str, tuple[float, float]] | str:
+    """(error against the truth, U) per quantity of one run through ``tcms analyze --uncertainty``, or why not."""
+    settings = EvaluationSettings(rated_torque_nm=reducer.rated_torque_nm, lost_motion_pct=LOST_MOTION_PCT)
+    try:
+        ev = evaluate_test(record.time_s, record.torque_nm, record.angle_arcsec, settings, chain=chain)
+    except EvaluationError as exc:
+        return str(exc)
+    missing = [q for q in QUANTITIES if ev.uncertainty.get(q) is None]
+    if missing:
+        return f"no U for {missing[0]}: {ev.warnings}"
+    return {q: (float(ev.uncertainty[q]["value"]) - record.truth[q], float(ev.uncertainty[q]["U"]))
+            for q in QUANTITIES}
+
+
+def run_family(family: Family, runs: int, seed: int = SEED, chain: ChainUncertainty | None = None,
+               twins: bool = False) -> FamilyResult:
+    """``runs`` runs of one family through the evaluation with its budget; the errors against the truth. With
+    ``twins`` each run's antithetic twin is evaluated too (``FamilyResult.twins``; a run is kept only when both
+    are evaluated)."""
     chain = chain if chain is not None else declared_chain()
     rng = np.random.default_rng([seed, FAMILIES.index(family) if family in FAMILIES else 99])
     stats = {q: QuantityStats() for q in QUANTITIES}
+    twin_stats = {q: QuantityStats() for q in QUANTITIES} if twins else None
     failed: list[str] = []
     for _ in range(runs):
-        record, reducer = draw_run(family, rng)
-        settings = EvaluationSettings(rated_torque_nm=reducer.rated_torque_nm, lost_motion_pct=LOST_MOTION_PCT)
-        try:
-            ev = evaluate_test(record.time_s, record.torque_nm, record.angle_arcsec, settings, chain=chain)
-        except EvaluationError as exc:
-            failed.append(str(exc))
+        drawn = draw(family, rng)
+        outcomes = [_evaluated(drawn.readings(sign), drawn.reducer, chain) for sign in ((1.0, -1.0) if twins else (1.0,))]
+        evaluated = [o for o in outcomes if not isinstance(o, str)]
+        if len(evaluated) < len(outcomes):
+            failed.extend(o for o in outcomes if isinstance(o, str))
             continue
-        for q in QUANTITIES:
-            entry = ev.uncertainty.get(q)
-            if entry is None:
-                failed.append(f"no U for {q}: {ev.warnings}")
-                break
-        else:
-            for q in QUANTITIES:
-                stats[q].errors.append(float(ev.uncertainty[q]["value"]) - record.truth[q])
-                stats[q].expanded.append(float(ev.uncertainty[q]["U"]))
-                stats[q].truth.append(record.truth[q])
-    return FamilyResult(family, stats, failed)
+        for into, outcome in zip([stats] if twin_stats is None else [stats, twin_stats], evaluated, strict=True):
+            for q, (error, expanded) in outcome.items():
+                into[q].errors.append(error)
+                into[q].expanded.append(expanded)
+                into[q].truth.append(drawn.truth[q])
+    return FamilyResult(family, stats, failed, twin_stats)
 
 
 def markdown_table(results: list[FamilyResult]) -> str:

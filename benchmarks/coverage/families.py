@@ -92,8 +92,32 @@ def draw_reducer(family: Family, rng: np.random.Generator, rated: float, rate_nm
         soft_region_torque_nm=soft_torque, soft_region_ratio=soft_ratio)
 
 
-def draw_run(family: Family, rng: np.random.Generator) -> tuple[Record, Reducer]:
-    """One run of a family: the reducer, the profile, the chain's gain errors, the noise; readings and truth."""
+@dataclass(frozen=True)
+class Draw:
+    """What one run drew: the reducer, its true path at the sample times, the chain's gain errors and the noise.
+    ``readings(sign)`` makes the record; sign −1 is the run's antithetic twin (the same reducer and profile with
+    the gain errors and the noise negated), whose errors cancel the first-order part of the run's own."""
+
+    reducer: Reducer
+    time_s: np.ndarray
+    torque_nm: np.ndarray  # true, at the sample times
+    theta_arcsec: np.ndarray  # true twist, at the sample times
+    truth: dict[str, float]
+    torque_gain: float  # relative error of the torque chain
+    angle_gain: float
+    torque_noise_nm: np.ndarray
+    angle_noise_arcsec: np.ndarray
+    angle_offset_arcsec: float
+
+    def readings(self, sign: float = 1.0) -> Record:
+        torque_read = self.torque_nm * (1.0 + sign * self.torque_gain) + sign * self.torque_noise_nm
+        angle_read = ((self.theta_arcsec + self.angle_offset_arcsec) * (1.0 + sign * self.angle_gain)
+                      + sign * self.angle_noise_arcsec)
+        return Record(self.time_s, torque_read, angle_read, self.truth)
+
+
+def draw(family: Family, rng: np.random.Generator) -> Draw:
+    """One run of a family: the reducer, the profile, the chain's gain errors, the noise."""
     lo, hi = BRANCH_S[family.sample_rate_hz]
     branch_s = rng.uniform(lo, hi)
     rated = draw_rated_torque_nm(family, rng)
@@ -109,9 +133,15 @@ def draw_run(family: Family, rng: np.random.Generator) -> tuple[Record, Reducer]
     torque = np.interp(time_s, t_dense, q_dense)
     theta = np.interp(time_s, t_dense, theta_dense)
     noise = rng.uniform(*family.noise)
-    torque_read = (torque * (1.0 + rng.normal(0.0, TORQUE_GAIN_U_REL))
-                   + noise * TORQUE_NOISE_REL * rated * rng.standard_normal(time_s.size))
+    torque_gain = rng.normal(0.0, TORQUE_GAIN_U_REL)
+    torque_noise = noise * TORQUE_NOISE_REL * rated * rng.standard_normal(time_s.size)
     offset = rng.uniform(-3600.0, 3600.0)
-    angle_read = ((theta + offset) * (1.0 + rng.normal(0.0, ANGLE_GAIN_U_REL))
-                  + noise * ANGLE_NOISE_ARCSEC * rng.standard_normal(time_s.size))
-    return Record(time_s, torque_read, angle_read, true), reducer
+    angle_gain = rng.normal(0.0, ANGLE_GAIN_U_REL)
+    angle_noise = noise * ANGLE_NOISE_ARCSEC * rng.standard_normal(time_s.size)
+    return Draw(reducer, time_s, torque, theta, true, torque_gain, angle_gain, torque_noise, angle_noise, offset)
+
+
+def draw_run(family: Family, rng: np.random.Generator) -> tuple[Record, Reducer]:
+    """One run of a family: its readings and truth, and the reducer."""
+    drawn = draw(family, rng)
+    return drawn.readings(), drawn.reducer

@@ -50,6 +50,8 @@ MIN_SIGNAL_TO_NOISE = 20.0  # a torque excursion below 20 × the torque noise is
 DRIFT_SIGNIFICANCE = 3.0  # a drift rate beyond 3 standard uncertainties of its estimate is corrected
 
 ENERGY_GRID_POINTS = 201  # torque levels for the loop-area integral
+HISTOGRAM_SAMPLES_PER_BIN = 20  # the torque histogram of a branch's moving density: some 20 samples per bin
+HISTOGRAM_MAX_BINS = 400
 
 SIDES = (("positive", 1), ("negative", -1))
 
@@ -569,14 +571,30 @@ def _condition(torque: np.ndarray, angle: np.ndarray) -> Conditioning:
         (angle[pos].mean() - angle[neg].mean()) / (torque[pos].mean() - torque[neg].mean())
     ) if pos and neg else 0.0
     window = fit_window(angle_noise, torque_noise, compliance)
+    max_span_nm = MAX_SPAN_FRACTION * scale
+    # the smoothing only finds where a level is crossed (the fits are bounded by the torque span): it spans at most
+    # the branch's mean samples per max_span_nm, holds included, which keeps a hold at a level steady
     samples_per_nm = float(
         np.median([(b.stop - b.start) / max(abs(b.stop_torque_nm - b.start_torque_nm), 1e-9) for b in pilot_branches])
     )
-    max_span_nm = MAX_SPAN_FRACTION * scale
-    span_samples = max(1, int(max_span_nm * samples_per_nm))
-    torque_smooth = _smooth(torque, min(window, span_samples))
+    torque_smooth = _smooth(torque, min(window, max(1, int(max_span_nm * samples_per_nm))))
+    # a tip's flanks span max_span_nm on the move: on a staircase the mean would reach back into the last step's hold
+    # and pull the tip's torque down (the rigidity's upper end with it)
+    moving_per_nm = float(np.median([_samples_per_nm_moving(torque[b.start:b.stop + 1]) for b in pilot_branches]))
     return Conditioning(scale, torque_noise, angle_noise, window, max_span_nm, torque_smooth,
-                        max(MIN_FLANK_SAMPLES, span_samples))
+                        max(MIN_FLANK_SAMPLES, int(max_span_nm * moving_per_nm)))
+
+
+def _samples_per_nm_moving(branch_torque_nm: np.ndarray) -> float:
+    """Samples per N·m of one branch where its torque moves: the median density of its torque histogram. A hold
+    (a tip hold, a staircase's steps) piles its samples into a bin or two and leaves the median to the ramps; on a
+    continuous ramp this is the samples per N·m of the branch."""
+    span_nm = float(np.ptp(branch_torque_nm))
+    if span_nm <= 0.0:
+        return float(branch_torque_nm.size) / 1e-9
+    bins = int(np.clip(branch_torque_nm.size // HISTOGRAM_SAMPLES_PER_BIN, 10, HISTOGRAM_MAX_BINS))
+    counts, _ = np.histogram(branch_torque_nm, bins=bins)
+    return float(np.median(counts)) * bins / span_nm
 
 
 def _tip_points(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray, cond: Conditioning,
