@@ -18,6 +18,7 @@ the last ``TAR`` is written again (``TAV<±n>``), so that the readings after a r
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import serial
 from tcms_daq.drivers.base import (
@@ -31,7 +32,7 @@ from tcms_daq.drivers.options import AEDOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
-from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, MAX_NOV, MSV_RE, OVERFLOW_VALUE
+from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, MSV_RE, OVERFLOW_VALUE
 
 
 def _read_line(port: serial.SerialBase) -> bytes:
@@ -56,31 +57,13 @@ class AED(ReinitialisedOnReconnect, SerialInstrument):
 
     options_model = AEDOptions
 
-    def __init__(
-        self,
-        url: str,
-        *,
-        name: str = "AED",
-        nominal_torque_nm: float = 2000.0,
-        nominal_output: int = 0,
-        baudrate: int = 9600,
-        timeout_s: float = 0.5,
-        reconnect_attempts: int = 3,
-        reconnect_delay_s: float = 0.2,
-        clock: Clock = time.monotonic,
-        timebase: Timebase = REAL_TIME,
-        opener=open_serial_url,
-    ):
-        if not nominal_torque_nm > 0:
-            raise ValueError(f"{name}: nominal_torque_nm must be > 0, got {nominal_torque_nm}")
-        if not (isinstance(nominal_output, int) and 0 <= nominal_output <= MAX_NOV):
-            raise ValueError(f"{name}: nominal_output (NOV) must be an integer 0…{MAX_NOV}, got {nominal_output!r}")
-        super().__init__(url, name=name, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
-                         reconnect_delay_s=reconnect_delay_s, clock=clock, timebase=timebase, opener=opener,
-                         baudrate=baudrate,
+    def __init__(self, options: AEDOptions, *, clock: Clock = time.monotonic, timebase: Timebase = REAL_TIME,
+                 opener: Callable[..., serial.SerialBase] = open_serial_url):
+        super().__init__(options, clock=clock, timebase=timebase, opener=opener,
                          bytesize=serial.EIGHTBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_ONE)
-        self.nominal_torque_nm = float(nominal_torque_nm)
-        self.nominal_output = nominal_output
+        self.options = options
+        self.nominal_torque_nm = options.nominal_torque_nm
+        self.nominal_output = options.nominal_output
         self._tare_counts: int | None = None  # the amplifier's tare value after our last TAR (restored on restart)
 
     @property

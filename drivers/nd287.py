@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 
 import numpy as np
 import serial
@@ -75,27 +76,12 @@ class ND287(ReinitialisedOnReconnect, SerialInstrument):
 
     options_model = ND287Options
 
-    def __init__(
-        self,
-        url: str,
-        *,
-        name: str = "ND 287",
-        baudrate: int = 9600,
-        timeout_s: float = 0.5,
-        reconnect_attempts: int = 3,
-        reconnect_delay_s: float = 0.2,
-        readings_per_read: int = 1,
-        clock: Clock = time.monotonic,
-        timebase: Timebase = REAL_TIME,
-        opener=open_serial_url,
-    ):
-        if readings_per_read < 1:
-            raise ValueError(f"{name}: readings_per_read must be >= 1")
-        super().__init__(url, name=name, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
-                         reconnect_delay_s=reconnect_delay_s, clock=clock, timebase=timebase, opener=opener,
-                         baudrate=baudrate,
+    def __init__(self, options: ND287Options, *, clock: Clock = time.monotonic, timebase: Timebase = REAL_TIME,
+                 opener: Callable[..., serial.SerialBase] = open_serial_url):
+        super().__init__(options, clock=clock, timebase=timebase, opener=opener,
                          bytesize=serial.SEVENBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO)
-        self.readings_per_read = int(readings_per_read)
+        self.options = options
+        self.readings_per_read = options.readings_per_read
 
     def reinitialise(self) -> None:
         """Output released (DC1: a display that was told to hold answers again) and its error text read (ENQ):

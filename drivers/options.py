@@ -24,6 +24,8 @@ from tcms_daq.protocols.cia402 import MIN_HEARTBEAT_CONSUMER_PERIODS, heartbeat_
 class SerialOptions(DriverOptions):
     """A polled instrument on a serial line (``/dev/ttyUSB0``, ``COM3``, ``socket://host:port``, ``rfc2217://…``)."""
 
+    name: str = Field("serial instrument", min_length=1, description="the instrument's name in messages")
+    baudrate: int = Field(9600, gt=0, description="the line speed (Bd)")
     timeout_s: float = Field(0.5, gt=0.0, description="the longest wait for one reply (s)")
     reconnect_attempts: int = Field(3, ge=0, description="re-opens of the port before Disconnected")
     reconnect_delay_s: float = Field(0.2, ge=0.0, description="pause before each re-open (s)")

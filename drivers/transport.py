@@ -158,35 +158,27 @@ def require_terminated(instrument: str, reply: bytes, terminator: bytes = b"\r\n
 class SerialInstrument:
     """A polled request/reply instrument on one ``SerialLink``; subclasses define ``read_one()``.
 
-    ``serial_settings`` (baudrate, bytesize, parity, stopbits) go to the port's constructor; software flow
-    control is always off (the replies are binary-clean ASCII frames, XON/XOFF would eat bytes).
+    The options' baudrate and the subclass's ``framing`` (bytesize, parity, stopbits) go to the port's
+    constructor; software flow control is always off (the replies are binary-clean ASCII frames, XON/XOFF would eat bytes).
     """
 
     readings_per_read = 1
 
     def __init__(
         self,
-        url: str,
+        options: SerialOptions,
         *,
-        name: str,
-        timeout_s: float,
-        reconnect_attempts: int,
-        reconnect_delay_s: float,
         clock: Clock,
         opener: Callable[..., serial.SerialBase],
         timebase: Timebase = REAL_TIME,
-        **serial_settings: Any,
+        **framing: Any,
     ):
-        self.name = name
+        self.name = options.name
         self.clock = clock
-        self.link = SerialLink(name, url, timeout_s=timeout_s, reconnect_attempts=reconnect_attempts,
-                               reconnect_delay_s=reconnect_delay_s, opener=opener, timebase=timebase,
-                               xonxoff=False, **serial_settings)
-
-    @classmethod
-    def from_options(cls, options: SerialOptions, *, clock: Clock) -> Self:
-        """The instrument its validated options describe (``options_model``), stamping readings with ``clock``."""
-        return cls(**options.model_dump(), clock=clock)
+        self.link = SerialLink(options.name, options.url, timeout_s=options.timeout_s,
+                               reconnect_attempts=options.reconnect_attempts,
+                               reconnect_delay_s=options.reconnect_delay_s, opener=opener, timebase=timebase,
+                               xonxoff=False, baudrate=options.baudrate, **framing)
 
     def connect(self) -> None:
         self.link.open()

@@ -4,7 +4,7 @@ Each ``[instruments.<kind>]`` table names a registered driver and its options, v
 ``options_model`` when the config was read (``tcms_daq.config.drivers``). The composer does not know which drivers
 are simulated: a driver class may offer ``from_config(kind, options, context)`` to share state with its siblings
 (the in-process virtual bench does, so its three instruments drive one physics object); otherwise it is built as
-``cls.from_options(options, clock=…)`` (or ``cls(options, clock=…)``) on the bench's real-time clock.
+``cls(options, clock=…)`` on the bench's real-time clock.
 
 ``connect()`` ends with a safe start (:meth:`Bench.make_safe`): the loader's state and torque are read before
 anything else, and a drive found enabled or under torque is ramped to zero and disabled (one left in FAULT is
@@ -255,7 +255,7 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
         if from_config is not None:
             drivers[kind] = from_config(kind, options, context)
         else:
-            drivers[kind] = getattr(cls, "from_options", cls)(options, clock=real_clock.now)
+            drivers[kind] = cls(options, clock=real_clock.now)
         missing = [m for m in METHODS[kind] if not callable(inspect.getattr_static(drivers[kind], m, None))]
         if missing:
             raise ConfigError(f"bench config: [instruments.{kind}] driver {driver_name!r} is not a {kind} driver "

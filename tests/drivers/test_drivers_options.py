@@ -46,7 +46,7 @@ def test_the_models_check_what_the_constructors_used_to():
 
 def test_a_serial_driver_is_built_from_its_options():
     options = ND287Options(url="socket://unused:1", readings_per_read=3, name="angle")
-    nd = ND287.from_options(options, clock=lambda: 0.0)  # not connected: nothing is opened
+    nd = ND287(options, clock=lambda: 0.0)  # not connected: nothing is opened
     assert nd.readings_per_read == 3 and nd.name == "angle" and nd.link.url == "socket://unused:1"
 
 
