@@ -133,7 +133,6 @@ def run(quick: bool = False) -> dict:
 def _measure(quick: bool) -> dict[str, float]:
     from tcms_daq.drivers.cia402_modbus import CiA402Modbus
     from tcms_daq.drivers.nd287 import ND287
-    from tcms_daq.drivers.options import ND287Options
     from tcms_daq.drivers.testing import driver_for
     from tcms_daq.sim.bench import SimulatedBench
     from tcms_daq.sim.instruments.drive_canopen import DriveCanopenNode
@@ -151,7 +150,7 @@ def _measure(quick: bool) -> dict[str, float]:
     ports = sims.start()
     metrics: dict[str, float] = {}
     try:
-        with ND287(ND287Options(url=f"socket://127.0.0.1:{ports['nd287']}", timeout_s=1.0)) as nd:
+        with driver_for(ND287, f"socket://127.0.0.1:{ports['nd287']}", timeout_s=1.0) as nd:
             metrics["nd287_readings_per_s"] = _rate(nd.read_one, duration_s)
         with driver_for(CiA402Modbus, f"tcp://127.0.0.1:{ports['modbus']}", timeout_s=1.0) as drive:
             metrics["modbus_tcp_transactions_per_s"] = _rate(lambda: drive.link.read_register("statusword"), duration_s)

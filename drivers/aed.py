@@ -56,27 +56,25 @@ class AED(ReinitialisedOnReconnect, SerialInstrument):
     """TorqueSource over the AED ASCII command set. ``read()`` returns one reading (N·m) per call."""
 
     options_model = AEDOptions
+    options: AEDOptions
 
     def __init__(self, options: AEDOptions, *, clock: Clock = time.monotonic, timebase: Timebase = REAL_TIME,
                  opener: Callable[..., serial.SerialBase] = open_serial_url):
         super().__init__(options, clock=clock, timebase=timebase, opener=opener,
                          bytesize=serial.EIGHTBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_ONE)
-        self.options = options
-        self.nominal_torque_nm = options.nominal_torque_nm
-        self.nominal_output = options.nominal_output
         self._tare_counts: int | None = None  # the amplifier's tare value after our last TAR (restored on restart)
 
     @property
     def nm_per_count(self) -> float:
-        nov = self.nominal_output or FACTORY_NOMINAL_OUTPUT
-        return self.nominal_torque_nm / nov
+        nov = self.options.nominal_output or FACTORY_NOMINAL_OUTPUT
+        return self.options.nominal_torque_nm / nov
 
     # -- connection and configuration (re-sent after a power cycle: ReinitialisedOnReconnect) --------------
 
     def reinitialise(self) -> None:
         self.link.send(b";")  # clear whatever half command the amplifier holds
         self._setting(b"COF3;")
-        self._setting(b"NOV%d;" % self.nominal_output)
+        self._setting(b"NOV%d;" % self.options.nominal_output)
         if self._tare_counts is not None:
             self._setting(b"TAV%+d;" % self._tare_counts)
 

@@ -75,12 +75,12 @@ class ND287(ReinitialisedOnReconnect, SerialInstrument):
     reading with its datum (``angle_datum``: power cycles noticed so far)."""
 
     options_model = ND287Options
+    options: ND287Options
 
     def __init__(self, options: ND287Options, *, clock: Clock = time.monotonic, timebase: Timebase = REAL_TIME,
                  opener: Callable[..., serial.SerialBase] = open_serial_url):
         super().__init__(options, clock=clock, timebase=timebase, opener=opener,
                          bytesize=serial.SEVENBITS, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO)
-        self.options = options
         self.readings_per_read = options.readings_per_read
 
     def reinitialise(self) -> None:

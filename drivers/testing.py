@@ -6,7 +6,7 @@ that the driver writes exactly the expected bytes in order, and then offers the 
 (``None`` = the instrument stays silent). Use it through a driver's ``opener`` argument::
 
     port = ScriptedSerial([(b"\\x02", b"+   12.34560 G  \\r\\n")])
-    nd = ND287(ND287Options(url="socket://unused"), opener=port.opener)
+    nd = driver_for(ND287, "socket://unused", opener=port.opener)
     ...
     port.assert_done()
 """

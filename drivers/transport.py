@@ -173,6 +173,7 @@ class SerialInstrument:
         timebase: Timebase = REAL_TIME,
         **framing: Any,
     ):
+        self.options = options
         self.name = options.name
         self.clock = clock
         self.link = SerialLink(options.name, options.url, timeout_s=options.timeout_s,

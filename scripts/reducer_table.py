@@ -13,7 +13,7 @@ from pathlib import Path
 from tcms_daq.analysis.rounding import round_to_uncertainty
 
 REDUCERS = ("RV-110E", "RV-100C", "RV-60N", "HFUC-32-100")
-QUANTITIES = (("rigidity_nm_per_arcmin", 2), ("lost_motion_arcsec", 2), ("backlash_arcsec", 2))
+QUANTITIES = ("rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec")
 TCMS = Path(sys.executable).with_name("tcms")
 
 
@@ -24,10 +24,10 @@ def row(reducer: str) -> str:
     result = run.get("result", run)
     truth = run.get("truth", result.get("truth", {}))
     cells = []
-    for name, true_digits in QUANTITIES:
+    for name in QUANTITIES:
         entry = result["uncertainty"][name]
         value, expanded = round_to_uncertainty(float(entry["value"]), float(entry["U"]))
-        cells.append(f"{value} ± {expanded} / {float(truth[name]):.{true_digits}f}")
+        cells.append(f"{value} ± {expanded} / {float(truth[name]):.2f}")
     return f"| {reducer} | " + " | ".join(cells) + " |"
 
 

@@ -15,7 +15,7 @@ from tcms_daq.drivers.base import (
     TorqueSource,
 )
 from tcms_daq.drivers.options import AEDOptions
-from tcms_daq.drivers.testing import ScriptedSerial
+from tcms_daq.drivers.testing import ScriptedSerial, driver_for
 
 SETUP = [(b";", None), (b"COF3;", b"0\r\n"), (b"NOV2000;", b"0\r\n")]
 
@@ -27,8 +27,8 @@ def test_transcript_setup_measure_tare():
         (b"TAV?;", b"+0000617\r\n"),  # the tare value, kept to restore the zero after a restart
         (b"MSV?;", b"-0001000\r\n"),
     ])
-    aed = AED(AEDOptions(url="socket://bench:4002", nominal_torque_nm=500.0, nominal_output=2000),
-              opener=port.opener, clock=lambda: 3.5)
+    aed = driver_for(AED, "socket://bench:4002", nominal_torque_nm=500.0, nominal_output=2000, opener=port.opener,
+                     clock=lambda: 3.5)
     aed.connect()
     batch = aed.read()
     assert batch.time_s.tolist() == [3.5]
@@ -46,7 +46,7 @@ def test_transcript_failures():
                            (b"MSV?;", b"+0012"),
                            (b"MSV?;", None),
                            (b"TAR;", b"?\r\n")])
-    aed = AED(AEDOptions(url="socket://bench:4002"), opener=port.opener)
+    aed = driver_for(AED, "socket://bench:4002", opener=port.opener)
     aed.connect()
     with pytest.raises(DeviceFault, match="AED.*overflow"):
         aed.read()
@@ -72,7 +72,7 @@ def test_invalid_settings_rejected_before_any_byte():
 
 def _driver(sims, **kw):
     kw.setdefault("nominal_torque_nm", 2000.0)
-    return AED(AEDOptions(url=f"socket://127.0.0.1:{sims.ports['aed']}", timeout_s=0.2, reconnect_delay_s=0.05, **kw))
+    return driver_for(AED, f"socket://127.0.0.1:{sims.ports['aed']}", timeout_s=0.2, reconnect_delay_s=0.05, **kw)
 
 
 def test_normal_exchange_scaling_and_tare(serial_sims):

@@ -6,8 +6,7 @@ import pytest
 import serial
 from tcms_daq.drivers.base import AngleSource, DeviceFault, Disconnected, InstrumentTimeout, MalformedReply
 from tcms_daq.drivers.nd287 import ND287, parse_frame
-from tcms_daq.drivers.options import ND287Options
-from tcms_daq.drivers.testing import ScriptedSerial
+from tcms_daq.drivers.testing import ScriptedSerial, driver_for
 
 from tcms_daq.protocols.nd287 import deg_to_dms_packed, dms_to_deg, format_frame
 
@@ -20,7 +19,7 @@ CONNECT = [(b"\x11", None), (b"\x05", b"\x02" + b" " * 13 + b"\r\n")]
 def test_transcript_request_and_frame_bytes():
     port = ScriptedSerial([*CONNECT, (b"\x02", b"-  12.34560 G  \r\n"), (b"\x02", b"+   0.00100 G  \r\n")])
     times = iter([10.0, 10.5])
-    nd = ND287(ND287Options(url="socket://bench:4001"), opener=port.opener, clock=lambda: next(times))
+    nd = driver_for(ND287, "socket://bench:4001", opener=port.opener, clock=lambda: next(times))
     nd.connect()
     batch = nd.read()
     assert batch.time_s.tolist() == [10.0]
@@ -42,7 +41,7 @@ def test_transcript_fault_unit_and_garbage_and_silence():
         (b"\x02", b"+   12.34"),
         (b"\x02", None),
     ])
-    nd = ND287(ND287Options(url="socket://bench:4001"), opener=port.opener)
+    nd = driver_for(ND287, "socket://bench:4001", opener=port.opener)
     nd.connect()
     with pytest.raises(DeviceFault, match="ND 287.*encoder fault"):
         nd.read()
@@ -73,8 +72,7 @@ def test_frame_format_units_round_trip():
 # -- against the simulator ----------------------------------------------------------------------------------
 
 def _driver(sims, **kw):
-    return ND287(ND287Options(url=f"socket://127.0.0.1:{sims.ports['nd287']}", timeout_s=0.2, reconnect_delay_s=0.05,
-                              **kw))
+    return driver_for(ND287, f"socket://127.0.0.1:{sims.ports['nd287']}", timeout_s=0.2, reconnect_delay_s=0.05, **kw)
 
 
 def test_normal_exchange_follows_physics(serial_sims):

@@ -14,7 +14,6 @@ from tcms_daq.drivers.base import DeviceFault
 from tcms_daq.drivers.cia402_canopen import CiA402Canopen
 from tcms_daq.drivers.cia402_modbus import CiA402Modbus
 from tcms_daq.drivers.nd287 import ND287
-from tcms_daq.drivers.options import AEDOptions, ND287Options
 from tcms_daq.drivers.testing import driver_for, wait_until
 from tcms_daq.sim.instruments.child import running_simulators
 
@@ -93,8 +92,7 @@ def test_independent_client(served):
 
 def test_drivers_across_processes(served):
     urls = served["urls"]
-    with ND287(ND287Options(url=urls["angle"], timeout_s=1.0)) as nd, \
-            AED(AEDOptions(url=urls["torque"], timeout_s=1.0)) as aed, \
+    with driver_for(ND287, urls["angle"], timeout_s=1.0) as nd, driver_for(AED, urls["torque"], timeout_s=1.0) as aed, \
             driver_for(CiA402Canopen, urls["loader_canopen"], torque_slope_nm_per_s=5000.0) as drive:
         drive.enable()
         assert wait_until(lambda: abs(aed.read().value[0]) <= 2.0, timeout_s=20.0)  # at rest before the tare
