@@ -5,7 +5,6 @@ encoder fault) abort the run safely."""
 
 from __future__ import annotations
 
-import math
 import threading
 from pathlib import Path
 
@@ -42,19 +41,11 @@ def in_process_reference(pb, profile, evaluate=None):
     return TestRun(bench, profile, evaluate=evaluate or analysis_evaluator(1078.0)).run()
 
 
-def assert_agree_within_u(result: dict, reference: dict, key: str) -> None:
-    """|result − reference| within the two runs' expanded uncertainties combined (a difference of two
-    independent measurements), not a fixed share: a loaded machine samples more coarsely and says so in U."""
-    u = result["uncertainty"][key]["U"], reference["uncertainty"][key]["U"]
-    allowed = math.hypot(*u)
-    assert abs(result[key] - reference[key]) <= allowed, (key, result[key], reference[key], u)
-
-
 COMPARE_SPEED = 1.0  # the comparison in real time, as a real bench runs: at 2-4x a loaded machine's stalls
 # (in simulated time: x the speed) moved the lost motion by more than its U (0.86" against 0.59" at 2x in CI)
 
 
-def test_stiffness_over_protocols_matches_in_process(protocol_bench):
+def test_stiffness_over_protocols_matches_in_process(protocol_bench, agree_within_u):
     pb = protocol_bench(COMPARE_SPEED)
     profile = short_profile()
     evaluate = evaluator_with_u(pb, profile)
@@ -63,7 +54,7 @@ def test_stiffness_over_protocols_matches_in_process(protocol_bench):
     ref = in_process_reference(pb, profile, evaluate)
     assert ref.state == "completed"
     for key in ("rigidity_nm_per_arcmin", "lost_motion_arcsec"):
-        assert_agree_within_u(record.evaluation, ref.evaluation, key)
+        agree_within_u(record.evaluation, ref.evaluation, key)
     stats = record.acquisition["channels"]
     assert stats["angle"]["readings"] > 300 and stats["torque"]["readings"] > 300
     assert record.loader_final["state"] == "SWITCH ON DISABLED"
