@@ -184,3 +184,27 @@ class CiA402VelocityModbusOptions(VelocityDriveOptions, ModbusLinkOptions):
     name: str = Field("input drive (Modbus)", min_length=1, description="the instrument's name in messages")
     register_map: Path | None = Field(None, description="the drive's register map TOML (default: the packaged "
                                                        "modbus-input-drive.toml)")
+
+
+class ND287CoupledOptions(ND287Options):
+    """[instruments.input_angle] of ``driver = "nd287-coupled"``: the ND 287 in its coupled-axes mode, X1 (the output
+    encoder) and X2 (the input encoder) coupled as X1 − k·X2 on the display. ``ratio`` is the mounted reducer's: the
+    display's factor k = 1/ratio is set on the display (its X2 scaling factor), not over RS-232; the driver checks
+    that every frame is a coupled one (series ``S``)."""
+
+    name: str = Field("ND 287 (X1 − k·X2)", min_length=1, description="the instrument's name in messages")
+    ratio: float = Field(gt=0.0, description="the reducer's ratio i the display's k = 1/i was set for")
+
+
+class CounterOptions(SerialOptions):
+    """[instruments.input_angle] of ``driver = "counter-2axis"``: the two-axis counter interface (protocol
+    ``tcms_daq.protocols.counter``: both encoders latched as one pair at ``rate_hz``). Axis 1 is the output encoder,
+    axis 2 the input encoder; their counts per revolution must match what the card reports (CONF?)."""
+
+    name: str = Field("two-axis counter", min_length=1, description="the instrument's name in messages")
+    baudrate: int = Field(115200, gt=0, description="the line speed (Bd; ignored on TCP)")
+    rate_hz: int = Field(1000, ge=1, le=20_000, description="latch rate of the card's timer (Hz)")
+    counts_per_rev_output: int = Field(18_000 * 4096, gt=0, strict=True,
+                                       description="axis 1 (output encoder) counts per revolution")
+    counts_per_rev_input: int = Field(1 << 23, gt=0, strict=True,
+                                      description="axis 2 (input encoder) counts per revolution")
