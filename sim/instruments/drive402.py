@@ -27,6 +27,7 @@ Leaving OPERATION ENABLED or mode 1 (disable, quick stop, fault) halts a move wh
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Callable
 
@@ -485,7 +486,7 @@ class VelocityDrive402Model(Drive402Model):
         super()._power_on_state()
         self.target_velocity_counts = 0
         self.max_profile_velocity_counts = 0x7FFFFFFF
-        self.profile_acceleration_counts = max(1, self.counts_per_rev * 10) if hasattr(self, "counts_per_rev") else 1
+        self.profile_acceleration_counts = max(1, self.counts_per_rev * 10)  # 3600 deg/s²
         self.profile_deceleration_counts = self.profile_acceleration_counts
         self.quick_stop_deceleration_counts = self.profile_acceleration_counts * 10
         self._velocity = 0.0
@@ -539,17 +540,9 @@ class VelocityDrive402Model(Drive402Model):
                 raise DriveCommandError(f"{name} {value} out of range (must be > 0)")
             setattr(self, f"{name}_counts", int(value))
 
-    def write_max_profile_velocity(self, value: int) -> None:
-        self._write_unsigned("max_profile_velocity", value)
-
-    def write_profile_acceleration(self, value: int) -> None:
-        self._write_unsigned("profile_acceleration", value)
-
-    def write_profile_deceleration(self, value: int) -> None:
-        self._write_unsigned("profile_deceleration", value)
-
-    def write_quick_stop_deceleration(self, value: int) -> None:
-        self._write_unsigned("quick_stop_deceleration", value)
+    def _unsigned_setter(self, name: str) -> Callable[[int], None]:
+        """The write of one of the ramps or the speed limit (counts/s or counts/s², > 0)."""
+        return functools.partial(self._write_unsigned, name)
 
     def write_rpdo(self, controlword: int, target: int) -> None:
         """RPDO1: the target velocity, then the controlword."""
@@ -576,8 +569,10 @@ class VelocityDrive402Model(Drive402Model):
     def od_setters(self) -> dict[int, Callable[[int], None]]:
         return {
             0x6040: self.write_controlword, 0x6060: self.write_mode, 0x60FF: self.write_target_velocity,
-            0x607F: self.write_max_profile_velocity, 0x6083: self.write_profile_acceleration,
-            0x6084: self.write_profile_deceleration, 0x6085: self.write_quick_stop_deceleration,
+            0x607F: self._unsigned_setter("max_profile_velocity"),
+            0x6083: self._unsigned_setter("profile_acceleration"),
+            0x6084: self._unsigned_setter("profile_deceleration"),
+            0x6085: self._unsigned_setter("quick_stop_deceleration"),
             0x6076: self.write_rated_torque, 0x605A: self.write_quick_stop_option,
         }
 
@@ -600,10 +595,9 @@ class VelocityDrive402Model(Drive402Model):
     def register_setters(self) -> dict[str, Callable[[int], None]]:
         return {
             "controlword": self.write_controlword, "mode": self.write_mode,
-            "target_velocity": self.write_target_velocity, "max_profile_velocity": self.write_max_profile_velocity,
-            "profile_acceleration": self.write_profile_acceleration,
-            "profile_deceleration": self.write_profile_deceleration,
-            "quick_stop_deceleration": self.write_quick_stop_deceleration,
+            "target_velocity": self.write_target_velocity,
+            **{name: self._unsigned_setter(name) for name in ("max_profile_velocity", "profile_acceleration",
+                                                               "profile_deceleration", "quick_stop_deceleration")},
             "rated_torque": self.write_rated_torque, "quick_stop_option": self.write_quick_stop_option,
             "comm_timeout": self.write_comm_timeout, "abort_connection_option": self.write_abort_connection_option,
         }
