@@ -170,6 +170,23 @@ class LoaderStatus:
     moving: bool = False
 
 
+@dataclass(frozen=True)
+class InputDriveStatus:
+    """A snapshot of the second axis's input drive (CiA 402 profile velocity).
+
+    state: CiA 402 state name; velocity_deg_per_s: velocity actual 0x606C at the input shaft (deg/s, positive
+    turning the output positive through the reducer); position_deg: position actual 0x6064 of the input shaft;
+    error_code: 0x603F (0 = none); time_s: the driver clock when it was read.
+    """
+
+    state: str
+    velocity_deg_per_s: float
+    fault: bool
+    error_code: int = 0
+    position_deg: float = 0.0
+    time_s: float = 0.0
+
+
 @runtime_checkable
 class AngleSource(Protocol):
     name: str
@@ -235,3 +252,36 @@ class Positioner(Protocol):
         """Start a move of the output to ``position_deg`` at ``velocity_deg_per_s`` and return at once
         (``status().moving`` until it arrives). CommandRejected, nothing moved, while torque is applied."""
         ...
+
+
+@runtime_checkable
+class InputDrive(Protocol):
+    """The second axis's input drive: turns the reducer's input at a commanded velocity (CiA 402 profile velocity,
+    mode 3). Velocities in deg/s at the input shaft; every stop ramps (the drive's deceleration) before it disables."""
+
+    name: str
+
+    def connect(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def enable(self) -> None:
+        """Walk the drive state machine to OPERATION ENABLED in profile velocity (3) at target velocity 0."""
+        ...
+
+    def set_velocity(self, velocity_deg_per_s: float) -> None:
+        """Command a target velocity (validated against the limit before any byte leaves)."""
+        ...
+
+    def disable(self) -> None:
+        """Target velocity 0, wait (bounded) for the shaft to stop, then leave OPERATION ENABLED (disable voltage)."""
+        ...
+
+    def status(self) -> InputDriveStatus: ...
+
+    def fault_reset(self) -> None: ...
+
+
+#: the extra column of an angle pair source (the counter card, the ND 287 in coupled mode): the input angle (arcsec
+#: of the input shaft), beside the output angle in ``Batch.value``
+INPUT_ANGLE_COLUMN = "input_angle_arcsec"

@@ -12,6 +12,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -19,7 +20,7 @@ import canopen
 from can.broadcastmanager import ThreadBasedCyclicSendTask
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from tcms_daq.drivers.base import CommandRejected, Disconnected, InstrumentTimeout, MalformedReply
-from tcms_daq.drivers.options import CiA402CanopenOptions
+from tcms_daq.drivers.options import CanopenLinkOptions
 from tcms_daq.drivers.timebase import Timebase
 
 from tcms_daq.errors import ConfigError
@@ -30,11 +31,39 @@ log = logging.getLogger("tcms_daq.drivers.cia402_canopen")
 DEVICE_TYPE_402 = 0x0192  # low word of 0x1000
 LINK_ERROR_BACKOFF_S = 0.1  # the receive thread's pause after a failed bus read
 SOCKETCAND_HANDSHAKE_ATTEMPTS = 3  # connects tried when python-can's socketcand handshake meets bus traffic
-TPDO1_MAP = [(0x6041, 16), (0x6077, 16), (0x6064, 32)]
-TPDO2_MAP = [(0x6061, 8), (0x603F, 16)]
-RPDO1_MAP = [(0x6040, 16), (0x6071, 16)]
 
-#: TPDO1 as received: statusword, torque actual ‰, position actual counts, time (timebase s)
+
+@dataclass(frozen=True)
+class PdoLayout:
+    """What the drive's PDOs carry, as (object index, bits) in order: RPDO1 = controlword + the target (torque ‰ or
+    velocity counts/s); TPDO1 = statusword + the actual of that target [+ position actual]; TPDO2 = mode display +
+    error code [+ position actual, when TPDO1 has no room for it]."""
+
+    rpdo1: tuple[tuple[int, int], ...]
+    tpdo1: tuple[tuple[int, int], ...]
+    tpdo2: tuple[tuple[int, int], ...]
+
+    @property
+    def target_index(self) -> int:
+        return self.rpdo1[1][0]
+
+    def length(self, pdo: str) -> int:
+        """The bytes a PDO of this layout carries."""
+        return sum(bits for _, bits in getattr(self, pdo)) // 8
+
+
+#: the loader (profile torque): target torque 0x6071, torque actual 0x6077, position in TPDO1
+TORQUE_LAYOUT = PdoLayout(rpdo1=((0x6040, 16), (0x6071, 16)), tpdo1=((0x6041, 16), (0x6077, 16), (0x6064, 32)),
+                          tpdo2=((0x6061, 8), (0x603F, 16)))
+#: the input drive (profile velocity): target velocity 0x60FF, velocity actual 0x606C, position in TPDO2
+VELOCITY_LAYOUT = PdoLayout(rpdo1=((0x6040, 16), (0x60FF, 32)), tpdo1=((0x6041, 16), (0x606C, 32)),
+                            tpdo2=((0x6061, 8), (0x603F, 16), (0x6064, 32)))
+TPDO1_MAP = list(TORQUE_LAYOUT.tpdo1)
+TPDO2_MAP = list(TORQUE_LAYOUT.tpdo2)
+RPDO1_MAP = list(TORQUE_LAYOUT.rpdo1)
+
+#: TPDO1 as received: statusword, the actual (torque ‰ or velocity counts/s), position actual counts, time
+#: (timebase s)
 Tpdo1 = tuple[int, int, int, float]
 
 
@@ -57,8 +86,11 @@ class DriveProcessData:
     by python-can's notifier thread and waited for by the caller's. Times on ``timebase``; a wait also ends after
     as long in real time (a manual timebase nobody advances cannot make it wait forever)."""
 
-    def __init__(self, name: str, timebase: Timebase, heartbeat_timeout_s: float):
+    def __init__(self, name: str, timebase: Timebase, heartbeat_timeout_s: float,
+                 layout: PdoLayout = TORQUE_LAYOUT):
         self.name = name
+        self.layout = layout
+        self.position = 0  # position actual from TPDO2, for a layout whose TPDO1 has no room for it
         self.timebase = timebase
         self.heartbeat_timeout_s = heartbeat_timeout_s
         self.cond = threading.Condition()
@@ -84,21 +116,28 @@ class DriveProcessData:
             self.cond.notify_all()
 
     def on_tpdo1(self, pdo_map: Any) -> None:
-        data = pdo_map.data
+        data, layout = pdo_map.data, self.layout
         with self.cond:
-            if len(data) != 8:
-                self.malformed = f"TPDO1 of {len(data)} bytes, expected 8: {bytes(data).hex(' ')}"
+            if len(data) != layout.length("tpdo1"):
+                self.malformed = (f"TPDO1 of {len(data)} bytes, expected {layout.length('tpdo1')}: "
+                                  f"{bytes(data).hex(' ')}")
             else:
-                self.tpdo1 = (pdo_map[0x6041].raw, pdo_map[0x6077].raw, pdo_map[0x6064].raw, self.timebase.now())
+                values = [pdo_map[index].raw for index, _ in layout.tpdo1]
+                position = values[2] if len(values) > 2 else self.position
+                self.tpdo1 = (values[0], values[1], position, self.timebase.now())
             self.cond.notify_all()
 
     def on_tpdo2(self, pdo_map: Any) -> None:
-        data = pdo_map.data
+        data, layout = pdo_map.data, self.layout
         with self.cond:
-            if len(data) != 3:
-                self.malformed = f"TPDO2 of {len(data)} bytes, expected 3: {bytes(data).hex(' ')}"
+            if len(data) != layout.length("tpdo2"):
+                self.malformed = (f"TPDO2 of {len(data)} bytes, expected {layout.length('tpdo2')}: "
+                                  f"{bytes(data).hex(' ')}")
             else:
-                self.tpdo2 = (pdo_map[0x6061].raw, pdo_map[0x603F].raw)
+                values = [pdo_map[index].raw for index, _ in layout.tpdo2]
+                self.tpdo2 = (values[0], values[1])
+                if len(values) > 2:
+                    self.position = values[2]
 
     def lose_heartbeat(self) -> bool:
         """The link failed: no heartbeat counts any more (waiters wake up). True when one counted until now."""
@@ -173,8 +212,8 @@ class CanopenLink:
     SDO/NMT/RPDO with the driver's error types, and the bounded reconnect of a lost link. ``configure_scaling``
     gets the drive's rated torque 0x6076 (mN·m) at each configuration."""
 
-    def __init__(self, options: CiA402CanopenOptions, bus_options: dict[str, Any], eds: str, timebase: Timebase,
-                 configure_scaling: Callable[[int], None]):
+    def __init__(self, options: CanopenLinkOptions, bus_options: dict[str, Any], eds: str, timebase: Timebase,
+                 configure_scaling: Callable[[int], None], layout: PdoLayout = TORQUE_LAYOUT):
         self.name = options.name
         self.url = options.url
         self.bus_options = bus_options
@@ -192,7 +231,8 @@ class CanopenLink:
         self.reconnect_timeout_s = options.reconnect_timeout_s or options.connect_timeout_s
         self.timebase = timebase
         self._configure_scaling = configure_scaling
-        self.process = DriveProcessData(self.name, timebase, self.heartbeat_timeout_s)
+        self.layout = layout
+        self.process = DriveProcessData(self.name, timebase, self.heartbeat_timeout_s, layout)
         self.network: canopen.Network | None = None
         self.node: canopen.RemoteNode | None = None
         self._master_heartbeat: Any = None  # python-can's periodic send task, while running
@@ -348,8 +388,9 @@ class CanopenLink:
         def layout(pdo_map: Any) -> list[tuple[int, int]]:
             return [(var.index, var.length) for var in pdo_map.map]
 
-        for label, pdo_map, expected in (("TPDO1", node.tpdo[1], TPDO1_MAP), ("TPDO2", node.tpdo[2], TPDO2_MAP),
-                                         ("RPDO1", node.rpdo[1], RPDO1_MAP)):
+        for label, pdo_map, expected in (("TPDO1", node.tpdo[1], list(self.layout.tpdo1)),
+                                         ("TPDO2", node.tpdo[2], list(self.layout.tpdo2)),
+                                         ("RPDO1", node.rpdo[1], list(self.layout.rpdo1))):
             if layout(pdo_map) != expected:
                 raise ConfigError(f"{self.name}: {label} maps {layout(pdo_map)}, expected {expected}")
         node.tpdo[1].add_callback(self.process.on_tpdo1)
@@ -442,10 +483,11 @@ class CanopenLink:
             raise Disconnected(self.name, f"SDO write 0x{index:04X}: {exc}") from None
 
     def send_rpdo(self, controlword: int, target_permille: int) -> float:
-        """RPDO1 (controlword, target torque ‰); the time it was sent on the timebase."""
+        """RPDO1 (controlword, target: torque ‰ or velocity counts/s as the layout says); the time it was sent on the
+        timebase."""
         rpdo = self.link().rpdo[1]
         rpdo[0x6040].raw = controlword
-        rpdo[0x6071].raw = target_permille
+        rpdo[self.layout.target_index].raw = target_permille
         sent_at = self.timebase.now()
         try:
             rpdo.transmit()

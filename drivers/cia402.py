@@ -19,7 +19,7 @@ from tcms_daq.drivers.base import (
     InstrumentTimeout,
     LoaderStatus,
 )
-from tcms_daq.drivers.options import CiA402Options
+from tcms_daq.drivers.options import CiA402Options, VelocityDriveOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.protocols.cia402 import (
@@ -134,37 +134,27 @@ class CiA402Wire:
         raise NotImplementedError
 
 
-class CiA402Loader(CiA402Wire):
-    """The transport-independent half of a CiA 402 loader (``drivers.base.Loader``): validation, the state
-    walk to OPERATION ENABLED in profile torque mode, torque scaling, status decoding, the ramp-down on disable.
-
-    A transport subclass (CANopen SDO/PDO, Modbus registers) provides the primitives of :class:`CiA402Wire`; everything a
-    method validates is checked before its first primitive is called, so a rejected command sends nothing.
-    Torque in N·m at this interface, ‰ of the rated torque on the wire; positive torque twists positive.
-    """
+class CiA402Drive(CiA402Wire):
+    """What every CiA 402 drive of the bench shares above its transport: the state walk, fault handling, quick stop,
+    fault reset and the rated torque (0x6076) scaling. The loader (:class:`CiA402Loader`, profile torque) and the
+    input drive (``drivers.cia402_velocity``, profile velocity) build on it; a transport class (CANopen, Modbus)
+    provides the primitives of :class:`CiA402Wire`."""
 
     name: str
     scaling: TorqueScaling | None
 
-    def __init__(self, options: CiA402Options, *, clock: Clock, timebase: Timebase = REAL_TIME):
+    def __init__(self, options: CiA402Options | VelocityDriveOptions, *, clock: Clock,
+                 timebase: Timebase = REAL_TIME):
         self.options = options
         self.name = options.name
         self.url = options.url
-        self.max_torque_nm = options.max_torque_nm
-        self.default_slope_nm_per_s = float(options.torque_slope_nm_per_s)
         self.state_timeout_s = float(options.state_timeout_s)
         self.clock = clock
         self.timebase = timebase
         self.scaling = None
+        self.max_torque_nm: float | None = None
         self._slope_permille: int | None = None  # last slope written to the drive (None: unknown)
-        # profile position (moves between the positions of a multi-position test): position actual 0x6064 and
-        # target 0x607A count this many per revolution of the output; a move is refused above the torque window
-        # (None: 1 % of the rated torque)
         self.counts_per_rev = options.counts_per_rev
-        self.move_torque_window_nm: float | None = options.move_torque_window_nm
-        self._position_mode = False  # a move was started and enable() has not returned to profile torque
-
-    # -- shared logic ------------------------------------------------------------------------------------
 
     def _configure_scaling(self, rated_torque_mnm: int) -> None:
         """Set up the torque scaling from the drive's rated torque (0x6076, mN·m) after (re)connecting."""
@@ -196,6 +186,72 @@ class CiA402Loader(CiA402Wire):
             raise InstrumentTimeout(self.name, f"drive did not reach {target_state} within {self.state_timeout_s:g} s "
                                     f"(statusword 0x{last:04X}: {state_from_statusword(last)})")
         self._raise_if_fault(found, f"waiting for {target_state}")
+
+    def _walk_to_enabled(self, statusword: int) -> None:
+        """From the state of ``statusword`` (the mode already set) to OPERATION ENABLED: 0x06 → 0x07 → 0x0F."""
+        state = state_from_statusword(statusword)
+        if state == "OPERATION ENABLED":
+            self._write_controlword(CW_ENABLE_OPERATION)
+            return
+        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
+            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
+        if state != "SWITCHED ON":
+            self._command(CW_SWITCH_ON, "SWITCHED ON")
+        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+
+    def quick_stop(self) -> None:
+        """Quick stop (controlword 0x000B, target 0): the drive ramps down with its quick-stop ramp and, with
+        quick-stop option 1/2, ends in SWITCH ON DISABLED."""
+        degraded = self._stop_link_degraded()
+        self._reset_target()
+        self._write_controlword(CW_QUICK_STOP)
+        self._raise_unconfirmed("quick stop", degraded)
+
+    def _raise_unconfirmed(self, what: str, degraded: str | None) -> None:
+        if degraded is not None:
+            raise Disconnected(self.name, f"{what} sent on a degraded link ({degraded}); not confirmed")
+
+    def fault_reset(self) -> None:
+        """Controlword bit 7 low, then high (a rising edge): FAULT → SWITCH ON DISABLED."""
+        self._ensure_ready()
+        self._reset_target()
+        self._write_controlword(CW_DISABLE_VOLTAGE)
+        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED", stop_on_fault=False)
+
+    def connect(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class CiA402Loader(CiA402Drive):
+    """The transport-independent half of a CiA 402 loader (``drivers.base.Loader``): validation, the state
+    walk to OPERATION ENABLED in profile torque mode, torque scaling, status decoding, the ramp-down on disable.
+
+    A transport subclass (CANopen SDO/PDO, Modbus registers) provides the primitives of :class:`CiA402Wire`; everything a
+    method validates is checked before its first primitive is called, so a rejected command sends nothing.
+    Torque in N·m at this interface, ‰ of the rated torque on the wire; positive torque twists positive.
+    """
+
+    options: CiA402Options
+
+    def __init__(self, options: CiA402Options, *, clock: Clock, timebase: Timebase = REAL_TIME):
+        super().__init__(options, clock=clock, timebase=timebase)
+        self.max_torque_nm = options.max_torque_nm
+        self.default_slope_nm_per_s = float(options.torque_slope_nm_per_s)
+        # profile position (moves between the positions of a multi-position test): position actual 0x6064 and
+        # target 0x607A count this many per revolution of the output; a move is refused above the torque window
+        # (None: 1 % of the rated torque)
+        self.move_torque_window_nm: float | None = options.move_torque_window_nm
+        self._position_mode = False  # a move was started and enable() has not returned to profile torque
 
     def _set_slope(self, slope_permille: int) -> None:
         if slope_permille != self._slope_permille:
@@ -261,15 +317,7 @@ class CiA402Loader(CiA402Wire):
         if shown != MODE_PROFILE_TORQUE:
             raise CommandRejected(self.name, f"drive shows mode {shown} (mode display), not profile torque (4)")
         self._position_mode = False
-        state = state_from_statusword(sw)
-        if state == "OPERATION ENABLED":
-            self._write_controlword(CW_ENABLE_OPERATION)
-            return
-        if state not in ("READY TO SWITCH ON", "SWITCHED ON"):
-            self._command(CW_SHUTDOWN, "READY TO SWITCH ON")
-        if state != "SWITCHED ON":
-            self._command(CW_SWITCH_ON, "SWITCHED ON")
-        self._command(CW_ENABLE_OPERATION, "OPERATION ENABLED")
+        self._walk_to_enabled(sw)
 
     def set_torque(self, target_nm: float, slope_nm_per_s: float | None = None) -> None:
         scaling = self._scaling()
@@ -296,25 +344,6 @@ class CiA402Loader(CiA402Wire):
             self._write_controlword(CW_DISABLE_VOLTAGE)
         self._raise_unconfirmed("disable", degraded)
 
-    def quick_stop(self) -> None:
-        """Quick stop (controlword 0x000B, target 0): the drive ramps the torque to zero with its quick-stop
-        ramp and, with quick-stop option 1/2, ends in SWITCH ON DISABLED."""
-        degraded = self._stop_link_degraded()
-        self._reset_target()
-        self._write_controlword(CW_QUICK_STOP)
-        self._raise_unconfirmed("quick stop", degraded)
-
-    def _raise_unconfirmed(self, what: str, degraded: str | None) -> None:
-        if degraded is not None:
-            raise Disconnected(self.name, f"{what} sent on a degraded link ({degraded}); not confirmed")
-
-    def fault_reset(self) -> None:
-        """Controlword bit 7 low, then high (a rising edge): FAULT → SWITCH ON DISABLED."""
-        self._ensure_ready()
-        self._reset_target()
-        self._write_controlword(CW_DISABLE_VOLTAGE)
-        self._command(CW_FAULT_RESET, "SWITCH ON DISABLED", stop_on_fault=False)
-
     def status(self) -> LoaderStatus:
         self._ensure_ready()
         scaling = self._scaling()
@@ -332,16 +361,3 @@ class CiA402Loader(CiA402Wire):
             position_deg=position / self.counts_per_rev * 360.0,
             moving=self._position_mode and state == "OPERATION ENABLED" and not sw & SW_TARGET_REACHED,
         )
-
-    def connect(self) -> None:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        raise NotImplementedError
-
-    def __enter__(self) -> Self:
-        self.connect()
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()

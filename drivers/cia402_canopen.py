@@ -32,13 +32,14 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
 from tcms_daq.drivers.base import Clock, CommandRejected, Disconnected, InstrumentTimeout
-from tcms_daq.drivers.canopen_link import CanopenLink, Tpdo1
-from tcms_daq.drivers.cia402 import CiA402Loader
-from tcms_daq.drivers.options import CiA402CanopenOptions
+from tcms_daq.drivers.canopen_link import TORQUE_LAYOUT, CanopenLink, PdoLayout, Tpdo1
+from tcms_daq.drivers.cia402 import CiA402Drive, CiA402Loader
+from tcms_daq.drivers.options import CiA402CanopenOptions, CiA402VelocityCanopenOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.errors import ConfigError
@@ -58,7 +59,10 @@ class _QuietStreamSplits(logging.Filter):
 logging.getLogger("can.interfaces.socketcand.socketcand").addFilter(_QuietStreamSplits())
 
 SETTING_OBJECTS = {"max_torque": 0x6072, "torque_slope": 0x6087, "mode": 0x6060,  # CiA402Loader settings
-                   "target_position": 0x607A, "profile_velocity": 0x6081}
+                   "target_position": 0x607A, "profile_velocity": 0x6081,
+                   # the input drive's (drivers.cia402_velocity)
+                   "max_profile_velocity": 0x607F, "profile_acceleration": 0x6083, "profile_deceleration": 0x6084,
+                   "quick_stop_deceleration": 0x6085}
 
 
 #: python-can interfaces of real CAN adapters a loader URL may name (``pcan://PCAN_USBBUS1``); network-based
@@ -93,20 +97,21 @@ def parse_can_url(url: str, bitrate: int | None = None) -> dict[str, Any]:
     raise ConfigError(f"CAN URL {url!r}: expected socketcand://host:port/channel or virtual://channel")
 
 
-class CiA402Canopen(CiA402Loader):
-    """Loader: a CiA 402 drive in profile torque mode over CANopen (SDO configuration, PDO process data). The
-    link — bus, configuration, heartbeats, reconnect — is ``self.link`` (``drivers.canopen_link.CanopenLink``),
-    what the drive sends by itself ``self.link.process``; this class maps the CiA 402 loader's primitives onto
-    them."""
+class CanopenWire(CiA402Drive):
+    """The CANopen half of a CiA 402 drive: the link — bus, configuration, heartbeats, reconnect — is ``self.link``
+    (``drivers.canopen_link.CanopenLink``), what the drive sends by itself ``self.link.process``; this class maps
+    the drive's primitives (:class:`drivers.cia402.CiA402Wire`) onto them. ``pdo_layout`` says what the PDOs carry,
+    ``default_eds`` which object dictionary a config without ``eds`` gets."""
 
-    options_model = CiA402CanopenOptions
+    pdo_layout: PdoLayout = TORQUE_LAYOUT
+    default_eds: Callable[[], Path] = staticmethod(drive_eds_path)
 
-    def __init__(self, options: CiA402CanopenOptions, *, clock: Clock = time.monotonic,
-                 timebase: Timebase = REAL_TIME):
+    def __init__(self, options: CiA402CanopenOptions | CiA402VelocityCanopenOptions, *,
+                 clock: Clock = time.monotonic, timebase: Timebase = REAL_TIME):
         super().__init__(options, clock=clock, timebase=timebase)
-        self.options: CiA402CanopenOptions = options
         self.link = CanopenLink(options, parse_can_url(options.url, options.bitrate),
-                                str(options.eds or drive_eds_path()), timebase, self._configure_scaling)
+                                str(options.eds or self.default_eds()), timebase, self._configure_scaling,
+                                self.pdo_layout)
         self.heartbeat_timeout_s = self.link.heartbeat_timeout_s
         self.master_heartbeat_ms = self.link.master_heartbeat_ms
         self.drive_consumer_timeout_ms = self.link.drive_consumer_timeout_ms
@@ -191,3 +196,14 @@ class CiA402Canopen(CiA402Loader):
         super().fault_reset()
         with self.link.process.cond:
             self.link.process.last_emcy = None
+
+
+class CiA402Canopen(CanopenWire, CiA402Loader):
+    """Loader: a CiA 402 drive in profile torque mode over CANopen (SDO configuration, PDO process data)."""
+
+    options_model = CiA402CanopenOptions
+    options: CiA402CanopenOptions
+
+    def __init__(self, options: CiA402CanopenOptions, *, clock: Clock = time.monotonic,
+                 timebase: Timebase = REAL_TIME):
+        super().__init__(options, clock=clock, timebase=timebase)

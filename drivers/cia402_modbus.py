@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 from tcms_daq.drivers.base import (
     Clock,
@@ -36,9 +37,9 @@ from tcms_daq.drivers.base import (
     InstrumentTimeout,
     MalformedReply,
 )
-from tcms_daq.drivers.cia402 import CiA402Loader
+from tcms_daq.drivers.cia402 import CiA402Drive, CiA402Loader
 from tcms_daq.drivers.modbus_link import ModbusDriveLink
-from tcms_daq.drivers.options import CiA402ModbusOptions
+from tcms_daq.drivers.options import CiA402ModbusOptions, CiA402VelocityModbusOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.errors import ConfigError
@@ -46,29 +47,38 @@ from tcms_daq.protocols.cia402 import (
     POWERED_STATES,
     state_from_statusword,
 )
-from tcms_daq.protocols.modbus_map import RegisterMap, load_register_map
+from tcms_daq.protocols.modbus_map import (
+    DEFAULT_MAP_PATH,
+    REQUIRED_REGISTERS,
+    RegisterMap,
+    load_register_map,
+)
 
 log = logging.getLogger(__name__)
 
 
-class CiA402Modbus(CiA402Loader):
-    """Loader: a CiA 402 drive in profile torque mode over Modbus TCP/RTU."""
+class ModbusWire(CiA402Drive):
+    """The Modbus half of a CiA 402 drive: register access through the map (``self.link``), the drive's
+    communication watchdog armed on connect and fed while connected; this class maps the drive's primitives
+    (:class:`drivers.cia402.CiA402Wire`) onto registers. ``default_register_map``: the map a config without
+    ``register_map`` gets."""
 
-    options_model = CiA402ModbusOptions
+    default_register_map: Path = DEFAULT_MAP_PATH
+    required_registers: tuple[str, ...] = REQUIRED_REGISTERS
 
-    def __init__(self, options: CiA402ModbusOptions, *, clock: Clock = time.monotonic,
+    def __init__(self, options: CiA402ModbusOptions | CiA402VelocityModbusOptions, *, clock: Clock = time.monotonic,
                  timebase: Timebase = REAL_TIME, register_map: RegisterMap | None = None,
                  trace_packet: Callable[[bool, bytes], bytes] | None = None):
         """``register_map``: a map already loaded (else ``options.register_map``'s file); ``trace_packet``: sees
         every packet (tests)."""
         super().__init__(options, clock=clock, timebase=timebase)
-        self.options: CiA402ModbusOptions = options
         self.comm_timeout_ms = options.comm_timeout_ms
         self.abort_connection_option = options.abort_connection_option
         self._rearm = False  # re-arm the watchdog before the next command (after a reconnect)
-        self.link = ModbusDriveLink(options, register_map if register_map is not None
-                                    else load_register_map(options.register_map), timebase, trace_packet,
-                                    on_reconnect=self._after_reconnect)
+        if register_map is None:
+            register_map = load_register_map(options.register_map or self.default_register_map,
+                                             self.required_registers)
+        self.link = ModbusDriveLink(options, register_map, timebase, trace_packet, on_reconnect=self._after_reconnect)
         if self.comm_timeout_ms and "comm_timeout" not in self.link.map.registers:
             raise ConfigError(f"{self.name}: the register map has no 'comm_timeout' register: the drive's "
                               "communication watchdog cannot be armed (add the drive's register, or set "
@@ -160,3 +170,16 @@ class CiA402Modbus(CiA402Loader):
             if self.timebase.now() > deadline:
                 return None, sw
             self.timebase.sleep(0.005)
+
+
+class CiA402Modbus(ModbusWire, CiA402Loader):
+    """Loader: a CiA 402 drive in profile torque mode over Modbus TCP/RTU."""
+
+    options_model = CiA402ModbusOptions
+    options: CiA402ModbusOptions
+
+    def __init__(self, options: CiA402ModbusOptions, *, clock: Clock = time.monotonic,
+                 timebase: Timebase = REAL_TIME, register_map: RegisterMap | None = None,
+                 trace_packet: Callable[[bool, bytes], bytes] | None = None):
+        super().__init__(options, clock=clock, timebase=timebase, register_map=register_map,
+                         trace_packet=trace_packet)

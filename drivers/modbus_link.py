@@ -25,7 +25,7 @@ from tcms_daq.drivers.base import (
     MalformedReply,
 )
 from tcms_daq.drivers.modbus_rtu import RtuSerialClient
-from tcms_daq.drivers.options import CiA402ModbusOptions
+from tcms_daq.drivers.options import ModbusLinkOptions
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 
 from tcms_daq.errors import ConfigError
@@ -62,7 +62,7 @@ class ModbusDriveLink:
     ``reconnect_attempts`` (``on_reconnect`` is called after each success), and the keep-alive feeding the drive's
     watchdog every quarter of ``comm_timeout_ms`` of silence."""
 
-    def __init__(self, options: CiA402ModbusOptions, register_map: RegisterMap, timebase: Timebase,
+    def __init__(self, options: ModbusLinkOptions, register_map: RegisterMap, timebase: Timebase,
                  trace_packet: Callable[[bool, bytes], bytes] | None, on_reconnect: Callable[[], None]):
         self.name = options.name
         self.url = options.url

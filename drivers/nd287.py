@@ -31,13 +31,28 @@ from collections.abc import Callable
 
 import numpy as np
 import serial
-from tcms_daq.drivers.base import Batch, Clock, DeviceFault, MalformedReply, ReinitialisedOnReconnect
-from tcms_daq.drivers.options import ND287Options
+from tcms_daq.drivers.base import (
+    Batch,
+    Clock,
+    CommandRejected,
+    DeviceFault,
+    MalformedReply,
+    ReinitialisedOnReconnect,
+)
+from tcms_daq.drivers.options import ND287CoupledOptions, ND287Options
 from tcms_daq.drivers.timebase import REAL_TIME, Timebase
 from tcms_daq.drivers.transport import SerialInstrument, open_serial_url, require_terminated
 
 from tcms_daq.analysis.gaps import ANGLE_DATUM_COLUMN
-from tcms_daq.protocols.nd287 import DC1, ENQ, FRAME_LENGTH, FRAME_RE, STX, value_to_arcsec
+from tcms_daq.protocols.nd287 import (
+    DC1,
+    ENQ,
+    FRAME_LENGTH,
+    FRAME_RE,
+    SERIES_COUPLED_DIFFERENCE,
+    STX,
+    value_to_arcsec,
+)
 
 log = logging.getLogger(__name__)
 
@@ -110,3 +125,39 @@ class ND287(ReinitialisedOnReconnect, SerialInstrument):
             time_s[i], value[i] = self.read_one()
             datum[i] = self.datum
         return Batch(time_s, value, {ANGLE_DATUM_COLUMN: datum})
+
+
+class ND287Coupled(ND287):
+    """The ND 287 in its coupled-axes mode (``driver = "nd287-coupled"``): inputs X1 (the output encoder) and X2 (the
+    input encoder), the display showing X1 − k·X2 with k = 1/i — the transmission error at low speed, computed by the
+    display from both inputs latched together, over the same RS-232 link and Ctrl-B protocol.
+
+    What the driver does and does not do: it *reads*, it does not configure. The coupled display (X1 − X2) and the
+    X2 scaling factor k are set on the display's setup menus (docs/hardware.md); the ND 287's remote commands that
+    could set them are not publicly documented (protocols.md §1.3), so the driver cannot write or read k. It checks
+    what it can: every frame must carry the coupled series character ``S`` (a display showing X1 or X2 alone, '1'/'2'
+    or blank, is refused with CommandRejected), and it records the ratio the bench says k was set for (``ratio``).
+    Assumed [U]: the display applies X2's scaling factor before coupling (X1 − SCL₂·X2), so SCL₂ = 1/i gives k = 1/i;
+    confirm on the display (turn the input by a known angle at rest: the reading must not move) before a
+    transmission-error test."""
+
+    options_model = ND287CoupledOptions  # type: ignore[assignment]  # a narrower options model, as SerialInstrument's subclasses
+    options: ND287CoupledOptions
+
+    def __init__(self, options: ND287CoupledOptions, *, clock: Clock = time.monotonic,
+                 timebase: Timebase = REAL_TIME, opener: Callable[..., serial.SerialBase] = open_serial_url):
+        super().__init__(options, clock=clock, timebase=timebase, opener=opener)
+        self.ratio = float(options.ratio)
+        self.coupling_factor = 1.0 / self.ratio
+
+    def read_one(self) -> tuple[float, float]:
+        """One Ctrl-B exchange -> (time_s at request, X1 − k·X2 in arcsec); CommandRejected for a frame that is not
+        the coupled display's."""
+        time_s, reply = self.query_stamped(STX, _read_frame)
+        frame = require_terminated(self.name, reply)
+        value = parse_frame(frame, self.name)
+        series = frame[14:15].decode("ascii", errors="replace")
+        if series != SERIES_COUPLED_DIFFERENCE:
+            raise CommandRejected(self.name, f"the display is not in its coupled mode X1 − X2 (series {series!r}, "
+                                  f"expected {SERIES_COUPLED_DIFFERENCE!r}): set it on the display")
+        return time_s, value

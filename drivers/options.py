@@ -62,12 +62,13 @@ class CiA402Options(DriverOptions):
         None, gt=0.0, description="|torque| at which a move may start (N·m; default the drive's own)")
 
 
-class CiA402CanopenOptions(CiA402Options):
-    """[instruments.loader] of ``driver = "cia402-canopen"``: a CiA 402 drive over CANopen. The URL is
+class CanopenLinkOptions(DriverOptions):
+    """The CANopen link of a CiA 402 drive (what both CANopen drivers take). The URL is
     ``socketcand://host:port/channel``, ``virtual://channel`` or a python-can adapter ``<interface>://<channel>``
     (with ``bitrate``)."""
 
-    name: str = Field("CiA 402 drive (CANopen)", min_length=1, description="the instrument's name in messages")
+    name: str = Field("CiA 402 drive", min_length=1, description="the instrument's name in messages")
+
     node_id: int = Field(1, ge=1, le=127, description="the drive's node id")
     master_node_id: int = Field(0x7F, ge=1, le=127, description="this master's node id (its heartbeat's)")
     eds: Path | None = Field(None, description="the drive's EDS/DCF (default: the packaged drive402.eds)")
@@ -88,7 +89,7 @@ class CiA402CanopenOptions(CiA402Options):
         None, gt=0.0, description="one re-open's wait for the heartbeat (s; default connect_timeout_s)")
 
     @model_validator(mode="after")
-    def _check(self) -> CiA402CanopenOptions:
+    def _check(self) -> CanopenLinkOptions:
         if self.node_id == self.master_node_id:
             raise ValueError(f"node ids must differ (drive {self.node_id}, master {self.master_node_id})")
         consumer = self.consumer_timeout_ms
@@ -111,11 +112,20 @@ class CiA402CanopenOptions(CiA402Options):
         return self.heartbeat_timeout_s or max(3.5 * self.heartbeat_ms / 1000.0, 0.2)
 
 
-class CiA402ModbusOptions(CiA402Options):
-    """[instruments.loader] of ``driver = "cia402-modbus"``: a CiA 402 drive over Modbus TCP (``tcp://host:port``)
-    or RTU (a serial port or ``socket://host:port``)."""
+class CiA402CanopenOptions(CiA402Options, CanopenLinkOptions):
+    """[instruments.loader] of ``driver = "cia402-canopen"``: a CiA 402 drive over CANopen. The URL is
+    ``socketcand://host:port/channel``, ``virtual://channel`` or a python-can adapter ``<interface>://<channel>``
+    (with ``bitrate``)."""
 
-    name: str = Field("CiA 402 drive (Modbus)", min_length=1, description="the instrument's name in messages")
+    name: str = Field("CiA 402 drive (CANopen)", min_length=1, description="the instrument's name in messages")
+
+
+class ModbusLinkOptions(DriverOptions):
+    """The Modbus link of a CiA 402 drive (what both Modbus drivers take): TCP (``tcp://host:port``) or RTU (a serial
+    port or ``socket://host:port``), and the drive's own communication watchdog the driver arms on connect."""
+
+    name: str = Field("CiA 402 drive", min_length=1, description="the instrument's name in messages")
+
     register_map: Path | None = Field(None, description="the drive's register map TOML (default: the packaged "
                                                        "modbus-drive.toml)")
     device_id: int | None = Field(None, ge=0, le=247, description="the drive's Modbus address (default: the map's)")
@@ -129,3 +139,72 @@ class CiA402ModbusOptions(CiA402Options):
                                  description="the drive reacts after this much silence (ms; 0 = off)")
     abort_connection_option: Literal[1, 2, 3] = Field(
         1, description="the drive's reaction (0x6007): 1 fault, 2 disable voltage, 3 quick stop")
+
+
+class CiA402ModbusOptions(CiA402Options, ModbusLinkOptions):
+    """[instruments.loader] of ``driver = "cia402-modbus"``: a CiA 402 drive over Modbus TCP (``tcp://host:port``)
+    or RTU (a serial port or ``socket://host:port``)."""
+
+    name: str = Field("CiA 402 drive (Modbus)", min_length=1, description="the instrument's name in messages")
+
+
+class VelocityDriveOptions(DriverOptions):
+    """What both input drives take (CiA 402 profile velocity, mode 3): the speed limit, the ramps, the state-change
+    deadline, the input shaft's position scaling. Velocities at the input shaft (deg/s; 360 deg/s = 60 rpm);
+    on the wire counts/s of ``counts_per_rev`` (0x60FF target velocity, 0x606C velocity actual)."""
+
+    name: str = Field("input drive", min_length=1, description="the instrument's name in messages")
+    max_velocity_deg_per_s: float = Field(3600.0, gt=0.0, description=(
+        "never command more (deg/s at the input; 0x607F max profile velocity on enable)"))
+    acceleration_deg_per_s2: float = Field(3600.0, gt=0.0, description=(
+        "profile acceleration and deceleration 0x6083/0x6084 (deg/s²)"))
+    quick_stop_deceleration_deg_per_s2: float = Field(36000.0, gt=0.0, description=(
+        "quick-stop deceleration 0x6085 (deg/s²): the stop of a quick stop or a lost link"))
+    velocity_window_deg_per_s: float = Field(1.0, gt=0.0, description="|velocity| below which the shaft is at rest")
+    state_timeout_s: float = Field(2.0, gt=0.0, description="the longest wait for a state change (s)")
+    counts_per_rev: int = Field(1 << 20, gt=0, strict=True,
+                                description="position actual 0x6064 per input revolution (velocity in counts/s)")
+
+
+class CiA402VelocityCanopenOptions(VelocityDriveOptions, CanopenLinkOptions):
+    """[instruments.input_drive] of ``driver = "cia402-velocity-canopen"``: the input drive on the loader's CANopen
+    bus at its own node id. Its master heartbeat comes from its own link (node id 0x7E by default, the loader's is
+    0x7F), so the drive stops when the software behind its own link goes silent."""
+
+    name: str = Field("input drive (CANopen)", min_length=1, description="the instrument's name in messages")
+    node_id: int = Field(2, ge=1, le=127, description="the drive's node id")
+    master_node_id: int = Field(0x7E, ge=1, le=127, description="this link's heartbeat node id")
+    eds: Path | None = Field(None, description="the drive's EDS/DCF (default: the packaged drive402-velocity.eds)")
+
+
+class CiA402VelocityModbusOptions(VelocityDriveOptions, ModbusLinkOptions):
+    """[instruments.input_drive] of ``driver = "cia402-velocity-modbus"``: the input drive over Modbus TCP or RTU at
+    its own unit id (the packaged map's ``device_id = 2``: on the loader's RS-485 line or behind its gateway)."""
+
+    name: str = Field("input drive (Modbus)", min_length=1, description="the instrument's name in messages")
+    register_map: Path | None = Field(None, description="the drive's register map TOML (default: the packaged "
+                                                       "modbus-input-drive.toml)")
+
+
+class ND287CoupledOptions(ND287Options):
+    """[instruments.input_angle] of ``driver = "nd287-coupled"``: the ND 287 in its coupled-axes mode, X1 (the output
+    encoder) and X2 (the input encoder) coupled as X1 − k·X2 on the display. ``ratio`` is the mounted reducer's: the
+    display's factor k = 1/ratio is set on the display (its X2 scaling factor), not over RS-232; the driver checks
+    that every frame is a coupled one (series ``S``)."""
+
+    name: str = Field("ND 287 (X1 − k·X2)", min_length=1, description="the instrument's name in messages")
+    ratio: float = Field(gt=0.0, description="the reducer's ratio i the display's k = 1/i was set for")
+
+
+class CounterOptions(SerialOptions):
+    """[instruments.input_angle] of ``driver = "counter-2axis"``: the two-axis counter interface (protocol
+    ``tcms_daq.protocols.counter``: both encoders latched as one pair at ``rate_hz``). Axis 1 is the output encoder,
+    axis 2 the input encoder; their counts per revolution must match what the card reports (CONF?)."""
+
+    name: str = Field("two-axis counter", min_length=1, description="the instrument's name in messages")
+    baudrate: int = Field(115200, gt=0, description="the line speed (Bd; ignored on TCP)")
+    rate_hz: int = Field(1000, ge=1, le=20_000, description="latch rate of the card's timer (Hz)")
+    counts_per_rev_output: int = Field(18_000 * 4096, gt=0, strict=True,
+                                       description="axis 1 (output encoder) counts per revolution")
+    counts_per_rev_input: int = Field(1 << 23, gt=0, strict=True,
+                                      description="axis 2 (input encoder) counts per revolution")

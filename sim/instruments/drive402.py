@@ -27,8 +27,11 @@ Leaving OPERATION ENABLED or mode 1 (disable, quick stop, fault) halts a move wh
 from __future__ import annotations
 
 import enum
+import functools
+import math
 from collections.abc import Callable
 
+from tcms_daq.sim.instruments.drivetrain import DriveTrainPhysics
 from tcms_daq.sim.instruments.physics import PhysicsReading, SharedPhysics
 
 from tcms_daq.protocols.cia402 import (
@@ -40,7 +43,9 @@ from tcms_daq.protocols.cia402 import (
     EMCY_COMMUNICATION,
     MODE_PROFILE_POSITION,
     MODE_PROFILE_TORQUE,
+    MODE_PROFILE_VELOCITY,
     SUPPORTED_MODES,
+    SUPPORTED_MODES_VELOCITY,
     SW_SET_POINT_ACK,
     SW_TARGET_REACHED,
     to_int16,
@@ -77,7 +82,11 @@ EmcyListener = Callable[[int, int], None]  # (error code, error register)
 
 
 class Drive402Model:
-    """The drive; every public method takes the shared physics lock."""
+    """The drive; every public method takes the shared physics lock. The front ends reach its objects through
+    ``od_getters``/``od_setters`` (CANopen, by index), ``register_getters``/``register_setters`` (Modbus, by the
+    register map's names), ``write_rpdo`` and ``process_values`` (the PDOs)."""
+
+    supported_modes = SUPPORTED_MODES
 
     def __init__(
         self,
@@ -111,7 +120,11 @@ class Drive402Model:
         self._emcy_listeners: list[EmcyListener] = []
         self._latest = physics.latest()
         physics.add_tick_hook(self._on_tick)
-        physics.set_drive_enabled(False)
+        self._init_physics()
+
+    def _init_physics(self) -> None:
+        """The drive is off at power-on: the loader applies nothing."""
+        self.physics.set_drive_enabled(False)
 
     def power_cycle(self) -> None:
         """Restart the drive: SWITCH ON DISABLED, no mode, zero target, errors cleared, torque off."""
@@ -240,8 +253,8 @@ class Drive402Model:
     def write_mode(self, mode: int) -> None:
         with self.lock:
             mode = to_int16(mode) if mode > 127 else mode
-            if mode != 0 and not (mode in range(1, 32) and SUPPORTED_MODES & (1 << (mode - 1))):
-                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{SUPPORTED_MODES:04X})")
+            if mode != 0 and not (mode in range(1, 32) and self.supported_modes & (1 << (mode - 1))):
+                raise DriveCommandError(f"mode {mode} not supported (0x6502 = 0x{self.supported_modes:04X})")
             self.mode = mode
             self._apply()
 
@@ -303,6 +316,67 @@ class Drive402Model:
             if option not in (0, 1, 2, 5, 6):
                 raise DriveCommandError(f"quick stop option {option} not supported (0, 1, 2, 5, 6)")
             self.quick_stop_option = option
+
+    # -- what the front ends see ------------------------------------------------------------------------
+
+    def od_getters(self) -> dict[int, Callable[[], int]]:
+        """Object index -> its present value (SDO uploads of the live objects)."""
+        return {
+            0x6041: self.statusword, 0x6061: self.mode_display, 0x6077: self.torque_actual_permille,
+            0x6064: self.position_counts, 0x603F: lambda: self.error_code, 0x1001: lambda: self.error_register,
+            0x6040: lambda: self.controlword, 0x6060: lambda: self.mode,
+            0x6071: lambda: self.target_torque_permille, 0x6072: lambda: self.max_torque_permille,
+            0x6087: lambda: self.torque_slope_permille_per_s, 0x6076: lambda: self.rated_torque_mnm,
+            0x605A: lambda: self.quick_stop_option, 0x607A: lambda: self.target_position_counts,
+            0x6081: lambda: self.profile_velocity_counts_per_s,
+        }
+
+    def od_setters(self) -> dict[int, Callable[[int], None]]:
+        """Object index -> what an SDO download of it does."""
+        return {
+            0x6040: self.write_controlword, 0x6060: self.write_mode, 0x6071: self.write_target_torque,
+            0x6072: self.write_max_torque, 0x6087: self.write_torque_slope, 0x6076: self.write_rated_torque,
+            0x605A: self.write_quick_stop_option, 0x607A: self.write_target_position,
+            0x6081: self.write_profile_velocity,
+        }
+
+    def register_getters(self) -> dict[str, Callable[[], int]]:
+        """Register-map name -> its present value (Modbus reads)."""
+        return {
+            "controlword": lambda: self.controlword, "statusword": self.statusword,
+            "error_code": lambda: self.error_code, "error_register": lambda: self.error_register,
+            "mode": lambda: self.mode, "mode_display": self.mode_display, "position_actual": self.position_counts,
+            "target_torque": lambda: self.target_torque_permille, "max_torque": lambda: self.max_torque_permille,
+            "torque_actual": self.torque_actual_permille, "torque_slope": lambda: self.torque_slope_permille_per_s,
+            "rated_torque": lambda: self.rated_torque_mnm, "quick_stop_option": lambda: self.quick_stop_option,
+            "comm_timeout": lambda: self.comm_timeout_ms,
+            "abort_connection_option": lambda: self.abort_connection_option,
+            "target_position": lambda: self.target_position_counts,
+            "profile_velocity": lambda: self.profile_velocity_counts_per_s,
+        }
+
+    def register_setters(self) -> dict[str, Callable[[int], None]]:
+        """Register-map name -> what a Modbus write of it does."""
+        return {
+            "controlword": self.write_controlword, "mode": self.write_mode,
+            "target_torque": self.write_target_torque, "max_torque": self.write_max_torque,
+            "torque_slope": self.write_torque_slope, "rated_torque": self.write_rated_torque,
+            "quick_stop_option": self.write_quick_stop_option, "comm_timeout": self.write_comm_timeout,
+            "abort_connection_option": self.write_abort_connection_option,
+            "target_position": self.write_target_position, "profile_velocity": self.write_profile_velocity,
+        }
+
+    def write_rpdo(self, controlword: int, target: int) -> None:
+        """RPDO1: the target (torque ‰), then the controlword."""
+        with self.lock:
+            self.write_target_torque(target)
+            self.write_controlword(controlword)
+
+    def process_values(self) -> dict[int, int]:
+        """The values of the objects the TPDOs carry, taken together (one snapshot)."""
+        with self.lock:
+            return {0x6041: self.statusword(), 0x6077: self.torque_actual_permille(), 0x6064: self.position_counts(),
+                    0x6061: self.mode_display(), 0x603F: self.error_code}
 
     # -- faults ----------------------------------------------------------------------------------------
 
@@ -382,3 +456,185 @@ class Drive402Model:
         if self.state is State.QUICK_STOP_ACTIVE and self.quick_stop_option in (1, 2):
             if abs(reading.applied_torque_nm) <= self.target_window_permille / 1000.0 * self.rated_torque_nm:
                 self._set_state(State.SWITCH_ON_DISABLED)
+
+
+class VelocityDrive402Model(Drive402Model):
+    """The second axis's input drive: the same state machine and communication watchdog, in profile velocity (mode 3,
+    0x6502 = 0x0004). In OPERATION ENABLED the velocity ramps toward the target 0x60FF with the profile acceleration
+    0x6083 (speeding up) or deceleration 0x6084 (slowing down), limited by 0x607F; quick stop ramps to 0 with 0x6085 and
+    (option 1/2) ends in SWITCH ON DISABLED; any other state (disabled, fault) stops the shaft at once (the brake).
+    Every physics tick hands the velocity and the loader's torque to the drivetrain (``sim.instruments.drivetrain``),
+    which gives position actual 0x6064 (the input shaft) and torque actual 0x6077 (the input torque). Velocities and
+    ramps in counts/s (/s²) of ``counts_per_rev`` per input revolution. Statusword bit 10: |actual − target| within
+    ``velocity_window_counts``."""
+
+    supported_modes = SUPPORTED_MODES_VELOCITY
+
+    def __init__(self, physics: SharedPhysics, drivetrain: DriveTrainPhysics, *, counts_per_rev: int = 1 << 20,
+                 velocity_window_counts: int | None = None, **options: int):
+        self.drivetrain = drivetrain
+        self.velocity_window_counts = (max(1, counts_per_rev // 3600) if velocity_window_counts is None
+                                       else int(velocity_window_counts))  # 0.1 deg/s
+        self._velocity = 0.0  # counts/s, the ramp's state
+        self._last_tick_s: float | None = None
+        super().__init__(physics, counts_per_rev=counts_per_rev, **options)
+
+    def _init_physics(self) -> None:
+        """The input drive leaves the loader alone."""
+
+    def _power_on_state(self) -> None:
+        super()._power_on_state()
+        self.target_velocity_counts = 0
+        self.max_profile_velocity_counts = 0x7FFFFFFF
+        self.profile_acceleration_counts = max(1, self.counts_per_rev * 10)  # 3600 deg/s²
+        self.profile_deceleration_counts = self.profile_acceleration_counts
+        self.quick_stop_deceleration_counts = self.profile_acceleration_counts * 10
+        self._velocity = 0.0
+
+    # -- values ----------------------------------------------------------------------------------------
+
+    def velocity_counts(self) -> int:
+        with self.lock:
+            return max(-(1 << 31), min((1 << 31) - 1, round(self._velocity)))
+
+    def velocity_deg_per_s(self) -> float:
+        with self.lock:
+            return self._velocity / self.counts_per_rev * 360.0
+
+    def torque_actual_permille(self) -> int:
+        with self.lock:
+            value = round(self.drivetrain.input_torque_nm(self._latest.time_s) / self.rated_torque_nm * 1000.0)
+            return max(-32768, min(32767, value))
+
+    def position_counts(self) -> int:
+        with self.lock:
+            value = round(self.drivetrain.input_angle_deg(self._latest.time_s) / 360.0 * self.counts_per_rev)
+            return (value + (1 << 31)) % (1 << 32) - (1 << 31)  # INT32 wraps like a real drive's counter
+
+    def statusword(self) -> int:
+        with self.lock:
+            word = self.state.value | 0x0200
+            if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_VELOCITY:
+                if abs(self._velocity - self._effective_target()) <= self.velocity_window_counts:
+                    word |= SW_TARGET_REACHED
+                if abs(self.target_velocity_counts) > self.max_profile_velocity_counts:
+                    word |= 0x0800  # internal limit active
+            return word
+
+    def _effective_target(self) -> float:
+        if self.state is State.OPERATION_ENABLED and self.mode == MODE_PROFILE_VELOCITY:
+            limit = self.max_profile_velocity_counts
+            return float(max(-limit, min(limit, self.target_velocity_counts)))
+        return 0.0
+
+    # -- writes ----------------------------------------------------------------------------------------
+
+    def write_target_velocity(self, counts_per_s: int) -> None:
+        with self.lock:
+            counts_per_s = int(counts_per_s)
+            self.target_velocity_counts = counts_per_s - (1 << 32) if counts_per_s >= (1 << 31) else counts_per_s
+
+    def _write_unsigned(self, name: str, value: int) -> None:
+        with self.lock:
+            if not 0 < value <= 0xFFFFFFFF:
+                raise DriveCommandError(f"{name} {value} out of range (must be > 0)")
+            setattr(self, f"{name}_counts", int(value))
+
+    def _unsigned_setter(self, name: str) -> Callable[[int], None]:
+        """The write of one of the ramps or the speed limit (counts/s or counts/s², > 0)."""
+        return functools.partial(self._write_unsigned, name)
+
+    def write_rpdo(self, controlword: int, target: int) -> None:
+        """RPDO1: the target velocity, then the controlword."""
+        with self.lock:
+            self.write_target_velocity(target & 0xFFFFFFFF)
+            self.write_controlword(controlword)
+
+    def process_values(self) -> dict[int, int]:
+        with self.lock:
+            return {0x6041: self.statusword(), 0x606C: self.velocity_counts(), 0x6064: self.position_counts(),
+                    0x6061: self.mode_display(), 0x603F: self.error_code, 0x6077: self.torque_actual_permille()}
+
+    def od_getters(self) -> dict[int, Callable[[], int]]:
+        return {
+            0x6041: self.statusword, 0x6061: self.mode_display, 0x6077: self.torque_actual_permille,
+            0x6064: self.position_counts, 0x606C: self.velocity_counts, 0x603F: lambda: self.error_code,
+            0x1001: lambda: self.error_register, 0x6040: lambda: self.controlword, 0x6060: lambda: self.mode,
+            0x60FF: lambda: self.target_velocity_counts, 0x607F: lambda: self.max_profile_velocity_counts,
+            0x6083: lambda: self.profile_acceleration_counts, 0x6084: lambda: self.profile_deceleration_counts,
+            0x6085: lambda: self.quick_stop_deceleration_counts, 0x6076: lambda: self.rated_torque_mnm,
+            0x605A: lambda: self.quick_stop_option,
+        }
+
+    def od_setters(self) -> dict[int, Callable[[int], None]]:
+        return {
+            0x6040: self.write_controlword, 0x6060: self.write_mode, 0x60FF: self.write_target_velocity,
+            0x607F: self._unsigned_setter("max_profile_velocity"),
+            0x6083: self._unsigned_setter("profile_acceleration"),
+            0x6084: self._unsigned_setter("profile_deceleration"),
+            0x6085: self._unsigned_setter("quick_stop_deceleration"),
+            0x6076: self.write_rated_torque, 0x605A: self.write_quick_stop_option,
+        }
+
+    def register_getters(self) -> dict[str, Callable[[], int]]:
+        return {
+            "controlword": lambda: self.controlword, "statusword": self.statusword,
+            "error_code": lambda: self.error_code, "error_register": lambda: self.error_register,
+            "mode": lambda: self.mode, "mode_display": self.mode_display, "position_actual": self.position_counts,
+            "velocity_actual": self.velocity_counts, "torque_actual": self.torque_actual_permille,
+            "target_velocity": lambda: self.target_velocity_counts,
+            "max_profile_velocity": lambda: self.max_profile_velocity_counts,
+            "profile_acceleration": lambda: self.profile_acceleration_counts,
+            "profile_deceleration": lambda: self.profile_deceleration_counts,
+            "quick_stop_deceleration": lambda: self.quick_stop_deceleration_counts,
+            "rated_torque": lambda: self.rated_torque_mnm, "quick_stop_option": lambda: self.quick_stop_option,
+            "comm_timeout": lambda: self.comm_timeout_ms,
+            "abort_connection_option": lambda: self.abort_connection_option,
+        }
+
+    def register_setters(self) -> dict[str, Callable[[int], None]]:
+        return {
+            "controlword": self.write_controlword, "mode": self.write_mode,
+            "target_velocity": self.write_target_velocity,
+            **{name: self._unsigned_setter(name) for name in ("max_profile_velocity", "profile_acceleration",
+                                                               "profile_deceleration", "quick_stop_deceleration")},
+            "rated_torque": self.write_rated_torque, "quick_stop_option": self.write_quick_stop_option,
+            "comm_timeout": self.write_comm_timeout, "abort_connection_option": self.write_abort_connection_option,
+        }
+
+    # -- internals -------------------------------------------------------------------------------------
+
+    def _apply(self) -> None:
+        """Leaving the powered states stops the shaft at once (the brake); the ramps run on the ticks."""
+        if self.state not in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+            self._velocity = 0.0
+        elif self.state is State.QUICK_STOP_ACTIVE and self.quick_stop_option == 0:
+            self.state = State.SWITCH_ON_DISABLED
+            self._velocity = 0.0
+
+    def _on_tick(self, reading: PhysicsReading) -> None:
+        # called by SharedPhysics after every advance, with the lock held
+        previous = self._last_tick_s
+        self._last_tick_s = reading.time_s
+        self._latest = reading
+        dt = 0.0 if previous is None else max(0.0, reading.time_s - previous)
+        target = self._effective_target()
+        if self.state is State.QUICK_STOP_ACTIVE:
+            rate = float(self.quick_stop_deceleration_counts)
+        elif abs(target) > abs(self._velocity) and target * self._velocity >= 0:
+            rate = float(self.profile_acceleration_counts)
+        else:
+            rate = float(self.profile_deceleration_counts)
+        step = rate * dt
+        if abs(target - self._velocity) <= step:
+            self._velocity = target
+        else:
+            self._velocity += math.copysign(step, target - self._velocity)
+        if self.state not in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+            self._velocity = 0.0
+        self.drivetrain.command(reading.time_s, self._velocity / self.counts_per_rev * 360.0,
+                                reading.applied_torque_nm)
+        if (self.state is State.QUICK_STOP_ACTIVE and self.quick_stop_option in (1, 2)
+                and abs(self._velocity) <= self.velocity_window_counts):
+            self._velocity = 0.0
+            self._set_state(State.SWITCH_ON_DISABLED)

@@ -149,25 +149,11 @@ class DriveCanopenNode:
     def _on_sdo_read(self, index: int, subindex: int, od):
         d = self.drive
         with d.lock:
-            values = {
-                0x6041: d.statusword, 0x6061: d.mode_display, 0x6077: d.torque_actual_permille,
-                0x6064: d.position_counts, 0x603F: lambda: d.error_code, 0x1001: lambda: d.error_register,
-                0x6040: lambda: d.controlword, 0x6060: lambda: d.mode,
-                0x6071: lambda: d.target_torque_permille, 0x6072: lambda: d.max_torque_permille,
-                0x6087: lambda: d.torque_slope_permille_per_s, 0x6076: lambda: d.rated_torque_mnm,
-                0x605A: lambda: d.quick_stop_option, 0x607A: lambda: d.target_position_counts,
-                0x6081: lambda: d.profile_velocity_counts_per_s,
-            }
-            getter = values.get(index)
+            getter = d.od_getters().get(index)
             return getter() if getter is not None else None
 
     def _on_sdo_write(self, index: int, subindex: int, od, data: bytes) -> None:
-        d = self.drive
-        setters = {
-            0x6040: d.write_controlword, 0x6060: d.write_mode, 0x6071: d.write_target_torque,
-            0x6072: d.write_max_torque, 0x6087: d.write_torque_slope, 0x6076: d.write_rated_torque,
-            0x605A: d.write_quick_stop_option, 0x607A: d.write_target_position, 0x6081: d.write_profile_velocity,
-        }
+        setters = self.drive.od_setters()
         if index == 0x1016 and subindex == 1:
             value = od.decode_raw(data)
             master, time_ms = (value >> 16) & 0x7F, value & 0xFFFF
@@ -191,11 +177,8 @@ class DriveCanopenNode:
         if node is None or node.nmt.state != "OPERATIONAL" or self.fault == "mute":
             return
         self.rpdos_received += 1
-        controlword = pdo_map[0x6040].raw
-        target = pdo_map[0x6071].raw
-        with self.drive.lock:
-            self.drive.write_target_torque(target)
-            self.drive.write_controlword(controlword)
+        controlword, target = (var.raw for var in pdo_map.map[:2])
+        self.drive.write_rpdo(controlword, target)
         self._send_tpdos()
 
     def _on_master_heartbeat(self, can_id, data, timestamp) -> None:
@@ -214,16 +197,15 @@ class DriveCanopenNode:
             return
         d = self.drive
         with self._tpdo_lock:
-            with d.lock:
-                values = (d.statusword(), d.torque_actual_permille(), d.position_counts(), d.mode_display(),
-                          d.error_code)
+            values = d.process_values()
             with self._send_lock:
                 tpdo1, tpdo2 = node.tpdo[1], node.tpdo[2]
                 if self.fault == "garbage":
                     self._net.send_message(tpdo1.cob_id, b"\xde\xad\x01")
                     return
-                tpdo1[0x6041].raw, tpdo1[0x6077].raw, tpdo1[0x6064].raw = values[0], values[1], values[2]
-                tpdo2[0x6061].raw, tpdo2[0x603F].raw = values[3], values[4]
+                for tpdo in (tpdo1, tpdo2):
+                    for var in tpdo.map:
+                        var.raw = values[var.index]
                 tpdo1.transmit()
                 tpdo2.transmit()
 

@@ -4,7 +4,8 @@ Holding registers follow the register map (``config/modbus-drive.toml``); addres
 exception 2. The SimDevice ``action`` refreshes measured registers from the drive model on every read and
 pushes writes into it; writes to read-only registers → exception 2, values the drive refuses → exception 3
 (4 when refused in the present state). Fault injection: ``inject("mute")`` makes the server swallow requests
-(the client times out).
+(the client times out). Several drives may share one server at their maps' device ids (the second axis's input
+drive at unit id 2 beside the loader at 1: one RS-485 line or one gateway); each has its own watchdog.
 
 Communication watchdog, as a real drive's connection monitoring: once this front end has had a request, a
 silence longer than the drive's communication timeout (``Drive402Model.comm_timeout_ms``, the ``comm_timeout``
@@ -19,6 +20,7 @@ import asyncio
 import contextlib
 import socket
 import time
+from collections.abc import Sequence
 
 from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
@@ -38,85 +40,32 @@ def _free_port(host: str) -> int:
         return s.getsockname()[1]
 
 
-class DriveModbusServer:
-    name = "drive Modbus sim"
+class DriveFront:
+    """One drive behind the server, at its register map's device id: register access, its requests and its
+    communication watchdog's record."""
 
-    def __init__(
-        self,
-        drive: Drive402Model,
-        regmap: RegisterMap,
-        *,
-        host: str = "127.0.0.1",
-        port: int = 0,
-        framer: str = "tcp",
-    ):
-        if framer not in ("tcp", "rtu"):
-            raise ValueError(f"framer must be 'tcp' or 'rtu', got {framer!r}")
+    def __init__(self, server: DriveModbusServer, drive: Drive402Model, regmap: RegisterMap):
+        self.server = server
         self.drive = drive
         self.map = regmap
-        self.host = host
-        self.port = port
-        self.framer = framer
-        self.fault: str | None = None
         self.requests = 0
         self._by_address = regmap.by_address()
-        self._server: ModbusTcpServer | ModbusSerialServer | None = None
         self._last_request: float | None = None  # None: no request since start, or the watchdog reacted
-        self._watchdog: asyncio.Task | None = None
         # what the watchdog did and when (time.monotonic(), system-wide): tests and the control channel
         self.watchdog_reactions: list[dict[str, float | str]] = []
 
-    def inject(self, fault: str | None) -> None:
-        if fault is not None and fault not in FAULTS:
-            raise ValueError(f"{self.name}: unknown fault {fault!r} (known: {', '.join(FAULTS)})")
-        self.fault = fault
-
-    # -- register access -------------------------------------------------------------------------------
-
     def _value(self, name: str) -> int:
-        d = self.drive
-        getters = {
-            "controlword": lambda: d.controlword,
-            "statusword": d.statusword,
-            "error_code": lambda: d.error_code,
-            "error_register": lambda: d.error_register,
-            "mode": lambda: d.mode,
-            "mode_display": d.mode_display,
-            "position_actual": d.position_counts,
-            "target_torque": lambda: d.target_torque_permille,
-            "max_torque": lambda: d.max_torque_permille,
-            "torque_actual": d.torque_actual_permille,
-            "torque_slope": lambda: d.torque_slope_permille_per_s,
-            "rated_torque": lambda: d.rated_torque_mnm,
-            "quick_stop_option": lambda: d.quick_stop_option,
-            "comm_timeout": lambda: d.comm_timeout_ms,
-            "abort_connection_option": lambda: d.abort_connection_option,
-            "target_position": lambda: d.target_position_counts,
-            "profile_velocity": lambda: d.profile_velocity_counts_per_s,
-        }
-        return getters[name]() if name in getters else 0
+        getter = self.drive.register_getters().get(name)
+        return getter() if getter is not None else 0
 
     def _write(self, name: str, value: int) -> None:
-        d = self.drive
-        setters = {
-            "controlword": d.write_controlword,
-            "mode": d.write_mode,
-            "target_torque": d.write_target_torque,
-            "max_torque": d.write_max_torque,
-            "torque_slope": d.write_torque_slope,
-            "rated_torque": d.write_rated_torque,
-            "quick_stop_option": d.write_quick_stop_option,
-            "comm_timeout": d.write_comm_timeout,
-            "abort_connection_option": d.write_abort_connection_option,
-            "target_position": d.write_target_position,
-            "profile_velocity": d.write_profile_velocity,
-        }
-        if name not in setters:
+        setter = self.drive.register_setters().get(name)
+        if setter is None:
             raise DriveCommandError(f"{name} is read-only", kind="readonly")
-        setters[name](value)
+        setter(value)
 
     async def _action(self, function_code, start_address, address, count, registers, set_values):
-        if self.fault == "mute":
+        if self.server.fault == "mute":
             raise NoSuchIdException("muted by fault injection")  # the server then sends nothing
         self.requests += 1
         self._last_request = time.monotonic()
@@ -160,12 +109,73 @@ class DriveModbusServer:
         except ValueError:
             return False
 
-    def _device(self) -> SimDevice:
+    def device(self) -> SimDevice:
         blocks = [
             SimData(spec.address, count=spec.words, values=0, datatype=DataType.REGISTERS)
             for spec in sorted(self.map.registers.values(), key=lambda s: s.address)
         ]
         return SimDevice(id=self.map.device_id, action=self._action, simdata=blocks)
+
+    def check_watchdog(self) -> None:
+        timeout_s = self.drive.comm_timeout_ms / 1000.0
+        last = self._last_request
+        if timeout_s <= 0 or last is None or time.monotonic() - last <= timeout_s:
+            return
+        self._last_request = None  # one reaction per silence
+        reaction = self.drive.communication_lost()
+        if reaction is not None:
+            self.watchdog_reactions.append({"reaction": reaction, "at_monotonic_s": time.monotonic(),
+                                            "silent_s": time.monotonic() - last})
+
+
+class DriveModbusServer:
+    """The drives of one Modbus server (one TCP port or RTU line): the loader at its map's device id and, optionally,
+    more drives at theirs (``more``: the second axis's input drive at unit id 2)."""
+
+    name = "drive Modbus sim"
+
+    def __init__(
+        self,
+        drive: Drive402Model,
+        regmap: RegisterMap,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        framer: str = "tcp",
+        more: Sequence[tuple[Drive402Model, RegisterMap]] = (),
+    ):
+        if framer not in ("tcp", "rtu"):
+            raise ValueError(f"framer must be 'tcp' or 'rtu', got {framer!r}")
+        self.fronts = [DriveFront(self, drive, regmap)] + [DriveFront(self, d, m) for d, m in more]
+        ids = [f.map.device_id for f in self.fronts]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"drives on one Modbus server need distinct device ids, got {ids}")
+        self.drive = drive
+        self.map = regmap
+        self.host = host
+        self.port = port
+        self.framer = framer
+        self.fault: str | None = None
+        self._server: ModbusTcpServer | ModbusSerialServer | None = None
+        self._watchdog: asyncio.Task | None = None
+
+    @property
+    def requests(self) -> int:
+        return sum(f.requests for f in self.fronts)
+
+    @property
+    def watchdog_reactions(self) -> list[dict[str, float | str]]:
+        """What the drives' watchdogs did, in order (``device_id`` names the drive)."""
+        found = [{**r, "device_id": f.map.device_id} for f in self.fronts for r in f.watchdog_reactions]
+        return sorted(found, key=lambda r: float(r["at_monotonic_s"]))
+
+    def inject(self, fault: str | None) -> None:
+        if fault is not None and fault not in FAULTS:
+            raise ValueError(f"{self.name}: unknown fault {fault!r} (known: {', '.join(FAULTS)})")
+        self.fault = fault
+
+    def _devices(self) -> list[SimDevice]:
+        return [f.device() for f in self.fronts]
 
     # -- lifecycle -------------------------------------------------------------------------------------
 
@@ -178,7 +188,7 @@ class DriveModbusServer:
             return self.port
         server: ModbusTcpServer | ModbusSerialServer
         if self.framer == "tcp":
-            server = ModbusTcpServer(self._device(), address=(self.host, self.port), ignore_missing_devices=True)
+            server = ModbusTcpServer(self._devices(), address=(self.host, self.port), ignore_missing_devices=True)
             await server.serve_forever(background=True)
             # pymodbus keeps the asyncio server as ``transport`` once it listens
             self.port = server.transport.sockets[0].getsockname()[1]  # type: ignore[attr-defined]
@@ -186,12 +196,13 @@ class DriveModbusServer:
             if self.port == 0:
                 self.port = _free_port(self.host)
             server = ModbusSerialServer(
-                self._device(), framer=FramerType.RTU, port=f"socket://{self.host}:{self.port}",
+                self._devices(), framer=FramerType.RTU, port=f"socket://{self.host}:{self.port}",
                 baudrate=115200, ignore_missing_devices=True,
             )
             await server.serve_forever(background=True)
         self._server = server
-        self._last_request = None
+        for front in self.fronts:
+            front._last_request = None
         self._watchdog = asyncio.create_task(self._watch())
         return self.port
 
@@ -207,13 +218,8 @@ class DriveModbusServer:
 
     async def _watch(self) -> None:
         while True:
-            timeout_s = self.drive.comm_timeout_ms / 1000.0
-            await asyncio.sleep(min(0.05, timeout_s / 4) if timeout_s > 0 else 0.05)
-            last = self._last_request
-            if timeout_s <= 0 or last is None or time.monotonic() - last <= timeout_s:
-                continue
-            self._last_request = None  # one reaction per silence
-            reaction = self.drive.communication_lost()
-            if reaction is not None:
-                self.watchdog_reactions.append({"reaction": reaction, "at_monotonic_s": time.monotonic(),
-                                                "silent_s": time.monotonic() - last})
+            timeouts = [f.drive.comm_timeout_ms / 1000.0 for f in self.fronts]
+            shortest = min((t for t in timeouts if t > 0), default=0.0)
+            await asyncio.sleep(min(0.05, shortest / 4) if shortest > 0 else 0.05)
+            for front in self.fronts:
+                front.check_watchdog()

@@ -42,9 +42,11 @@ class ND287Server(TcpInstrumentServer):
         unit: str = "G",
         decimals: int = 5,
         reply_delay_s: float = 0.0,
+        series: str = " ",
     ):
         super().__init__(host, port, reply_delay_s)
-        format_frame(0.0, unit=unit, decimals=decimals)  # validate the display settings now
+        format_frame(0.0, unit=unit, decimals=decimals, series=series)  # validate the display settings now
+        self.series = series  # "S": the coupled-axes display X1 − k·X2 (the second axis's transmission error)
         self.angle_arcsec = angle_arcsec
         self.power_on_unit, self.power_on_decimals = unit, int(decimals)
         self.unit, self.decimals = unit, int(decimals)
@@ -67,7 +69,7 @@ class ND287Server(TcpInstrumentServer):
 
     def frame(self) -> bytes:
         return format_frame(self.angle_arcsec() + self.datum_offset_arcsec, unit=self.unit, decimals=self.decimals,
-                            fault=self.fault == "encoder_fault")
+                            fault=self.fault == "encoder_fault", series=self.series)
 
     async def serve_connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         held = False

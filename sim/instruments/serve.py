@@ -21,15 +21,21 @@ from tcms_daq.sim.instruments.nd287 import ND287Server
 from tcms_daq.sim.instruments.physics import SharedPhysics
 
 if TYPE_CHECKING:
-    from tcms_daq.sim.instruments.drive402 import Drive402Model
+    from tcms_daq.sim.instruments.counter import CounterServer
+    from tcms_daq.sim.instruments.drive402 import Drive402Model, VelocityDrive402Model
     from tcms_daq.sim.instruments.drive_canopen import DriveCanopenNode
     from tcms_daq.sim.instruments.drive_modbus import DriveModbusServer
+    from tcms_daq.sim.instruments.drivetrain import DriveTrainPhysics
     from tcms_daq.sim.instruments.socketcand_hub import SocketcandHub
 
 log = logging.getLogger(__name__)
 
-DEFAULT_PORTS = {"nd287": 4001, "aed": 4002, "modbus": 5020, "socketcand": 29536}
-INSTRUMENTS = ("nd287", "aed", "modbus", "modbus_rtu", "canopen")
+DEFAULT_PORTS = {"nd287": 4001, "aed": 4002, "modbus": 5020, "socketcand": 29536,
+                 "input_aed": 4003, "nd287_coupled": 4004, "counter": 4005}
+#: the second axis: the input drive (on the loader's CANopen bus and Modbus server), its torque channel, the ND 287's
+#: coupled-axes display and the two-axis counter
+SECOND_AXIS = ("input_drive", "input_aed", "nd287_coupled", "counter")
+INSTRUMENTS = ("nd287", "aed", "modbus", "modbus_rtu", "canopen", *SECOND_AXIS)
 
 
 @dataclass
@@ -57,6 +63,20 @@ class SimulatorOptions:
     # Modbus silence (s) before it reacts (0 = off), and its reaction (0x6007: 1 fault, 2 disable, 3 quick stop)
     modbus_comm_timeout_s: float = 1.0
     abort_connection_option: int = 1
+    # the second axis (``SECOND_AXIS`` in ``instruments``): the reducer's ratio (None: the catalogue's), the input's
+    # friction (Coulomb N·m, viscous N·m per deg/s), the input drive (node id, rated torque, counts per input
+    # revolution), the input torque channel's nominal torque, the counter's rate and counts per revolution
+    input_ratio: float | None = None
+    input_friction_nm: float = 0.5
+    input_viscous_nm_per_deg_per_s: float = 0.0
+    input_node_id: int = 2
+    input_rated_torque_nm: float = 10.0
+    input_counts_per_rev: int = 1 << 20
+    input_modbus_map: str | None = None  # None = config/modbus-input-drive.toml (unit id 2)
+    input_aed_nominal_torque_nm: float = 50.0
+    counter_rate_hz: int = 1000
+    counter_counts_per_rev_output: int = 18_000 * 4096
+    counter_counts_per_rev_input: int = 1 << 23
 
     @staticmethod
     def from_mapping(data: dict[str, Any], **overrides: Any) -> SimulatorOptions:
@@ -97,6 +117,13 @@ class InstrumentSimulators:
         self.canopen: DriveCanopenNode | None = None
         self.hub: SocketcandHub | None = None
         self.ports: dict[str, int] = {}
+        # the second axis
+        self.drivetrain: DriveTrainPhysics | None = None
+        self.input_drive: VelocityDrive402Model | None = None
+        self.input_canopen: DriveCanopenNode | None = None
+        self.input_aed: AEDServer | None = None
+        self.nd287_coupled: ND287Server | None = None
+        self.counter: CounterServer | None = None
 
     @property
     def running_loop(self) -> LoopThread:
@@ -117,9 +144,11 @@ class InstrumentSimulators:
         self.loop = loop = LoopThread()
         try:
             want = set(opts.instruments)
+            if want & set(SECOND_AXIS):
+                self.drivetrain = self._make_drivetrain()
             if "nd287" in want:
                 self.nd287 = ND287Server(
-                    lambda: self.physics.latest().angle_arcsec,
+                    self.output_angle_arcsec,
                     host=opts.host,
                     port=opts.ports.get("nd287", 0),
                     unit=opts.nd287_unit,
@@ -138,10 +167,71 @@ class InstrumentSimulators:
                 self.ports["aed"] = loop.run(self.aed.start())
             if want & {"modbus", "modbus_rtu", "canopen"}:
                 self._start_drive(want)
+            self._start_second_axis(want)
         except BaseException:
             self.stop()
             raise
         return dict(self.ports)
+
+    def _make_drivetrain(self) -> DriveTrainPhysics:
+        """The second axis's physics: a rigid reducer with input friction (the one line to change for a richer
+        model, e.g. the core's transmission-error physics)."""
+        from tcms_daq.sim.instruments.drivetrain import RigidDriveTrain
+
+        opts = self.options
+        ratio = opts.input_ratio
+        if ratio is None:
+            reducer = getattr(self.physics.bench, "reducer", None)
+            ratio = getattr(reducer, "ratio", None)
+        if not ratio:
+            raise ValueError("the second axis needs the reducer's ratio: the catalogue entry has none, set "
+                             "[simulators] input_ratio")
+        return RigidDriveTrain(float(ratio), coulomb_friction_nm=opts.input_friction_nm,
+                               viscous_friction_nm_per_deg_per_s=opts.input_viscous_nm_per_deg_per_s)
+
+    def output_angle_arcsec(self, time_s: float | None = None) -> float:
+        """What the output encoder reads (arcsec): the bench's reading (twist under the loader, the encoder's errors)
+        plus the rotation the second axis drives through the reducer (at ``time_s``, default now)."""
+        latest = self.physics.latest()
+        if self.drivetrain is None:
+            return latest.angle_arcsec
+        return latest.angle_arcsec + self.drivetrain.output_angle_arcsec(latest.time_s if time_s is None else time_s)
+
+    def input_angle_arcsec(self, time_s: float | None = None) -> float:
+        """What the input encoder reads (arcsec of the input shaft)."""
+        if self.drivetrain is None:
+            return 0.0
+        t = self.physics.latest().time_s if time_s is None else time_s
+        return self.drivetrain.input_angle_deg(t) * 3600.0
+
+    def _start_second_axis(self, want: set[str]) -> None:
+        drivetrain = self.drivetrain
+        if drivetrain is None:
+            return
+        opts, loop = self.options, self.running_loop
+        now = lambda: self.physics.latest().time_s  # noqa: E731 - the simulated clock
+        if "input_aed" in want:
+            self.input_aed = AEDServer(lambda: drivetrain.input_torque_nm(now()),
+                                       nominal_torque_nm=opts.input_aed_nominal_torque_nm, host=opts.host,
+                                       port=opts.ports.get("input_aed", 0), reply_delay_s=opts.aed_reply_delay_s)
+            self.ports["input_aed"] = loop.run(self.input_aed.start())
+        if "nd287_coupled" in want:
+            # the display computes X1 − k·X2 from both inputs, k = 1/i as set on it (here: the drivetrain's ratio)
+            k = 1.0 / float(getattr(drivetrain, "ratio", opts.input_ratio or 1.0))
+            self.nd287_coupled = ND287Server(lambda: self.output_angle_arcsec() - k * self.input_angle_arcsec(),
+                                             host=opts.host, port=opts.ports.get("nd287_coupled", 0),
+                                             unit=opts.nd287_unit, decimals=opts.nd287_decimals,
+                                             reply_delay_s=opts.nd287_reply_delay_s, series="S")
+            self.ports["nd287_coupled"] = loop.run(self.nd287_coupled.start())
+        if "counter" in want:
+            from tcms_daq.sim.instruments.counter import CounterServer
+
+            self.counter = CounterServer(now, self.output_angle_arcsec, lambda t: drivetrain.input_angle_deg(t),
+                                         counts_per_rev_1=opts.counter_counts_per_rev_output,
+                                         counts_per_rev_2=opts.counter_counts_per_rev_input,
+                                         rate_hz=opts.counter_rate_hz, host=opts.host,
+                                         port=opts.ports.get("counter", 0))
+            self.ports["counter"] = loop.run(self.counter.start())
 
     def _start_drive(self, want: set[str]) -> None:
         from tcms_daq.sim.instruments.drive402 import Drive402Model
@@ -156,20 +246,38 @@ class InstrumentSimulators:
             comm_timeout_ms=round(opts.modbus_comm_timeout_s * 1000),
             abort_connection_option=opts.abort_connection_option,
         )
+        more: list[tuple[Drive402Model, Any]] = []
+        if "input_drive" in want and self.drivetrain is not None:
+            from tcms_daq.sim.instruments.drive402 import VelocityDrive402Model
+
+            self.input_drive = VelocityDrive402Model(
+                self.physics, self.drivetrain, counts_per_rev=opts.input_counts_per_rev,
+                rated_torque_mnm=round(opts.input_rated_torque_nm * 1000),
+                comm_timeout_ms=round(opts.modbus_comm_timeout_s * 1000),
+                abort_connection_option=opts.abort_connection_option,
+            )
         if "modbus" in want or "modbus_rtu" in want:
             from tcms_daq.sim.instruments.drive_modbus import DriveModbusServer
 
-            from tcms_daq.protocols.modbus_map import load_register_map
+            from tcms_daq.protocols.modbus_map import (
+                INPUT_DRIVE_MAP_PATH,
+                VELOCITY_REGISTERS,
+                load_register_map,
+            )
 
             regmap = load_register_map(Path(opts.modbus_map) if opts.modbus_map else None)
+            if self.input_drive is not None:
+                more.append((self.input_drive, load_register_map(
+                    Path(opts.input_modbus_map) if opts.input_modbus_map else INPUT_DRIVE_MAP_PATH,
+                    VELOCITY_REGISTERS)))
             if "modbus" in want:
                 self.modbus = modbus = DriveModbusServer(
-                    drive, regmap, host=opts.host, port=opts.ports.get("modbus", 0),
+                    drive, regmap, host=opts.host, port=opts.ports.get("modbus", 0), more=more,
                 )
                 self.ports["modbus"] = loop.run(modbus.start())
             if "modbus_rtu" in want:
                 self.modbus_rtu = modbus_rtu = DriveModbusServer(
-                    drive, regmap, host=opts.host, port=opts.ports.get("modbus_rtu", 0), framer="rtu",
+                    drive, regmap, host=opts.host, port=opts.ports.get("modbus_rtu", 0), framer="rtu", more=more,
                 )
                 self.ports["modbus_rtu"] = loop.run(modbus_rtu.start())
         if "canopen" in want:
@@ -192,12 +300,21 @@ class InstrumentSimulators:
                 drive, node_id=opts.node_id, heartbeat_ms=opts.heartbeat_ms, **bus_options
             )
             canopen_node.start()
+            if self.input_drive is not None:
+                from tcms_daq.protocols.cia402 import velocity_drive_eds_path
+
+                self.input_canopen = DriveCanopenNode(
+                    self.input_drive, node_id=opts.input_node_id, heartbeat_ms=opts.heartbeat_ms,
+                    eds=velocity_drive_eds_path(), **bus_options)
+                self.input_canopen.start()
 
     def stop(self) -> None:
-        if self.canopen is not None:
-            self.canopen.stop()
+        for node in (self.input_canopen, self.canopen):
+            if node is not None:
+                node.stop()
         if self.loop is not None:
-            for server in (self.nd287, self.aed, self.modbus, self.modbus_rtu, self.hub):
+            for server in (self.nd287, self.aed, self.modbus, self.modbus_rtu, self.input_aed, self.nd287_coupled,
+                           self.counter, self.hub):
                 if server is not None:
                     try:
                         self.loop.run(server.stop(), 5.0)
@@ -205,8 +322,9 @@ class InstrumentSimulators:
                         log.warning("stopping %s: %s", server, exc)
             self.loop.close()
             self.loop = None
-        if self.drive is not None:
-            self.drive.detach()
+        for model in (self.drive, self.input_drive):
+            if model is not None:
+                model.detach()
 
     def __enter__(self) -> InstrumentSimulators:
         self.start()
@@ -219,7 +337,8 @@ class InstrumentSimulators:
 
     def server(self, instrument: str):
         obj = {"nd287": self.nd287, "aed": self.aed, "modbus": self.modbus, "modbus_rtu": self.modbus_rtu,
-               "hub": self.hub, "socketcand": self.hub}.get(instrument)
+               "hub": self.hub, "socketcand": self.hub, "input_aed": self.input_aed,
+               "nd287_coupled": self.nd287_coupled, "counter": self.counter}.get(instrument)
         if obj is None:
             raise ValueError(f"no running simulated instrument {instrument!r}")
         return obj
@@ -231,13 +350,18 @@ class InstrumentSimulators:
         if instrument == "canopen":
             self._require(self.canopen, "CANopen drive").restart()
             return
+        if instrument == "input_canopen":
+            self._require(self.input_canopen, "CANopen input drive").restart()
+            return
         self.stop_server(instrument)
         self.start_server(instrument)
 
     def stop_server(self, instrument: str) -> None:
         """Stop one server; for ``socketcand`` the drive's CAN node goes down with the hub it is attached to."""
-        if instrument in ("socketcand", "hub") and self.canopen is not None:
-            self.canopen.stop()
+        if instrument in ("socketcand", "hub"):
+            for node in (self.canopen, self.input_canopen):
+                if node is not None:
+                    node.stop()
         self.running_loop.run(self.server(instrument).stop())
 
     def start_server(self, instrument: str) -> None:
@@ -245,14 +369,18 @@ class InstrumentSimulators:
         if instrument in ("socketcand", "hub") and self.canopen is not None:
             self._require(self.drive, "drive").power_cycle()
             self.canopen.start()
+            if self.input_canopen is not None and self.input_drive is not None:
+                self.input_drive.power_cycle()
+                self.input_canopen.start()
 
     def watchdog_reactions(self) -> list[dict[str, float | str]]:
         """What the drive's communication watchdogs did (Modbus timeout, CANopen heartbeat consumer), in order:
         ``{"link", "reaction", "at_monotonic_s", "silent_s"}``."""
         found = [{"link": "modbus", **r} for server in (self.modbus, self.modbus_rtu) if server is not None
                  for r in server.watchdog_reactions]
-        if self.canopen is not None:
-            found += [{"link": "canopen", **r} for r in self.canopen.consumer_reactions]
+        for label, node in (("canopen", self.canopen), ("input_canopen", self.input_canopen)):
+            if node is not None:
+                found += [{"link": label, **r} for r in node.consumer_reactions]
         return sorted(found, key=lambda r: float(r["at_monotonic_s"]))
 
     def inject(self, instrument: str, fault: str | None) -> None:
@@ -263,7 +391,12 @@ class InstrumentSimulators:
             if fault is None:
                 return
             self._require(self.drive, "drive").inject_fault(int(fault))
+        elif instrument == "input_drive":
+            if fault is not None:
+                self._require(self.input_drive, "input drive").inject_fault(int(fault))
         elif instrument == "canopen":
             self._require(self.canopen, "CANopen drive").inject(fault)
+        elif instrument == "input_canopen":
+            self._require(self.input_canopen, "CANopen input drive").inject(fault)
         else:
             self.server(instrument).inject(fault)

@@ -38,7 +38,7 @@ from tcms_daq.config.models import (
     ReducerSpec,
 )
 from tcms_daq.drivers import registry
-from tcms_daq.drivers.base import AngleSource, InstrumentError, Loader, TorqueSource
+from tcms_daq.drivers.base import AngleSource, InputDrive, InstrumentError, Loader, TorqueSource
 from tcms_daq.errors import ConfigError
 from tcms_daq.protocols.cia402 import POWERED_STATES
 
@@ -47,9 +47,13 @@ SAFE_TORQUE_SHARE = 0.01  # a drive is "under torque" above this share of the be
 DEFAULT_SAFE_TORQUE_NM = 20.0  # … or above this when the bench has no finite limit
 
 KINDS = ("angle", "torque", "loader")
-#: the methods of each kind's protocol (tcms_daq.drivers.base: AngleSource, TorqueSource, Loader)
+#: the second axis's instruments, each optional (a bench without them runs the stiffness test as before)
+SECOND_AXIS_KINDS = ("input_drive", "input_torque", "input_angle")
+#: the methods of each kind's protocol (tcms_daq.drivers.base: AngleSource, TorqueSource, Loader, InputDrive)
 METHODS = {"angle": ("connect", "close", "read"), "torque": ("connect", "close", "read", "tare"),
-           "loader": ("connect", "close", "enable", "disable", "set_torque", "status", "fault_reset")}
+           "loader": ("connect", "close", "enable", "disable", "set_torque", "status", "fault_reset"),
+           "input_drive": ("connect", "close", "enable", "disable", "set_velocity", "status", "fault_reset"),
+           "input_torque": ("connect", "close", "read", "tare"), "input_angle": ("connect", "close", "read")}
 
 
 #: a correction of the angle reading: (angle arcsec, torque N·m, time s) -> corrected angle arcsec
@@ -112,6 +116,11 @@ class Bench:
     interlocks: InterlocksSection = field(default_factory=InterlocksSection)  # [interlocks]: limits it replaces
     connected: bool = False
     safe_start: SafeStart | None = None  # what connect() found on the loader and did about it
+    # the second axis (optional): the input drive, the input torque channel, the input/output angle pair source
+    input_drive: InputDrive | None = None
+    input_torque: TorqueSource | None = None
+    input_angle: AngleSource | None = None
+    input_safe_start: SafeStart | None = None  # what connect() found on the input drive and did about it
 
     @property
     def safe_torque_nm(self) -> float:
@@ -125,8 +134,14 @@ class Bench:
             return self.compensator.apply(angle_arcsec, torque_nm, time_s)
         return self.compensator(angle_arcsec, torque_nm, time_s)
 
-    def instruments(self) -> dict[str, AngleSource | TorqueSource | Loader]:
-        return {"angle": self.angle, "torque": self.torque, "loader": self.loader}
+    def instruments(self) -> dict[str, AngleSource | TorqueSource | Loader | InputDrive]:
+        found: dict[str, AngleSource | TorqueSource | Loader | InputDrive] = {
+            "angle": self.angle, "torque": self.torque, "loader": self.loader}
+        for kind in SECOND_AXIS_KINDS:
+            drv = getattr(self, kind)
+            if drv is not None:
+                found[kind] = drv
+        return found
 
     def set_specimen(self, reducer: ReducerSpec) -> bool:
         """Tell a simulated bench which reducer is mounted (its physics follows the request); a real bench has
@@ -155,6 +170,56 @@ class Bench:
             raise
         self.connected = True
         self.safe_start = self.make_safe()
+        if self.input_drive is not None:
+            self.input_safe_start = self.make_input_drive_safe()
+
+    def make_input_drive_safe(self) -> SafeStart:
+        """The safe start of the second axis: the input drive's state and velocity are read first; one found enabled
+        (turning or not) is ramped to rest and disabled, one in FAULT is reported. ``found_torque_nm`` and
+        ``final_torque_nm`` carry nothing here (None): the message says the velocity. Never raises."""
+        drive = self.input_drive
+        assert drive is not None
+        name = getattr(drive, "name", "input drive")
+        try:
+            found = drive.status()
+        except InstrumentError as exc:
+            report = SafeStart(None, None, 0, [], False, f"safe start: cannot read {name}: {exc}", 0.0)
+            log.error("%s", report.message)
+            return report
+        what = (f"{name} found {found.state}{f' 0x{found.error_code:04X}' if found.fault else ''} at "
+                f"{found.velocity_deg_per_s:.1f} deg/s")
+        actions: list[str] = []
+        final = found
+        if found.state in POWERED_STATES:
+            try:
+                drive.disable()
+                actions.append("velocity 0 (ramped), disabled")
+                final = drive.status()
+            except InstrumentError as exc:
+                actions.append(f"failed: {exc}")
+        safe = final.state not in POWERED_STATES
+        if not actions:
+            message = f"safe start: {what}: safe{' (stopped; the next test resets the fault)' if found.fault else ''}"
+        elif safe:
+            message = f"safe start: {what}: brought to {final.state} at {final.velocity_deg_per_s:.1f} deg/s"
+        else:
+            message = f"safe start: {what}: NOT safe ({'; '.join(actions)}; now {final.state})"
+        report = SafeStart(found.state, None, found.error_code if found.fault else 0, actions, safe, message, 0.0,
+                           final.state, None)
+        log.log(logging.WARNING if actions or found.fault or not safe else logging.INFO, "%s", message)
+        return report
+
+    def stop_input_drive(self) -> None:
+        """Bring the input drive to rest and disable it if it is powered (every exit path of a method that turned
+        it); logs and swallows a failure (its own watchdog stops a drive whose link is gone)."""
+        drive = self.input_drive
+        if drive is None:
+            return
+        try:
+            if drive.status().state in POWERED_STATES:
+                drive.disable()
+        except InstrumentError as exc:
+            log.error("%s: could not stop the input drive: %s", getattr(drive, "name", "input drive"), exc)
 
     def make_safe(self) -> SafeStart:
         """Safe start: read the loader's state and torque first; one enabled or under torque is ramped to zero
@@ -198,6 +263,8 @@ class Bench:
         return report
 
     def close(self) -> None:
+        if self.connected:
+            self.stop_input_drive()
         for drv in self.instruments().values():
             try:
                 drv.close()
@@ -243,9 +310,14 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
         physics_factory=physics_factory)
     drivers: dict[str, object] = {}
     description: dict[str, Any] = {}
-    for kind in KINDS:
-        instrument: InstrumentConfig = getattr(config.instruments, kind)
+    for kind in (*KINDS, *SECOND_AXIS_KINDS):
+        instrument: InstrumentConfig | None = getattr(config.instruments, kind)
+        if instrument is None:
+            continue
         driver_name = instrument.driver
+        if kind in SECOND_AXIS_KINDS and driver_name == "virtual":
+            raise ConfigError(f"bench config: [instruments.{kind}]: the in-process virtual bench has no second axis "
+                              "(use the protocol simulators: tcms sim serve --second-axis)")
         cls = registry.driver_class(driver_name)
         options = instrument.options
         if not isinstance(options, registry.options_model(driver_name)):
@@ -263,7 +335,7 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
         description[kind] = {"driver": driver_name, **options.model_dump(mode="json", exclude_defaults=True),
                              "url": options.url}
 
-    sources = [getattr(d, "time_source", None) for d in drivers.values()]
+    sources = [getattr(drivers[kind], "time_source", None) for kind in KINDS]
     shared = sources[0]
     if shared is not None and all(s is not None for s in sources):
         if any(s is not shared for s in sources):
@@ -290,7 +362,9 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
     return Bench(cast(AngleSource, drivers["angle"]), cast(TorqueSource, drivers["torque"]),
                  cast(Loader, drivers["loader"]), clock, compensator,
                  name=section.name, max_torque_nm=section.max_torque_nm, description=description,
-                 interlocks=config.interlocks)
+                 interlocks=config.interlocks, input_drive=cast("InputDrive | None", drivers.get("input_drive")),
+                 input_torque=cast("TorqueSource | None", drivers.get("input_torque")),
+                 input_angle=cast("AngleSource | None", drivers.get("input_angle")))
 
 
 def read_bench_config(path: str | Path) -> BenchConfig:

@@ -40,7 +40,8 @@ def apply_sim_urls(args: argparse.Namespace) -> None:
     config = resolve_config_path(args.config) if args.config is not None else default_bench_config_path()
     by_driver = read_sim_urls(Path(path))
     instruments = read_toml(config).get("instruments", {})
-    found = [f"instruments.{name}.url={by_driver[section['driver']]}"
+    # a second instrument of one driver (the input torque AED) is served at its own URL: "<driver>@<kind>"
+    found = [f"instruments.{name}.url={by_driver.get(section['driver'] + '@' + name) or by_driver[section['driver']]}"
              for name, section in instruments.items()
              if isinstance(section, dict) and section.get("driver") in by_driver]
     if not found:

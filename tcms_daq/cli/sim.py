@@ -44,6 +44,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--modbus-rtu-port", type=int,
                        help="also serve Modbus RTU framing over TCP on this port (socket:// URL for the driver)")
     serve.add_argument("--socketcand-port", type=int, help="socketcand hub port (default 29536)")
+    serve.add_argument("--input-aed-port", type=int, help="the second axis's input torque AED port (default 4003)")
+    serve.add_argument("--nd287-coupled-port", type=int, help="the ND 287 in coupled mode X1 − k·X2 (default 4004)")
+    serve.add_argument("--counter-port", type=int, help="the two-axis counter interface (default 4005)")
+    serve.add_argument("--second-axis", action="store_true",
+                       help="also the second axis: the input drive (CANopen node 2, Modbus unit 2), its AED, the "
+                       "ND 287 in coupled mode and the two-axis counter")
     serve.add_argument("--can-channel", help="CAN channel name on the hub (default can0)")
     serve.add_argument("--node-id", type=int, help="CANopen node id of the drive (default 1)")
     serve.add_argument("--control-port", type=int,
@@ -64,9 +70,12 @@ def _options(args: argparse.Namespace, cfg: Any):
     table = cfg.simulators.settings()
     ports = dict(table.pop("ports", {}) or {})
     if args.free_ports:
-        ports.update(dict.fromkeys(("nd287", "aed", "modbus", "socketcand"), 0))
+        ports.update(dict.fromkeys(("nd287", "aed", "modbus", "socketcand", "input_aed", "nd287_coupled", "counter"),
+                                   0))
     for key, value in (("nd287", args.nd287_port), ("aed", args.aed_port), ("modbus", args.modbus_port),
-                       ("socketcand", args.socketcand_port), ("modbus_rtu", args.modbus_rtu_port)):
+                       ("socketcand", args.socketcand_port), ("modbus_rtu", args.modbus_rtu_port),
+                       ("input_aed", args.input_aed_port), ("nd287_coupled", args.nd287_coupled_port),
+                       ("counter", args.counter_port)):
         if value is not None:
             if not 0 <= value <= 65535:
                 raise ConfigError(f"--{key.replace('_', '-')}-port must be 0…65535, got {value}")
@@ -74,6 +83,10 @@ def _options(args: argparse.Namespace, cfg: Any):
     instruments = list(table.pop("instruments", ("nd287", "aed", "modbus", "canopen")))
     if args.modbus_rtu_port is not None and "modbus_rtu" not in instruments:
         instruments.append("modbus_rtu")
+    if args.second_axis:
+        from tcms_daq.sim.instruments.serve import SECOND_AXIS
+
+        instruments += [name for name in SECOND_AXIS if name not in instruments]
     overrides = {"host": args.host, "can_channel": args.can_channel, "node_id": args.node_id}
     try:
         return SimulatorOptions.from_mapping({**table, "ports": ports, "instruments": instruments}, **overrides)
@@ -94,11 +107,23 @@ def _urls(opts, ports: dict[str, int]) -> dict[str, str]:
         urls["loader_modbus_rtu"] = f"socket://{host}:{ports['modbus_rtu']}"
     if "socketcand" in ports:
         urls["loader_canopen"] = f"socketcand://{host}:{ports['socketcand']}/{opts.can_channel}"
+    if "input_drive" in opts.instruments:  # the input drive shares the loader's bus and Modbus server
+        if "modbus" in ports:
+            urls["input_drive_modbus"] = urls["loader_modbus"]
+        if "socketcand" in ports:
+            urls["input_drive_canopen"] = urls["loader_canopen"]
+    for name, key in (("input_aed", "input_torque"), ("nd287_coupled", "input_angle_nd287"),
+                      ("counter", "input_angle_counter")):
+        if name in ports:
+            urls[key] = f"socket://{host}:{ports[name]}"
     return urls
 
 
 #: the driver (a bench config's instruments.*.driver) each simulator URL serves (tcms … --sim-urls)
-DRIVER_URLS = {"nd287": "angle", "aed": "torque", "cia402-canopen": "loader_canopen", "cia402-modbus": "loader_modbus"}
+DRIVER_URLS = {"nd287": "angle", "aed": "torque", "cia402-canopen": "loader_canopen", "cia402-modbus": "loader_modbus",
+               "cia402-velocity-canopen": "input_drive_canopen", "cia402-velocity-modbus": "input_drive_modbus",
+               "nd287-coupled": "input_angle_nd287", "counter-2axis": "input_angle_counter",
+               "aed@input_torque": "input_torque"}
 
 
 def _serve(args: argparse.Namespace) -> int:

@@ -349,13 +349,19 @@ class LoaderInstrumentConfig(InstrumentConfig):
 
 
 class InstrumentsConfig(BaseModel):
-    """[instruments]: the angle source, the torque source and the loader."""
+    """[instruments]: the angle source, the torque source and the loader; optionally the second axis (a bench
+    without it runs the stiffness test as before): ``input_drive`` (CiA 402 profile velocity), ``input_torque`` (a
+    second torque amplifier between the input drive and the reducer) and ``input_angle`` (the ND 287 in coupled
+    mode, or the two-axis counter)."""
 
     model_config = ConfigDict(extra="forbid")
 
     angle: AngleInstrumentConfig = Field(default_factory=lambda: AngleInstrumentConfig.model_validate({}))
     torque: TorqueInstrumentConfig = Field(default_factory=lambda: TorqueInstrumentConfig.model_validate({}))
     loader: LoaderInstrumentConfig = Field(default_factory=lambda: LoaderInstrumentConfig.model_validate({}))
+    input_drive: InstrumentConfig | None = None
+    input_torque: InstrumentConfig | None = None
+    input_angle: InstrumentConfig | None = None
 
 
 class InterlocksSection(BaseModel):
@@ -614,7 +620,8 @@ class SimulatorsSection(BaseModel):
 
     host: str | None = Field(None, min_length=1)
     ports: dict[str, int] | None = None
-    instruments: list[Literal["nd287", "aed", "modbus", "canopen", "modbus_rtu"]] | None = None
+    instruments: list[Literal["nd287", "aed", "modbus", "canopen", "modbus_rtu", "input_drive", "input_aed",
+                              "nd287_coupled", "counter"]] | None = None
     nd287_unit: str | None = None
     nd287_decimals: int | None = Field(None, ge=0, le=9)
     nd287_reply_delay_s: float | None = Field(None, ge=0.0)
@@ -630,6 +637,18 @@ class SimulatorsSection(BaseModel):
     modbus_map: str | None = None
     modbus_comm_timeout_s: float | None = Field(None, ge=0.0)
     abort_connection_option: Literal[0, 1, 2, 3] | None = None
+    # the second axis (instruments input_drive, input_aed, nd287_coupled, counter): sim.instruments.serve
+    input_ratio: float | None = Field(None, gt=0.0)
+    input_friction_nm: float | None = Field(None, ge=0.0)
+    input_viscous_nm_per_deg_per_s: float | None = Field(None, ge=0.0)
+    input_node_id: int | None = Field(None, ge=1, le=127)
+    input_rated_torque_nm: float | None = Field(None, gt=0.0)
+    input_counts_per_rev: int | None = Field(None, gt=0)
+    input_modbus_map: str | None = None
+    input_aed_nominal_torque_nm: float | None = Field(None, gt=0.0)
+    counter_rate_hz: int | None = Field(None, ge=1, le=20_000)
+    counter_counts_per_rev_output: int | None = Field(None, gt=0)
+    counter_counts_per_rev_input: int | None = Field(None, gt=0)
 
     def settings(self) -> dict[str, object]:
         """The keys this table sets."""

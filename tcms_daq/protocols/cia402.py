@@ -7,8 +7,10 @@ from importlib import resources
 from pathlib import Path
 
 MODE_PROFILE_POSITION = 1  # moves of the output between the positions of a multi-position test
+MODE_PROFILE_VELOCITY = 3  # the input drive of the second axis: target velocity 0x60FF, velocity actual 0x606C
 MODE_PROFILE_TORQUE = 4
 SUPPORTED_MODES = 0x0009  # 0x6502: bit 0 profile position, bit 3 profile torque
+SUPPORTED_MODES_VELOCITY = 0x0004  # 0x6502 of the input drive: bit 2 profile velocity
 
 CW_NEW_SET_POINT = 0x0010  # controlword bit 4 (profile position): a rising edge starts the move to 0x607A
 SW_TARGET_REACHED = 0x0400  # statusword bit 10
@@ -85,3 +87,8 @@ def to_int16(value: int) -> int:
 def drive_eds_path() -> Path:
     """The EDS of the (simulated and the example real) CiA 402 drive, shipped as package data."""
     return Path(str(resources.files(__package__).joinpath("drive402.eds")))
+
+
+def velocity_drive_eds_path() -> Path:
+    """The EDS of the (simulated) input drive in profile velocity (mode 3), shipped as package data."""
+    return Path(str(resources.files(__package__).joinpath("drive402-velocity.eds")))

@@ -10,10 +10,13 @@ from tcms_daq.config.loader import packaged_config_dir, read_toml
 from tcms_daq.errors import ConfigError
 
 DEFAULT_MAP_PATH = packaged_config_dir() / "modbus-drive.toml"
-REQUIRED_REGISTERS = (
-    "controlword", "statusword", "error_code", "mode", "mode_display", "position_actual",
-    "target_torque", "max_torque", "torque_actual", "torque_slope", "rated_torque",
-)
+INPUT_DRIVE_MAP_PATH = packaged_config_dir() / "modbus-input-drive.toml"  # the second axis's velocity drive
+COMMON_REGISTERS = ("controlword", "statusword", "error_code", "mode", "mode_display", "position_actual",
+                    "rated_torque")
+REQUIRED_REGISTERS = (*COMMON_REGISTERS, "target_torque", "max_torque", "torque_actual", "torque_slope")  # loader
+#: the registers an input drive's map must have (profile velocity)
+VELOCITY_REGISTERS = (*COMMON_REGISTERS, "target_velocity", "velocity_actual", "max_profile_velocity",
+                      "profile_acceleration", "profile_deceleration", "quick_stop_deceleration")
 TYPES = {"uint16": (1, False), "int16": (1, True), "uint32": (2, False), "int32": (2, True)}
 
 
@@ -73,8 +76,9 @@ class RegisterMap:
         return raw
 
 
-def load_register_map(path: Path | str | None = None) -> RegisterMap:
-    """Read and validate a register map TOML (default: the packaged ``modbus-drive.toml``)."""
+def load_register_map(path: Path | str | None = None, required: tuple[str, ...] = REQUIRED_REGISTERS) -> RegisterMap:
+    """Read and validate a register map TOML (default: the packaged ``modbus-drive.toml``); ``required``: the
+    registers it must have (the loader's by default, ``VELOCITY_REGISTERS`` for an input drive)."""
     path = Path(path) if path is not None else DEFAULT_MAP_PATH
     data = read_toml(path)
     modbus = data.get("modbus", {})
@@ -97,7 +101,7 @@ def load_register_map(path: Path | str | None = None) -> RegisterMap:
         if access not in ("rw", "ro"):
             raise ConfigError(f"{path}: [registers] {name}: access must be 'rw' or 'ro'")
         registers[name] = RegisterSpec(name, address, entry["type"], access == "rw", entry.get("object"))
-    missing = [n for n in REQUIRED_REGISTERS if n not in registers]
+    missing = [n for n in required if n not in registers]
     if missing:
         raise ConfigError(f"{path}: [registers] lacks {', '.join(missing)}")
     taken: dict[int, str] = {}

@@ -55,9 +55,16 @@ def value_to_arcsec(value: float, unit: bytes) -> float:
     raise ValueError(f"unit {unit!r} is not an angle unit (G, R, M)")
 
 
-def format_frame(angle_arcsec: float, *, unit: str = "G", decimals: int = 5, fault: bool = False) -> bytes:
+#: the series character of the ND 287's coupled-axes display X1 − X2 (with its X2 scaling factor: X1 − k·X2);
+#: '1'/'2' are the single inputs, 'A' X1 + X2, 'F' f(X1, X2) (protocols.md §1.3)
+SERIES_COUPLED_DIFFERENCE = "S"
+
+
+def format_frame(angle_arcsec: float, *, unit: str = "G", decimals: int = 5, fault: bool = False,
+                 series: str = " ") -> bytes:
     """The 17-byte frame for an angle in arcsec; ``fault`` gives unit '?' (value field still filled); a value
-    too wide for the 10-character field is reported as a fault."""
+    too wide for the 10-character field is reported as a fault; ``series`` is the frame's last character before
+    CR LF (blank, or what the display shows: ``S`` for the coupled X1 − X2)."""
     if unit == "G":
         value = angle_arcsec / ARCSEC_PER_DEG
     elif unit == "R":
@@ -70,4 +77,6 @@ def format_frame(angle_arcsec: float, *, unit: str = "G", decimals: int = 5, fau
     if len(field) != 10:
         field, fault = "9" * 10, True
     sign = "-" if value < 0 and float(field) != 0.0 else "+"
-    return f"{sign}{field} {'?' if fault else unit}  \r\n".encode("ascii")
+    if len(series) != 1:
+        raise ValueError(f"series must be one character, got {series!r}")
+    return f"{sign}{field} {'?' if fault else unit} {series}\r\n".encode("ascii")

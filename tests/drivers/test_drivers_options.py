@@ -10,14 +10,18 @@ from pydantic import ValidationError
 from tcms_daq.drivers.aed import AED
 from tcms_daq.drivers.cia402_canopen import CiA402Canopen
 from tcms_daq.drivers.cia402_modbus import CiA402Modbus
-from tcms_daq.drivers.nd287 import ND287
+from tcms_daq.drivers.cia402_velocity import CiA402VelocityCanopen, CiA402VelocityModbus
+from tcms_daq.drivers.counter import Counter2Axis
+from tcms_daq.drivers.nd287 import ND287, ND287Coupled
 from tcms_daq.drivers.options import CiA402CanopenOptions, CiA402ModbusOptions, ND287Options
 
 from tcms_daq.config.drivers import OPTIONS_BLOCK, fill_options_tables, names, options_model
 from tcms_daq.config.models import DriverOptions
 
 ROOT = Path(__file__).resolve().parents[2]
-HARDWARE = {"nd287": ND287, "aed": AED, "cia402-canopen": CiA402Canopen, "cia402-modbus": CiA402Modbus}
+HARDWARE = {"nd287": ND287, "aed": AED, "cia402-canopen": CiA402Canopen, "cia402-modbus": CiA402Modbus,
+            "cia402-velocity-canopen": CiA402VelocityCanopen, "cia402-velocity-modbus": CiA402VelocityModbus,
+            "nd287-coupled": ND287Coupled, "counter-2axis": Counter2Axis}
 
 
 def test_every_registered_driver_declares_an_options_model_that_forbids_unknown_keys():
@@ -69,6 +73,7 @@ def test_hardware_md_examples_are_valid_instrument_tables():
     text = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8")
     examples = [tomllib.loads(block) for block in re.findall(r"```toml\n(.*?)```", text, re.S)]
     tables = [ex["instruments"] for ex in examples if "instruments" in ex]
-    assert {kind for t in tables for kind in t} == {"angle", "torque", "loader"}
+    assert {kind for t in tables for kind in t} == {"angle", "torque", "loader", "input_drive", "input_torque",
+                                                    "input_angle"}
     for table in tables:
         InstrumentsConfig.model_validate(table)
