@@ -28,6 +28,21 @@ def test_load_direction_ignores_noise_and_finds_reversals():
     assert d[50] == 1 and d[250] == -1
 
 
+def test_a_hold_at_the_tip_stays_on_the_branch_it_ends():
+    """The reducer turns when the torque moves back, not at the hold's highest noise reading: measured from that
+    reading, one a noise sigma low had left the tip already, and a 0.2 s hold at 50 Hz (the service's tip hold)
+    turned up to 9 rows early — a hidden 2″ backlash then stood 2″ off on those rows."""
+    early = []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        ramp = np.arange(-600.0, 600.0, 12.0)  # 600 N·m/s at 50 Hz
+        torque = np.concatenate((ramp, np.full(10, 600.0), ramp[::-1], np.full(10, -600.0), ramp))
+        torque = torque + rng.normal(0.0, 0.3, len(torque))
+        turns = np.flatnonzero(np.diff(load_direction(torque))) + 1
+        early.append([len(ramp) + 10 - int(turns[0]), 2 * len(ramp) + 21 - int(turns[1])])  # ramp[0] is a hold row
+    assert np.all(np.array(early) == 0), early
+
+
 def test_loops_between_torque_minima():
     torque = triangle(n_loops=5)
     d = load_direction(torque)
