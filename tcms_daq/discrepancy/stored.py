@@ -6,6 +6,7 @@ Pure: the model is injected (:class:`ForwardModel`); reading the run from the st
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -138,7 +139,8 @@ class ForwardModel(Protocol):
         ...
 
 
-def resimulate(measured: Samples, model: ForwardModel) -> Samples:
+def resimulate(measured: Samples, model: ForwardModel,
+               effects: Callable[[Samples], Samples] | None = None) -> Samples:
     """The reducer's forward model on the measured torque trace: the "simulated" side of a stored run.
 
     The torque is smoothed (:func:`applied_torque_estimate`). The reducer's friction (hysteresis) state at the
@@ -146,8 +148,11 @@ def resimulate(measured: Samples, model: ForwardModel) -> Samples:
     several loops to settle (a model started virgin is off by arcseconds for the whole run). The model's angle is
     linear in that state, so the state is fitted by least squares (one number within the physical ±hysteresis
     half-width; its influence decays over the first load reversals), beside nuisance terms in time, torque and
-    angle that keep a drift, a torsion or a scale error out of it. The returned torque column is the measured
-    one.
+    angle that keep a drift, a torsion or a scale error out of it. ``effects`` adds the terms of the bench model
+    in use to a simulated run: the state is then fitted against the model with them, so an effect already known
+    (a cubic stiffness, a skew) is not taken for part of the state (run 2 of the service's closed loop, which
+    starts where run 1 left the reducer, kept a transition of up to 0.2″ over its first branch). The returned
+    angle is the forward model's alone, and the torque column is the measured one.
     """
     torque = applied_torque_estimate(measured.time_s, measured.torque_nm)
     virgin = model.twist_arcsec(torque)
@@ -160,8 +165,12 @@ def resimulate(measured: Samples, model: ForwardModel) -> Samples:
         # model's own angle (a scale error) — so an effect the workflow is to find is not taken for the
         # settling state (it would leave a decaying transition after the reversals instead of a clean term)
         t = measured.time_s - float(np.mean(measured.time_s))
-        design = np.column_stack([unit, np.ones_like(unit), t, torque, virgin])
-        z0 = float(np.linalg.lstsq(design, measured.angle_arcsec - virgin, rcond=None)[0][0])
+        base, response = virgin, unit
+        if effects is not None:  # the terms are (nearly) affine in the angle: their response to the state too
+            base = effects(Samples(measured.time_s, measured.torque_nm, virgin)).angle_arcsec
+            response = effects(Samples(measured.time_s, measured.torque_nm, virgin + unit)).angle_arcsec - base
+        design = np.column_stack([response, np.ones_like(unit), t, torque, virgin])
+        z0 = float(np.linalg.lstsq(design, measured.angle_arcsec - base, rcond=None)[0][0])
         angle = virgin + float(np.clip(z0, -half_width, half_width)) * unit
     return Samples(measured.time_s, measured.torque_nm, angle)
 
