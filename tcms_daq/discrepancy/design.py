@@ -9,6 +9,7 @@ at t + τ).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -236,8 +237,33 @@ class DesignData:
         order = np.argsort(self.segments, kind="stable")
         return np.split(order, np.flatnonzero(np.diff(self.segments[order])) + 1)
 
+    @cached_property
+    def _angle_interpolants(self) -> dict[int, Callable[[np.ndarray], np.ndarray]]:
+        from scipy.interpolate import PchipInterpolator
+
+        out: dict[int, Callable[[np.ndarray], np.ndarray]] = {}
+        for idx in self.segment_rows:
+            t, a = self.time_s[idx], self.sim_angle_arcsec[idx]
+            if len(idx) >= 2 and np.all(np.diff(t) > 0):
+                out[int(self.segments[idx[0]])] = PchipInterpolator(t, a, extrapolate=False)
+            else:  # time not strictly increasing: linear pieces
+                out[int(self.segments[idx[0]])] = _linear_pieces(t, a)
+        return out
+
+    def angle_interpolant(self, segment: int) -> Callable[[np.ndarray], np.ndarray]:
+        """The simulated angle (″) of time-continuous segment ``segment`` as a function of time within it:
+        monotone cubic pieces (PCHIP, no overshoot at a reversal), built once per segment."""
+        return self._angle_interpolants[segment]
+
     def __len__(self) -> int:
         return len(self.torque_nm)
+
+
+def _linear_pieces(x: np.ndarray, y: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    def at(q: np.ndarray) -> np.ndarray:
+        return np.asarray(np.interp(q, x, y), dtype=float)
+
+    return at
 
 
 def build_design(measured: Samples, simulated: Samples, *, signal_period_arcsec: float = 72.0,
