@@ -306,28 +306,25 @@ def _value(nl: float | None, name: str) -> float:
 
 def skew_shift(data: DesignData, skew_s: float, rows: np.ndarray | None = None) -> np.ndarray:
     """θ_sim(t + τ) − θ_sim(t), interpolating the simulated angle in time within each continuous segment
-    (at ``rows`` only, if given)."""
-    if rows is None:
-        out = np.zeros(len(data))
-        for idx in data.segment_rows:
-            if len(idx) < 2:
-                continue
-            t = data.time_s[idx]
-            th = data.sim_angle_arcsec[idx]
-            out[idx] = np.interp(t + skew_s, t, th) - th
-        return out
-    out = np.zeros(len(rows))
-    seg = data.segments[rows]
+    (at ``rows`` only, if given) by monotone cubic pieces (PCHIP: no overshoot at a reversal). Linear pieces cut
+    the corner of the lost-motion zone where it is crossed in one or two samples (600 N·m/s at 50 Hz: 12 N·m a
+    sample against a 10.8 N·m zone): up to 0.6″ off at each zero crossing, spikes that kept run 2 of a hidden
+    10 ms skew ``unexplained`` in the service's closed loop; 0.26″ with PCHIP."""
+    out = np.zeros(len(data) if rows is None else len(rows))
+    seg = None if rows is None else data.segments[rows]
     for idx in data.segment_rows:
         if len(idx) < 2:
             continue
-        mine = np.flatnonzero(seg == data.segments[idx[0]])
-        if len(mine) == 0:
-            continue
+        if rows is None:
+            mine, at = idx, idx
+        else:
+            mine = np.flatnonzero(seg == data.segments[idx[0]])
+            if len(mine) == 0:
+                continue
+            at = rows[mine]
         t = data.time_s[idx]
-        th = data.sim_angle_arcsec[idx]
-        r = rows[mine]
-        out[mine] = np.interp(data.time_s[r] + skew_s, t, th) - data.sim_angle_arcsec[r]
+        shifted = data.angle_interpolant(int(data.segments[idx[0]]))(np.clip(data.time_s[at] + skew_s, t[0], t[-1]))
+        out[mine] = shifted - data.sim_angle_arcsec[at]
     return out
 
 

@@ -9,6 +9,7 @@ implements it over the acquisition layer; swapping the procedure implementation 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,7 +105,10 @@ class BenchRunner:
     steps between tests, and a test holds ``_clock_lock`` for its whole run so exactly one thread drives the
     clock. ``sim_speed`` sets simulated seconds per real second; the idle pump lets one step of ``idle_step_s``
     pass at a time (default ``IDLE_STEP_PERIODS`` loop steps: on a paced clock about 40 ms of real time, the live
-    view's frame period, so an idle service wakes 25 times a real second whatever the speed).
+    view's frame period, so an idle service wakes 25 times a real second whatever the speed). A test that waits for
+    the clock gets it at the pump's next step (``_test_waiting``): a lock is not fair, and the pump, taking it
+    again as soon as it let it go, kept a test waiting for seconds of real time on a loaded machine (hundreds of
+    simulated seconds at 40×).
     """
 
     channels = RUN_CHANNELS
@@ -120,6 +124,7 @@ class BenchRunner:
         self.acq: Any = None
         self._live: BatchSink | None = None
         self._clock_lock = threading.Lock()
+        self._test_waiting = threading.Event()  # a test waits for the clock: the idle pump steps aside
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._live_sub: Any = None
@@ -191,6 +196,9 @@ class BenchRunner:
     def _pump_idle_clock(self) -> None:
         """Between tests, let simulated time pass (paced by the clock's speed) so the live view keeps moving."""
         while not self._stop.is_set():
+            if self._test_waiting.is_set():
+                time.sleep(0.005)
+                continue
             if not self._clock_lock.acquire(timeout=0.1):
                 continue
             try:
@@ -369,9 +377,16 @@ class BenchRunner:
                 else:
                     on_phase(msg.event, **msg.details)
 
-        # lossless, delivered on its own thread; close() lets it hand over what is queued, then joins it
-        sub = self.acq.fanout.subscribe_callback(handle, name=f"store-{run_id}", maxsize=None)
-        with self._clock_lock:
+        self._test_waiting.set()
+        try:
+            self._clock_lock.acquire()
+        finally:
+            self._test_waiting.clear()
+        try:
+            # subscribed once the test has the clock: what the idle pump stepped before is not the run's (a run
+            # that began with minutes of idle bench at zero torque was re-simulated from a wrong friction state)
+            # lossless, delivered on its own thread; close() lets it hand over what is queued, then joins it
+            sub = self.acq.fanout.subscribe_callback(handle, name=f"store-{run_id}", maxsize=None)
             if self.bench.set_specimen(payload.reducer):
                 on_phase("specimen", reducer=payload.reducer.name)
             try:
@@ -390,6 +405,8 @@ class BenchRunner:
                 # before the idle clock resumes: nothing after the run reaches the store
                 sub.close(join_timeout_s=30.0)
                 self._resync_clock()
+        finally:
+            self._clock_lock.release()
         lost = [e for e in self.acq.fanout.callback_errors if e.startswith(f"{sub.name}: ")]
         if lost:  # a sample batch or phase did not reach the store
             return RunOutcome("failed", error=f"recording failed: {lost[0]}", results=result.evaluation)

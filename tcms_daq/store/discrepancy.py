@@ -87,13 +87,17 @@ def pair_from_store(store: Store, run_id: str, model_for: ModelForReducer, where
     if name is None:
         raise DataFormatError(f"run {run_id!r} does not record its reducer: cannot re-simulate it")
     measured = Samples(measured.time_s, measured.torque_nm, measured.angle_arcsec)
-    simulated = resimulate(measured, model_for(name))  # the whole run, so the model's loop state is its own
+    terms = (DiscrepancyModel(0.0, effects_model.signal_period_arcsec, effects_model.terms)
+             if effects_model is not None and effects_model.terms else None)
+
+    def with_terms(run: Samples) -> Samples:
+        return apply_model(terms, run) if terms is not None else run
+
+    # the whole run, so the model's loop state is its own; its initial state fitted against the model in use
+    simulated = resimulate(measured, model_for(name), with_terms if terms is not None else None)
     start = first_branch_end(measured.torque_nm)  # compared from the first reversal: the state before is unknown
     measured, simulated = measured.select(slice(start, None)), simulated.select(slice(start, None))
-    if effects_model is not None and effects_model.terms:
-        simulated = apply_model(DiscrepancyModel(0.0, effects_model.signal_period_arcsec, effects_model.terms),
-                                simulated)
-    return measured, simulated
+    return measured, with_terms(simulated)
 
 
 def suggested_runs(result: DiscrepancyResult, record: StoredRun | None, measured: Samples) -> list[dict[str, Any]]:
