@@ -1,0 +1,396 @@
+"""GUM budgets (JCGM 100) of the turning tests: transmission error, starting torque, no-load torque, efficiency.
+
+The arithmetic is the stiffness test's (``tcms_daq.uncertainty.budget.combine``: GTC, Welch–Satterthwaite, t-based
+k for 95 %), the lines as there: Type A from the record (the scatter of ramps or whole-revolution blocks; for the
+transmission error the noise around each line of the spectrum), Type B from the declared chain
+(``[uncertainty.station]``, ``StationUncertainty``) with sensitivities through the evaluation itself where the error
+enters the record in a known way (a torque scale or zero, the skew between the two angle readings: the record is
+perturbed by ± the step and evaluated again, central differences).
+
+Transmission error (per direction's peak-to-peak, the larger of the two, and each order's amplitude):
+
+* noise — each line's amplitude has u = √(E|A|²/2) from the noise bins around it; the peak-to-peak's is the scatter
+  of the peak-to-peak over draws of all lines' coefficients with that noise (Type A, ~100 noise bins: 100 dof);
+* lines below the detection threshold — a line of at most the threshold amplitude A_th may have been left out; it
+  moves the peak-to-peak by at most 2·A_th (rectangular);
+* output encoder — its error over the revolution (``output_encoder_u_arcsec``, RMS, at orders ≤ 2: mounting and
+  graduation) and above (``output_encoder_high_order_u_arcsec``); a line can hold up to √2 × the RMS; the
+  peak-to-peak's sensitivity √2 (its error at the maximum and at the minimum);
+* input encoder — its error (input arcsec, RMS over an input revolution) reaches the TE divided by i, at the input's
+  order and its 2×;
+* synchronisation — the input angle latched ±``sync_skew_u_s`` later, evaluated again with the same orders: it
+  carries the measured speed and its ripple (a constant skew at a constant speed only shifts the TE);
+* speed ripple — the record resampled onto the angle grid linearly instead of by a cubic spline, evaluated again:
+  half the difference, rectangular (the samples are uneven in angle by the speed ripple).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from GTC import type_a
+from threadpoolctl import threadpool_limits
+
+from tcms_daq.analysis.noise import white_noise_std
+from tcms_daq.config.models import StationUncertainty, TorqueUncertainty
+from tcms_daq.errors import EvaluationError
+from tcms_daq.transmission.kinematics import Teeth
+from tcms_daq.transmission.te import (
+    FALSE_ALARM,
+    TeDirection,
+    TeEvaluation,
+    TeLine,
+    TeRecord,
+    evaluate_transmission_error,
+    te_records,
+)
+from tcms_daq.transmission.torque import (
+    EfficiencyEvaluation,
+    NoLoadTorqueEvaluation,
+    StartingTorqueEvaluation,
+    evaluate_efficiency,
+    evaluate_no_load_torque,
+    evaluate_starting_torque,
+)
+from tcms_daq.uncertainty.budget import Budget, Contribution, combine
+
+NOISE_DOF = 100.0  # the noise level of a line comes from ~130 bins around it
+NOISE_DRAWS = 100
+NOISE_SEED = 20_261_127
+BOOTSTRAP_DRAWS = 8
+
+Arrays = dict[str, np.ndarray]
+
+
+def te_order_name(line: TeLine) -> str:
+    """The result name of a line's amplitude: ``te_order_39_amplitude_arcsec``."""
+    return f"te_order_{line.order_per_output_rev:.4g}_amplitude_arcsec"
+
+
+def _te_values(ev: TeEvaluation) -> dict[str, float]:
+    out = {"transmission_error_arcsec": ev.transmission_error_arcsec}
+    out.update({f"{d}_transmission_error_arcsec": v.peak_to_peak_arcsec for d, v in ev.per_direction.items()})
+    out.update({te_order_name(line): line.amplitude_arcsec for line in ev.te_orders})
+    return out
+
+
+def _match(values: dict[str, float], moved: TeEvaluation) -> dict[str, float]:
+    """``moved``'s values under the nominal names (orders matched to the nearest line)."""
+    out = {k: v for k, v in _te_values(moved).items() if not k.startswith("te_order_")}
+    for name in values:
+        if name.startswith("te_order_"):
+            k = float(name.split("_")[2])
+            near = min(moved.te_orders, key=lambda ln: abs(ln.order_per_output_rev - k), default=None)
+            if near is not None and abs(near.order_per_output_rev - k) < 0.5:
+                out[name] = near.amplitude_arcsec
+    return out
+
+
+def _peak_to_peak_scatter(ev: TeEvaluation, draws: int = NOISE_DRAWS) -> dict[str, float]:
+    """Standard deviation of each direction's peak-to-peak (and of the larger) over draws of the lines'
+    coefficients with their noise."""
+    rng = np.random.default_rng(NOISE_SEED)
+    per: dict[str, list[float]] = {}
+    for name, d in ev.per_direction.items():
+        if not d.lines:
+            per[name] = [0.0] * draws
+            continue
+        top = max(ln.order_per_output_rev for ln in d.lines)
+        phi = np.linspace(d.phi_start_rad, d.phi_end_rad, max(2048, int(16 * top * d.revolutions)))
+        c = np.array([ln.amplitude_arcsec * math.sin(math.radians(ln.phase_deg)) for ln in d.lines])
+        s = np.array([ln.amplitude_arcsec * math.cos(math.radians(ln.phase_deg)) for ln in d.lines])
+        u = np.array([ln.u_amplitude_arcsec for ln in d.lines])
+        k = np.array([ln.order_per_output_rev for ln in d.lines])
+        cos, sin = np.cos(np.outer(k, phi)), np.sin(np.outer(k, phi))
+        values = []
+        for _ in range(draws):
+            cc = c + u * rng.standard_normal(c.size)
+            ss = s + u * rng.standard_normal(s.size)
+            te = cc @ cos + ss @ sin
+            values.append(float(np.max(te) - np.min(te)))
+        per[name] = values
+    out = {f"{name}_transmission_error_arcsec": float(np.std(v, ddof=1)) for name, v in per.items()}
+    top = np.maximum(*[np.array(v) for v in per.values()])
+    out["transmission_error_arcsec"] = float(np.std(top, ddof=1))
+    return out
+
+
+def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_angle_arcsec: npt.ArrayLike,
+               nominal: TeEvaluation, chain: StationUncertainty | None = None, *, teeth: Teeth | None = None,
+               max_order_per_output_rev: float | None = None) -> dict[str, Budget]:
+    """The budget of every result of the transmission-error evaluation ``nominal`` of these arrays (module
+    docstring); ``chain`` None: the record's own (Type A) lines only."""
+    t = np.asarray(time_s, dtype=float)
+    a_in = np.asarray(input_angle_arcsec, dtype=float)
+    a_out = np.asarray(output_angle_arcsec, dtype=float)
+    values = _te_values(nominal)
+    chain = chain or StationUncertainty()
+    known = {d: [ln.order_per_output_rev for ln in v.lines] for d, v in nominal.per_direction.items()}
+
+    def again(angle_in: np.ndarray, resample: str = "cubic") -> dict[str, float]:
+        moved = evaluate_transmission_error(t, angle_in, a_out, ratio=nominal.ratio, teeth=teeth,
+                                            max_order_per_output_rev=max_order_per_output_rev, known_orders=known,
+                                            detect=False, resample=resample)
+        return _match(values, moved)
+
+    lines: dict[str, list[Contribution]] = {name: [] for name in values}
+    if chain.sync_skew_u_s > 0:
+        u = chain.sync_skew_u_s
+        plus, minus = again(np.interp(t - u, t, a_in)), again(np.interp(t + u, t, a_in))
+        for name in values:
+            if name in plus and name in minus:
+                lines[name].append(Contribution("synchronisation (skew of the angle readings)", "s", u,
+                                                (plus[name] - minus[name]) / (2 * u)))
+    linear = again(a_in, "linear")
+    for name in values:
+        if name in linear:
+            half = abs(linear[name] - values[name]) / 2.0
+            if half > 0:
+                lines[name].append(Contribution("speed ripple (resampling onto the angle grid)", "arcsec",
+                                                half / math.sqrt(3.0), 1.0))
+    revolutions = min(d.revolutions for d in nominal.per_direction.values())
+    i = nominal.ratio
+    u_out_all = math.hypot(chain.output_encoder_u_arcsec, chain.output_encoder_high_order_u_arcsec)
+    with threadpool_limits(limits=1, user_api="blas"):
+        scatter = _peak_to_peak_scatter(nominal)
+    threshold = max(_threshold_amplitude(d) for d in nominal.per_direction.values())
+    type_a_u: dict[str, float] = {}
+    for name in values:
+        if name.startswith("te_order_"):
+            line = next(ln for ln in nominal.te_orders if te_order_name(ln) == name)
+            k = line.order_per_output_rev
+            u_enc = chain.output_encoder_u_arcsec if k <= 2.5 else chain.output_encoder_high_order_u_arcsec
+            lines[name].append(Contribution("output encoder", "arcsec", u_enc, math.sqrt(2.0)))
+            if any(abs(k - m * i) <= 0.5 / revolutions for m in (1, 2)):
+                lines[name].append(Contribution("input encoder", "arcsec (input)", chain.input_encoder_u_arcsec,
+                                                math.sqrt(2.0) / i))
+            type_a_u[name] = line.u_amplitude_arcsec
+        else:
+            lines[name].append(Contribution("output encoder", "arcsec", u_out_all, math.sqrt(2.0)))
+            lines[name].append(Contribution("input encoder", "arcsec (input)", chain.input_encoder_u_arcsec,
+                                            math.sqrt(2.0) / i))
+            lines[name].append(Contribution("lines below the detection threshold", "arcsec",
+                                            threshold / math.sqrt(3.0), 2.0))
+            type_a_u[name] = scatter[name]
+    return {name: combine(values[name], "arcsec", type_a_u[name], NOISE_DOF, _type_a_source(name),
+                          [c for c in lines[name] if c.u > 0]) for name in values}
+
+
+def _type_a_source(name: str) -> str:
+    return ("noise around the line (spectrum)" if name.startswith("te_order_")
+            else f"noise ({NOISE_DRAWS} draws of the lines with their noise)")
+
+
+def _threshold_amplitude(d: TeDirection) -> float:
+    """The smallest amplitude the pursuit takes as a line in this direction (the noise level × its threshold)."""
+    bins = max(2, int(d.samples / 4.0))
+    return math.sqrt(math.log(bins / FALSE_ALARM)) * d.noise_amplitude_arcsec
+
+
+def te_allowance(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_angle_arcsec: npt.ArrayLike, *,
+                 ratio: float, chain: StationUncertainty | None) -> Callable[[list[float]], list[float]]:
+    """What the measuring chain alone can make at each of a list of orders (″, expanded, k = 2): the output
+    encoder (√2·u at orders ≤ 2, the high-order u above), the input encoder (√2·u/i at the input's order and its
+    2×), and the skew of the readings (the record evaluated with the input latched ±u later, the change of each
+    order's complex amplitude; the larger direction's). For ``te_model.compare_te``."""
+    t = np.asarray(time_s, dtype=float)
+    a_in = np.asarray(input_angle_arcsec, dtype=float)
+    a_out = np.asarray(output_angle_arcsec, dtype=float)
+    chain = chain or StationUncertainty()
+
+    def allowance(orders: list[float]) -> list[float]:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return _allowance(orders)
+
+    def _allowance(orders: list[float]) -> list[float]:
+        records = te_records(t, a_in, a_out, ratio=ratio)
+        revolutions = min(r.revolutions for r in records.values())
+        skew = np.zeros(len(orders))
+        if chain.sync_skew_u_s > 0 and orders:
+            u = chain.sync_skew_u_s
+            moved = [te_records(t, np.interp(t - x, t, a_in), a_out, ratio=ratio) for x in (u, -u)]
+            for name in records:
+                plus = _phasors(moved[0][name], orders)
+                minus = _phasors(moved[1][name], orders)
+                skew = np.maximum(skew, np.abs(plus - minus) / 2.0)
+        out = []
+        for idx, k in enumerate(orders):
+            u_enc = chain.output_encoder_u_arcsec if k <= 2.5 else chain.output_encoder_high_order_u_arcsec
+            parts = [math.sqrt(2.0) * u_enc, skew[idx]]
+            if any(abs(k - m * ratio) <= 0.5 / revolutions for m in (1, 2)):
+                parts.append(math.sqrt(2.0) * chain.input_encoder_u_arcsec / ratio)
+            out.append(2.0 * math.sqrt(sum(p * p for p in parts)))
+        return out
+
+    return allowance
+
+
+def _phasors(record: TeRecord, orders: list[float]) -> np.ndarray:
+    """The complex amplitudes (s + i·c: TE = A·sin(kφ + ϕ)) of a record at fixed orders, fitted jointly."""
+    a = np.column_stack([np.ones_like(record.phi_rad), record.phi_rad - record.phi_rad.mean()]
+                        + [f(k * record.phi_rad) for k in orders for f in (np.cos, np.sin)])
+    coef, *_ = np.linalg.lstsq(a, record.te_arcsec, rcond=None)
+    return np.array([complex(coef[3 + 2 * i], coef[2 + 2 * i]) for i in range(len(orders))])
+
+
+# ------------------------------------------------------------------------------------------------- torque methods
+
+
+@dataclass(frozen=True)
+class _Input:
+    name: str
+    unit: str
+    u: float
+    step: float
+    apply: Callable[[Arrays, float], Arrays]
+
+
+def _torque_inputs(channel: str, declared: TorqueUncertainty, scale_step: float = 1e-3, zero_step: float = 1e-4
+                   ) -> list[_Input]:
+    """The scale and zero of one torque channel (``input_torque_nm`` or ``output_torque_nm``) as record
+    perturbations."""
+    label = channel.removesuffix("_nm").replace("_", " ")
+
+    def scale(arrays: Arrays, x: float) -> Arrays:
+        return {**arrays, channel: arrays[channel] * (1.0 + x)}
+
+    def zero(arrays: Arrays, x: float) -> Arrays:
+        return {**arrays, channel: arrays[channel] + x}
+
+    out = []
+    if declared.u_rel > 0:
+        out.append(_Input(f"{label} scale", "1", declared.u_rel, max(declared.u_rel, scale_step), scale))
+    if declared.u_zero_nm > 0:
+        out.append(_Input(f"{label} zero", "N·m", declared.u_zero_nm, max(declared.u_zero_nm, zero_step), zero))
+    return out
+
+
+def _through(arrays: Arrays, evaluate: Callable[[Arrays], dict[str, float]], inputs: list[_Input],
+             names: list[str]) -> dict[str, list[Contribution]]:
+    out: dict[str, list[Contribution]] = {name: [] for name in names}
+    for inp in inputs:
+        try:
+            plus, minus = evaluate(inp.apply(arrays, inp.step)), evaluate(inp.apply(arrays, -inp.step))
+        except EvaluationError as exc:
+            raise EvaluationError(f"uncertainty budget: the evaluation fails with {inp.name} moved by "
+                                  f"±{inp.step:.3g} {inp.unit}: {exc}") from None
+        for name in names:
+            if name in plus and name in minus:
+                out[name].append(Contribution(inp.name, inp.unit, inp.u, (plus[name] - minus[name]) / (2 * inp.step)))
+    return out
+
+
+def _blocks_type_a(blocks: list[float]) -> tuple[float | None, float | None]:
+    if len(blocks) < 2:
+        return None, None
+    est = type_a.estimate(blocks)
+    return float(est.u), float(est.df)
+
+
+def _bootstrap(arrays: Arrays, evaluate: Callable[[Arrays], dict[str, float]], channels: list[str],
+               names: list[str]) -> dict[str, tuple[float, float]]:
+    """(u, dof) of each result from re-evaluations with fresh white noise of the measured size on ``channels``."""
+    rng = np.random.default_rng(NOISE_SEED)
+    sigma = {c: white_noise_std(arrays[c]) for c in channels}
+    draws: dict[str, list[float]] = {n: [] for n in names}
+    for _ in range(BOOTSTRAP_DRAWS):
+        moved = {**arrays, **{c: arrays[c] + sigma[c] * rng.standard_normal(arrays[c].size) for c in channels}}
+        try:
+            values = evaluate(moved)
+        except EvaluationError:
+            continue
+        for n in names:
+            if n in values:
+                draws[n].append(values[n])
+    return {n: (float(np.std(v, ddof=1)), len(v) - 1.0) for n, v in draws.items() if len(v) >= 2}
+
+
+def _combine_all(values: dict[str, float], unit: str, blocks: Callable[[str], list[float]],
+                 contributions: dict[str, list[Contribution]], block_word: str,
+                 fallback: dict[str, tuple[float, float]] | None = None) -> dict[str, Budget]:
+    out = {}
+    for name, value in values.items():
+        u, dof = _blocks_type_a(blocks(name))
+        source = f"repeatability ({block_word}, n = {len(blocks(name))})"
+        if u is None and fallback and name in fallback:
+            (u, dof), source = fallback[name], f"noise within the record ({BOOTSTRAP_DRAWS} re-evaluations)"
+        out[name] = combine(value, unit, u, dof, source, [c for c in contributions.get(name, []) if c.u > 0])
+    return out
+
+
+def starting_torque_budgets(time_s: npt.ArrayLike, input_torque_nm: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike,
+                            nominal: StartingTorqueEvaluation, chain: StationUncertainty | None = None
+                            ) -> dict[str, Budget]:
+    """Budgets of the starting torque (per direction and the larger): the ramps' scatter (one ramp: the record's
+    noise, re-evaluated), the input torque's scale and zero, the onset's location between samples (the torque's
+    rise over one sample period, rectangular)."""
+    chain = chain or StationUncertainty()
+    arrays = {"time_s": np.asarray(time_s, float), "input_torque_nm": np.asarray(input_torque_nm, float),
+              "input_angle_arcsec": np.asarray(input_angle_arcsec, float)}
+
+    def evaluate(a: Arrays) -> dict[str, float]:
+        return evaluate_starting_torque(a["time_s"], a["input_torque_nm"], a["input_angle_arcsec"]).values()
+
+    values = nominal.values()
+    contributions = _through(arrays, evaluate, _torque_inputs("input_torque_nm", chain.input_torque), list(values))
+    for name in values:  # the onset is located between samples by the fit: at most a sample's torque rise off
+        direction = name.split("_")[0] if name.split("_")[0] in ("forward", "reverse") else max(
+            nominal.per_direction, key=lambda d: nominal.per_direction[d])
+        rise = [r.rate_nm_per_s * r.sample_period_s for r in nominal.ramps if r.direction == direction]
+        if rise:
+            contributions[name].append(Contribution("onset between samples (ramp rate × sample period)", "N·m",
+                                                    float(np.mean(rise)) / math.sqrt(3.0), 1.0))
+    single = [n for n in values if len(nominal.blocks(n)) < 2]
+    fallback = _bootstrap(arrays, evaluate, ["input_torque_nm", "input_angle_arcsec"], single) if single else None
+    return _combine_all(values, "N·m", nominal.blocks, contributions, "ramps", fallback)
+
+
+def no_load_torque_budgets(time_s: npt.ArrayLike, input_torque_nm: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike,
+                           nominal: NoLoadTorqueEvaluation, chain: StationUncertainty | None = None
+                           ) -> dict[str, Budget]:
+    """Budgets of the no-load torque at each speed (and per direction): the blocks' scatter, the input torque's
+    scale and zero (the zero cancels in the two directions' half-difference: its sensitivity comes out 0)."""
+    chain = chain or StationUncertainty()
+    arrays = {"time_s": np.asarray(time_s, float), "input_torque_nm": np.asarray(input_torque_nm, float),
+              "input_angle_arcsec": np.asarray(input_angle_arcsec, float)}
+    speeds = list(nominal.per_speed)
+
+    def evaluate(a: Arrays) -> dict[str, float]:
+        return evaluate_no_load_torque(a["time_s"], a["input_torque_nm"], a["input_angle_arcsec"],
+                                       speeds_rpm=speeds).values()
+
+    values = nominal.values()
+    contributions = _through(arrays, evaluate, _torque_inputs("input_torque_nm", chain.input_torque), list(values))
+    return _combine_all(values, "N·m", nominal.blocks, contributions, "blocks of whole input revolutions")
+
+
+def efficiency_budgets(time_s: npt.ArrayLike, input_torque_nm: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike,
+                       output_torque_nm: npt.ArrayLike, output_angle_arcsec: npt.ArrayLike,
+                       nominal: EfficiencyEvaluation, chain: StationUncertainty | None = None) -> dict[str, Budget]:
+    """Budgets of the efficiency per direction: the blocks' scatter, both torque channels' scale and zero."""
+    chain = chain or StationUncertainty()
+    arrays = {"time_s": np.asarray(time_s, float), "input_torque_nm": np.asarray(input_torque_nm, float),
+              "input_angle_arcsec": np.asarray(input_angle_arcsec, float),
+              "output_torque_nm": np.asarray(output_torque_nm, float),
+              "output_angle_arcsec": np.asarray(output_angle_arcsec, float)}
+
+    def evaluate(a: Arrays) -> dict[str, float]:
+        return evaluate_efficiency(a["time_s"], a["input_torque_nm"], a["input_angle_arcsec"], a["output_torque_nm"],
+                                   a["output_angle_arcsec"]).values()
+
+    values = nominal.values()
+    inputs = (_torque_inputs("input_torque_nm", chain.input_torque)
+              + _torque_inputs("output_torque_nm", chain.output_torque, zero_step=1e-2))
+    contributions = _through(arrays, evaluate, inputs, list(values))
+    return _combine_all(values, "1", nominal.blocks, contributions, "blocks of the steady stretch")
+
+
+def attach(evaluation: Any, budgets: dict[str, Budget]) -> Any:
+    """Store the budgets on an evaluation in their JSON form (``evaluation.uncertainty``)."""
+    evaluation.uncertainty = {name: b.to_dict() for name, b in budgets.items()}
+    return evaluation
