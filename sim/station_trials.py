@@ -1,0 +1,215 @@
+"""Trials of the transmission-error evaluation and its discrepancy workflow, per family, with rates:
+``python -m tcms_daq.sim.station_trials --seeds 20 [--family NAME] [--json]``.
+
+Each trial is one unit: run 1 is compared with the unit's model (which lacks the hidden order), the findings are
+applied, run 2 (the same unit, a new recording) is compared with the new model. Families:
+
+* ``sim-rv110e``, ``sim-hfuc32``: the simulator (``sim/transmission.py``) with a hidden harmonic at a component's
+  order (RV: the pin ring's 2×, order 78; HD: the flexspline's 2×, order 404), 0.5–2″, any phase;
+* ``indep-rv``, ``indep-hd``: the independent generator (``sim/te_independent.py``: its own physics, phase
+  convention, quantised encoders, speed ripple in time, latch jitter) with a hidden source at a component's order
+  (RV: the pin ring's ellipticity, 78; HD: the circular spline's 2×, 400);
+* ``indep-rv-noisy``: as ``indep-rv`` with 10× the output encoder's noise;
+* ``indep-rv-foreign``: a hidden order that belongs to no component (non-integer, 5…35 away from any named order);
+* ``indep-rv-null``, ``sim-rv110e-null``: nothing hidden.
+
+Rates: ``named`` — run 1 names the hidden order (order within 1 %, amplitude within 10 %, the right component) and
+nothing else; ``closed`` — run 2 ``consistent``; ``unexplained`` — (foreign) run 1 reports the order (within 1 %)
+without a name and names nothing; ``quiet`` — (null) runs 1 and 2 ``consistent``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from tcms_daq.sim.station import StationSensors, record_speed_run, te_profile
+from tcms_daq.sim.te_independent import HdErrors, Recording, RvErrors, Source, generate
+from tcms_daq.sim.transmission import UnitPhysics, unit_from_spec
+
+from tcms_daq.config import load_reducer_catalogue
+from tcms_daq.config.models import ExtraOrder, StationUncertainty
+from tcms_daq.transmission.kinematics import Teeth, components_at, order_table
+from tcms_daq.transmission.te_model import TeComparison, TeHarmonicTerm, TeModel, apply_findings, compare_te
+from tcms_daq.uncertainty.station import te_allowance
+
+# the declared chain of the trials (RON 786 ±2″, its interpolation, a motor encoder's eccentricity, the latch skew)
+CHAIN = StationUncertainty(output_encoder_u_arcsec=1.2, output_encoder_high_order_u_arcsec=0.1,
+                           input_encoder_u_arcsec=25.0, sync_skew_u_s=1e-4)
+RV_TEETH = Teeth("rv", input_gear=10, spur_gear=40, crankshafts=3, cycloid=39, pins=40)
+HD_TEETH = Teeth("harmonic", flexspline=200, circular_spline=202)
+
+Record = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One unit: its model, its hidden order (None: none), whether that order belongs to a component, and a
+    recorder of runs (run index → record)."""
+
+    model: TeModel
+    teeth: Teeth
+    hidden: tuple[float, float, str | None] | None  # (order, amplitude ″, component label)
+    record: Callable[[int], Record]
+
+
+def _compare(trial: Trial, run: int) -> TeComparison:
+    t, a_in, a_out = trial.record(run)
+    allowance = te_allowance(t, a_in, a_out, ratio=trial.model.ratio, chain=CHAIN)
+    return compare_te(t, a_in, a_out, trial.model, teeth=trial.teeth, allowance=allowance)
+
+
+def _sim_trial(name: str, seed: int, hidden_component: str | None, hidden_order: float | None) -> Trial:
+    spec = load_reducer_catalogue()[name]
+    base = unit_from_spec(spec)
+    rng = np.random.default_rng(seed)
+    extra = []
+    hidden = None
+    if hidden_order is not None:
+        amplitude = float(rng.uniform(0.5, 2.0))
+        extra = [ExtraOrder(order=hidden_order, amplitude_arcsec=amplitude, phase_deg=float(rng.uniform(0, 360)))]
+        hidden = (hidden_order, amplitude, hidden_component)
+    unit: UnitPhysics = base.with_extra(extra)
+    model = TeModel(base.ratio, tuple(TeHarmonicTerm(h.order_per_output_rev, h.amplitude_arcsec,
+                                                     math.degrees(h.phase_rad), h.component, "catalogue")
+                                      for h in base.harmonics), name)
+    sensors = StationSensors(sample_rate_hz=1000.0, speed_ripple_pct=0.5, sync_skew_s=5e-5,
+                             input_encoder_error_arcsec=20.0)
+
+    def record(run: int) -> Record:
+        c = record_speed_run(unit, te_profile(2000.0, unit.ratio, 1.15, 0.02 * spec.rated_torque_nm), sensors,
+                             seed=1000 * seed + run).columns
+        return c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"]
+
+    return Trial(model, spec.kinematics.teeth(spec.kind), hidden, record)  # type: ignore[union-attr]
+
+
+def _indep_trial(kind: str, seed: int, hidden: str | None, noise: float = 0.05) -> Trial:
+    rng = np.random.default_rng(seed)
+    errors: RvErrors | HdErrors = RvErrors() if kind == "rv" else HdErrors()
+    teeth = RV_TEETH if kind == "rv" else HD_TEETH
+    amplitude = float(rng.uniform(0.5, 2.0))
+    lag = float(rng.uniform(0, 360))
+    sources: list[Source] = []
+    label: str | None = None
+    if hidden == "named":
+        order = 78.0 if kind == "rv" else 400.0
+        label = "pin_ring 2×" if kind == "rv" else "circular_spline 2×"
+        sources = [Source("hidden", order, amplitude, lag, label)]
+    elif hidden == "foreign":
+        table = order_table(teeth)
+        while True:
+            order = float(rng.uniform(5.0, 35.0))
+            if not components_at(order, 1.0, table):
+                break
+        sources = [Source("hidden", order, amplitude, lag, None)]
+    recording = Recording(output_noise_arcsec=noise)
+    unit_seed = 7919 * seed + 1
+    probe = generate(errors, sources, recording, seed=0, unit_seed=unit_seed)
+    model = TeModel(probe.ratio, tuple(TeHarmonicTerm(s.order, s.amplitude_arcsec, probe.project_phase_deg(s),
+                                                      s.component, "design") for s in probe.sources
+                                       if s.name != "hidden"))
+
+    def record(run: int) -> Record:
+        g = generate(errors, sources, recording, seed=1000 * seed + run, unit_seed=unit_seed)
+        return g.time_s, g.input_angle_arcsec, g.output_angle_arcsec
+
+    hidden_truth = (sources[0].order, amplitude, label) if sources else None
+    return Trial(model, teeth, hidden_truth, record)
+
+
+FAMILIES: dict[str, Callable[[int], Trial]] = {
+    "sim-rv110e": lambda s: _sim_trial("RV-110E", s, "pin_ring 2×", 78.0),
+    "sim-hfuc32": lambda s: _sim_trial("HFUC-32-100", s, "flexspline 2×", 404.0),
+    "sim-rv110e-null": lambda s: _sim_trial("RV-110E", s, None, None),
+    "indep-rv": lambda s: _indep_trial("rv", s, "named"),
+    "indep-hd": lambda s: _indep_trial("hd", s, "named"),
+    "indep-rv-noisy": lambda s: _indep_trial("rv", s, "named", noise=0.5),
+    "indep-rv-foreign": lambda s: _indep_trial("rv", s, "foreign"),
+    "indep-rv-null": lambda s: _indep_trial("rv", s, None),
+}
+
+
+def run_trial(trial: Trial) -> dict[str, Any]:
+    """Run 1, apply, run 2; the outcome of each criterion (module docstring)."""
+    first = _compare(trial, 1)
+    out: dict[str, Any] = {"verdict_1": first.verdict, "gaps_1": [(round(f.line.order_per_output_rev, 3),
+                                                                   round(f.line.amplitude_arcsec, 3),
+                                                                   f.line.component) for f in first.gaps]}
+    if trial.hidden is None:
+        second = _compare(TrialWithModel.of(trial, apply_findings(trial.model, first)), 2)
+        out.update(verdict_2=second.verdict, quiet=first.verdict == "consistent" and second.verdict == "consistent")
+        return out
+    order, amplitude, label = trial.hidden
+    match = [f for f in first.gaps if abs(f.line.order_per_output_rev - order) <= 0.01 * order]
+    others = [f for f in first.gaps if f not in match]
+    if label is None:
+        out["unexplained"] = (len(match) == 1 and not match[0].named and not first.named)
+        out["order_error_pct"] = (100 * (match[0].line.order_per_output_rev - order) / order) if match else None
+        return out
+    found = match[0] if len(match) == 1 else None
+    out["amplitude_error_pct"] = (100 * (found.line.amplitude_arcsec - amplitude) / amplitude) if found else None
+    out["named"] = bool(found and label in found.line.components
+                        and abs(found.line.amplitude_arcsec - amplitude) <= 0.1 * amplitude and not others)
+    second = _compare(TrialWithModel.of(trial, apply_findings(trial.model, first)), 2)
+    out.update(verdict_2=second.verdict, closed=second.verdict == "consistent",
+               gaps_2=[(round(f.line.order_per_output_rev, 3), round(f.line.amplitude_arcsec, 3)) for f in second.gaps])
+    return out
+
+
+class TrialWithModel:
+    """A trial with another model (run 2 against the applied one)."""
+
+    @staticmethod
+    def of(trial: Trial, model: TeModel) -> Trial:
+        return Trial(model, trial.teeth, trial.hidden, trial.record)
+
+
+def rates(family: str, seeds: int, first_seed: int = 1) -> dict[str, Any]:
+    rows = [run_trial(FAMILIES[family](s)) for s in range(first_seed, first_seed + seeds)]
+    out: dict[str, Any] = {"family": family, "trials": len(rows)}
+    for key in ("named", "closed", "unexplained", "quiet"):
+        values = [r[key] for r in rows if key in r]
+        if values:
+            out[key] = f"{sum(values)}/{len(values)}"
+    errors = [abs(r["amplitude_error_pct"]) for r in rows if r.get("amplitude_error_pct") is not None]
+    if errors:
+        out["amplitude_error_pct_max"] = round(max(errors), 2)
+    failures = [r for r in rows if not all(r.get(k, True) for k in ("named", "closed", "unexplained", "quiet"))]
+    out["failures"] = failures[:5]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m tcms_daq.sim.station_trials", description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=1)
+    parser.add_argument("--family", action="append", choices=sorted(FAMILIES))
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    results = []
+    for family in args.family or list(FAMILIES):
+        start = time.perf_counter()
+        r = rates(family, args.seeds, args.first_seed)
+        r["seconds"] = round(time.perf_counter() - start, 1)
+        results.append(r)
+        if not args.json:
+            keys = [k for k in ("named", "closed", "unexplained", "quiet", "amplitude_error_pct_max") if k in r]
+            print(f"{family:18s} " + "  ".join(f"{k} {r[k]}" for k in keys) + f"  ({r['seconds']} s)", flush=True)
+            for f in r["failures"]:
+                print(f"    failed: {f}", flush=True)
+    if args.json:
+        json.dump(results, sys.stdout, indent=2, default=str)
+        print()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
