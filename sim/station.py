@@ -6,11 +6,12 @@ drive in velocity mode; :func:`starting_profile`: in torque mode) and the statio
 from ``[sim]`` and ``[sim.transmission]``): the unit's physics (``sim.transmission``) on one sample grid, then
 
 * the input drive's speed ripple (a share of the speed at an order per input revolution),
-* the output encoder through the measuring chain (``[sim] geometry``: the DH chain's forward model) and the
-  encoder model (interpolation error, noise, quantisation: ``sim.sensors.EncoderModel``),
+* the output encoder through the measuring chain (``[sim] geometry``: the DH chain's forward model), its own
+  graduation and mounting error over the revolution (orders 1 and 2), and the encoder model (interpolation error,
+  noise, quantisation: ``sim.sensors.EncoderModel``),
 * the input encoder: its counts and its once-per-input-revolution error (the same encoder model with a period of
   one input revolution), latched ``sync_skew_s`` after the output encoder,
-* the two torque readings with their noise.
+* the two torque readings with their gain, zero offset and noise.
 
 Columns (``StationRun.columns``): ``time_s``, ``input_angle_arcsec`` (input arcsec), ``output_angle_arcsec``,
 ``input_torque_nm``, ``output_torque_nm``, ``temperature_c``, and the true values ``true_input_angle_arcsec``,
@@ -28,7 +29,7 @@ from tcms_daq.sim.sensors import EncoderModel, TorqueSensorModel
 from tcms_daq.sim.transmission import UnitPhysics, UnitState, turn, turn_with_torque
 
 from tcms_daq.config.models import SimConfig
-from tcms_daq.units import ARCSEC_PER_REV
+from tcms_daq.units import ARCSEC_PER_RAD, ARCSEC_PER_REV
 
 MeasuringChain = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
@@ -69,6 +70,13 @@ class StationSensors:
     input_torque_noise_nm: float = 0.002
     output_torque_noise_nm: float = 0.3
     temperature_c: float = 25.0
+    # the output encoder's graduation/mounting error over the revolution: (c1, s1, c2, s2) ″ of cos/sin at orders 1, 2
+    output_encoder_graduation_arcsec: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    input_encoder_error_phase_rad: float = 0.0
+    input_torque_gain: float = 1.0
+    input_torque_offset_nm: float = 0.0
+    output_torque_gain: float = 1.0
+    output_torque_offset_nm: float = 0.0
 
     @classmethod
     def from_config(cls, sim: SimConfig, sample_rate_hz: float | None = None) -> StationSensors:
@@ -174,18 +182,27 @@ def _read(unit: UnitPhysics, sensors: StationSensors, time_s: np.ndarray, true_i
     out_rng, in_rng, tin_rng, tout_rng = _rngs(seed)
     out_signal = (np.asarray(measuring_chain(true_out, torque_out, time_s), dtype=float) if measuring_chain is not None
                   else true_out)
+    c1, s1, c2, s2 = sensors.output_encoder_graduation_arcsec
+    if c1 or s1 or c2 or s2:
+        rad = out_signal / ARCSEC_PER_RAD
+        out_signal = out_signal + c1 * np.cos(rad) + s1 * np.sin(rad) + c2 * np.cos(2 * rad) + s2 * np.sin(2 * rad)
     output_encoder = EncoderModel(out_rng, sensors.output_encoder_noise_arcsec, sensors.output_encoder_resolution_arcsec,
                                   sensors.output_encoder_signal_period_arcsec,
                                   sensors.output_encoder_interpolation_error_arcsec)
     input_encoder = EncoderModel(in_rng, 0.0, ARCSEC_PER_REV / sensors.input_encoder_counts_per_rev, ARCSEC_PER_REV,
                                  sensors.input_encoder_error_arcsec)
     latched_in = np.interp(time_s - sensors.sync_skew_s, time_s, true_in) if sensors.sync_skew_s else true_in
+    # the input encoder's once-per-turn error at its phase (the encoder model's error is a sine of the angle)
+    shift = sensors.input_encoder_error_phase_rad / (2.0 * math.pi) * ARCSEC_PER_REV
+    read_in = input_encoder.read(latched_in + shift) - shift
     return {
         "time_s": time_s,
-        "input_angle_arcsec": input_encoder.read(latched_in),
+        "input_angle_arcsec": read_in,
         "output_angle_arcsec": output_encoder.read(out_signal),
-        "input_torque_nm": TorqueSensorModel(tin_rng, sensors.input_torque_noise_nm).read(torque_in),
-        "output_torque_nm": TorqueSensorModel(tout_rng, sensors.output_torque_noise_nm).read(torque_out),
+        "input_torque_nm": TorqueSensorModel(tin_rng, sensors.input_torque_noise_nm, sensors.input_torque_gain,
+                                             sensors.input_torque_offset_nm).read(torque_in),
+        "output_torque_nm": TorqueSensorModel(tout_rng, sensors.output_torque_noise_nm, sensors.output_torque_gain,
+                                              sensors.output_torque_offset_nm).read(torque_out),
         "temperature_c": np.full(time_s.shape, sensors.temperature_c),
         "true_input_angle_arcsec": true_in,
         "true_output_angle_arcsec": true_out,

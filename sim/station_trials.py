@@ -13,6 +13,11 @@ applied, run 2 (the same unit, a new recording) is compared with the new model. 
 * ``indep-rv-foreign``: a hidden order that belongs to no component (non-integer, 5…35 away from any named order);
 * ``indep-rv-null``, ``sim-rv110e-null``: nothing hidden.
 
+``--coverage``: the four methods on simulated stations whose instruments carry errors drawn from their declared
+uncertainties (the output encoder's graduation at orders 1–2, the input encoder's once-per-turn error at any phase,
+the readings' skew, both torque channels' gain and zero): per result the share of stations whose U covers the
+simulator's truth, the median U and what 95 % needs.
+
 Rates: ``named`` — run 1 names the hidden order (order within 1 %, amplitude within 10 %, the right component) and
 nothing else; ``closed`` — run 2 ``consistent``; ``unexplained`` — (foreign) run 1 reports the order (within 1 %)
 without a name and names nothing; ``quiet`` — (null) runs 1 and 2 ``consistent``.
@@ -30,15 +35,43 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from tcms_daq.sim.station import StationSensors, record_speed_run, te_profile
+from tcms_daq.sim.station import (
+    StationSensors,
+    efficiency_profile,
+    no_load_profile,
+    record_speed_run,
+    record_torque_run,
+    starting_profile,
+    te_profile,
+)
 from tcms_daq.sim.te_independent import HdErrors, Recording, RvErrors, Source, generate
-from tcms_daq.sim.transmission import UnitPhysics, unit_from_spec
+from tcms_daq.sim.transmission import (
+    UnitPhysics,
+    efficiency_truth,
+    no_load_torque_truth,
+    starting_torque_truth,
+    te_peak_to_peak_truth,
+    unit_from_spec,
+)
 
 from tcms_daq.config import load_reducer_catalogue
-from tcms_daq.config.models import ExtraOrder, StationUncertainty
+from tcms_daq.config.models import ExtraOrder, StationUncertainty, TorqueUncertainty
 from tcms_daq.transmission.kinematics import Teeth, components_at, order_table
+from tcms_daq.transmission.te import evaluate_transmission_error
 from tcms_daq.transmission.te_model import TeComparison, TeHarmonicTerm, TeModel, apply_findings, compare_te
-from tcms_daq.uncertainty.station import te_allowance
+from tcms_daq.transmission.torque import (
+    evaluate_efficiency,
+    evaluate_no_load_torque,
+    evaluate_starting_torque,
+)
+from tcms_daq.uncertainty.station import (
+    efficiency_budgets,
+    no_load_torque_budgets,
+    starting_torque_budgets,
+    te_allowance,
+    te_budgets,
+)
+from tcms_daq.units import ARCSEC_PER_REV
 
 # the declared chain of the trials (RON 786 ±2″, its interpolation, a motor encoder's eccentricity, the latch skew)
 CHAIN = StationUncertainty(output_encoder_u_arcsec=1.2, output_encoder_high_order_u_arcsec=0.1,
@@ -187,13 +220,128 @@ def rates(family: str, seeds: int, first_seed: int = 1) -> dict[str, Any]:
     return out
 
 
+# ------------------------------------------------------------------------------------------------- coverage
+
+COVERAGE_CHAIN = StationUncertainty(
+    output_encoder_u_arcsec=1.2, output_encoder_high_order_u_arcsec=0.1, input_encoder_u_arcsec=20.0,
+    sync_skew_u_s=1e-4, input_torque=TorqueUncertainty(u_rel=5e-4, u_zero_nm=0.002),
+    output_torque=TorqueUncertainty(u_rel=3e-4, u_zero_nm=0.05))
+
+
+def _drawn_sensors(rng: np.random.Generator, chain: StationUncertainty) -> tuple[StationSensors, float]:
+    """The station's instruments with errors drawn from their declared uncertainties (one station per seed), and
+    the input start angle (the phase of the input encoder's error against the unit)."""
+    sigma = chain.output_encoder_u_arcsec / math.sqrt(2.0)
+    graduation = tuple(float(x) for x in sigma * rng.standard_normal(4))
+    sensors = StationSensors(
+        sample_rate_hz=1000.0, speed_ripple_pct=0.5,
+        sync_skew_s=float(chain.sync_skew_u_s * rng.standard_normal()),
+        input_encoder_error_arcsec=float(math.sqrt(2.0) * chain.input_encoder_u_arcsec * abs(rng.standard_normal())),
+        input_encoder_error_phase_rad=float(rng.uniform(0, 2 * math.pi)),
+        output_encoder_graduation_arcsec=graduation,  # type: ignore[arg-type]
+        input_torque_gain=float(1.0 + chain.input_torque.u_rel * rng.standard_normal()),
+        input_torque_offset_nm=float(chain.input_torque.u_zero_nm * rng.standard_normal()),
+        output_torque_gain=float(1.0 + chain.output_torque.u_rel * rng.standard_normal()),
+        output_torque_offset_nm=float(chain.output_torque.u_zero_nm * rng.standard_normal()))
+    return sensors, float(rng.uniform(0, ARCSEC_PER_REV))
+
+
+def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAIN) -> dict[str, tuple[float, float]]:
+    """One simulated station and unit: every result of the four methods as (error against the truth, U)."""
+    spec = load_reducer_catalogue()[name]
+    unit = unit_from_spec(spec)
+    sim = spec.sim.transmission
+    teeth = spec.kinematics.teeth(spec.kind)  # type: ignore[union-attr]
+    rng = np.random.default_rng(seed)
+    sensors, start = _drawn_sensors(rng, chain)
+    out: dict[str, tuple[float, float]] = {}
+    c = record_speed_run(unit, te_profile(2000.0, unit.ratio, 1.15, 0.02 * spec.rated_torque_nm), sensors,
+                         seed=seed, start_input_angle_arcsec=start).columns
+    ev = evaluate_transmission_error(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"], ratio=unit.ratio,
+                                     teeth=teeth)
+    budgets = te_budgets(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"], ev, chain, teeth=teeth)
+    truth_orders = {round(h.order_per_output_rev, 3): h for h in unit.harmonics}
+    for key, b in budgets.items():
+        if key.startswith("te_order_"):
+            h = truth_orders.get(round(float(key.split("_")[2]), 3))
+            if h is not None:
+                out[f"te_order_{h.component}"] = (b.value - h.amplitude_arcsec, b.expanded)
+        else:
+            d = ev.per_direction["reverse" if key.startswith("reverse") else "forward"]
+            truths = [te_peak_to_peak_truth(unit, x.phi_start_rad, x.phi_end_rad) for x in ev.per_direction.values()]
+            truth = max(truths) if key == "transmission_error_arcsec" else te_peak_to_peak_truth(
+                unit, d.phi_start_rad, d.phi_end_rad)
+            out[key] = (b.value - truth, b.expanded)
+    for h in unit.harmonics:  # an order of the unit that was not found is a miss (counted as not covered)
+        out.setdefault(f"te_order_{h.component}", (math.inf, 0.0))
+    c = record_torque_run(unit, starting_profile(1.4 * sim.breakaway_torque_nm, 0.25 * sim.breakaway_torque_nm, 3),
+                          sensors, seed=seed).columns
+    st = evaluate_starting_torque(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"])
+    for key, b in starting_torque_budgets(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"], st,
+                                          chain).items():
+        truth = {"forward": starting_torque_truth(unit, 1.0), "reverse": starting_torque_truth(unit, -1.0)}
+        expected = truth.get(key.split("_")[0], max(truth.values()))
+        out[key] = (b.value - expected, b.expanded)
+    speeds = [500.0, 1500.0, 3000.0]
+    c = record_speed_run(unit, no_load_profile(speeds, 1.5), sensors, seed=seed).columns
+    nl = evaluate_no_load_torque(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"], speeds_rpm=speeds)
+    for key, b in no_load_torque_budgets(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"], nl,
+                                         chain).items():
+        n = float(key.split("@")[1].removesuffix("rpm"))
+        fwd, rev = no_load_torque_truth(unit, n, 25.0), no_load_torque_truth(unit, -n, 25.0)
+        expected = {"forward": fwd, "reverse": rev}.get(key.split("_")[0], 0.5 * (fwd + rev))
+        out[key] = (b.value - expected, b.expanded)
+    speed = sim.rated_input_speed_rpm
+    c = record_speed_run(unit, efficiency_profile(spec.rated_torque_nm, speed, 2.0), sensors, seed=seed).columns
+    ef = evaluate_efficiency(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"], c["output_torque_nm"],
+                             c["output_angle_arcsec"])
+    for key, b in efficiency_budgets(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"],
+                                     c["output_torque_nm"], c["output_angle_arcsec"], ef, chain).items():
+        sign = 1.0 if key.startswith("forward") else -1.0
+        out[key] = (b.value - efficiency_truth(unit, spec.rated_torque_nm, sign * speed, 25.0), b.expanded)
+    return out
+
+
+def coverage(name: str, seeds: int, first_seed: int = 1) -> dict[str, dict[str, float]]:
+    """Per result: the share of stations whose U covers the truth, the median U and the RMS error (U/2 is what a
+    95 % interval of a normal error needs, so median U / (2·RMS error) near 1 is tight, above 1 generous)."""
+    runs = [coverage_run(name, s) for s in range(first_seed, first_seed + seeds)]
+    out = {}
+    for key in runs[0]:
+        pairs = [r[key] for r in runs if key in r]
+        errors = np.array([e for e, _ in pairs])
+        us = np.array([u for _, u in pairs])
+        finite = np.isfinite(errors)
+        rms = float(np.sqrt(np.mean(errors[finite] ** 2))) if finite.any() else math.nan
+        out[key] = {"covered": float(np.mean(np.abs(errors) <= us)), "n": len(pairs),
+                    "median_U": float(np.median(us)), "rms_error": rms,
+                    "U_over_needed": float(np.median(us) / (1.96 * rms)) if rms > 0 else math.inf}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tcms_daq.sim.station_trials", description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--family", action="append", choices=sorted(FAMILIES))
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--coverage", action="store_true",
+                        help="the four methods' U against the truth on stations with drawn instrument errors")
     args = parser.parse_args(argv)
+    if args.coverage:
+        table = {}
+        for name in ("RV-110E", "HFUC-32-100"):
+            start = time.perf_counter()
+            table[name] = coverage(name, args.seeds, args.first_seed)
+            if not args.json:
+                print(f"{name} ({args.seeds} stations, {time.perf_counter() - start:.0f} s)")
+                for key, row in table[name].items():
+                    print(f"  {key:40s} covered {row['covered']:6.1%}  median U {row['median_U']:.4g}  "
+                          f"RMS error {row['rms_error']:.3g}  U/needed {row['U_over_needed']:.2f}", flush=True)
+        if args.json:
+            json.dump(table, sys.stdout, indent=2)
+            print()
+        return 0
     results = []
     for family in args.family or list(FAMILIES):
         start = time.perf_counter()

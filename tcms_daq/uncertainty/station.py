@@ -13,11 +13,12 @@ Transmission error (per direction's peak-to-peak, the larger of the two, and eac
   of the peak-to-peak over draws of all lines' coefficients with that noise (Type A, ~100 noise bins: 100 dof);
 * lines below the detection threshold — a line of at most the threshold amplitude A_th may have been left out; it
   moves the peak-to-peak by at most 2·A_th (rectangular);
-* output encoder — its error over the revolution (``output_encoder_u_arcsec``, RMS, at orders ≤ 2: mounting and
-  graduation) and above (``output_encoder_high_order_u_arcsec``); a line can hold up to √2 × the RMS; the
-  peak-to-peak's sensitivity √2 (its error at the maximum and at the minimum);
-* input encoder — its error (input arcsec, RMS over an input revolution) reaches the TE divided by i, at the input's
-  order and its 2×;
+* output encoder — its error over the revolution at orders 1 and 2 (``output_encoder_u_arcsec``, RMS: mounting and
+  graduation; shared by the two orders, each a cosine and a sine of standard uncertainty u/√2) through the
+  evaluation: the output record moved by each shape; above (``output_encoder_high_order_u_arcsec``, RMS) a sinusoid
+  of unknown phase at a line's order (sensitivity 1), on the peak-to-peak √2 (at the maximum and the minimum);
+* input encoder — its once-per-input-turn error (``input_encoder_u_arcsec``, RMS, input arcsec: a cosine and a sine
+  of that standard uncertainty) through the evaluation: it reaches the TE divided by i at the input's order;
 * synchronisation — the input angle latched ±``sync_skew_u_s`` later, evaluated again with the same orders: it
   carries the measured speed and its ripple (a constant skew at a constant speed only shifts the TE);
 * speed ripple — the record resampled onto the angle grid linearly instead of by a cubic spline, evaluated again:
@@ -58,6 +59,7 @@ from tcms_daq.transmission.torque import (
     evaluate_starting_torque,
 )
 from tcms_daq.uncertainty.budget import Budget, Contribution, combine
+from tcms_daq.units import ARCSEC_PER_RAD
 
 NOISE_DOF = 100.0  # the noise level of a line comes from ~130 bins around it
 NOISE_DRAWS = 100
@@ -132,48 +134,58 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
     chain = chain or StationUncertainty()
     known = {d: [ln.order_per_output_rev for ln in v.lines] for d, v in nominal.per_direction.items()}
 
-    def again(angle_in: np.ndarray, resample: str = "cubic") -> dict[str, float]:
-        moved = evaluate_transmission_error(t, angle_in, a_out, ratio=nominal.ratio, teeth=teeth,
+    def again(angle_in: np.ndarray, angle_out: np.ndarray = a_out, resample: str = "cubic") -> dict[str, float]:
+        moved = evaluate_transmission_error(t, angle_in, angle_out, ratio=nominal.ratio, teeth=teeth,
                                             max_order_per_output_rev=max_order_per_output_rev, known_orders=known,
                                             detect=False, resample=resample)
         return _match(values, moved)
 
     lines: dict[str, list[Contribution]] = {name: [] for name in values}
-    if chain.sync_skew_u_s > 0:
-        u = chain.sync_skew_u_s
-        plus, minus = again(np.interp(t - u, t, a_in)), again(np.interp(t + u, t, a_in))
+
+    def through(source: str, unit: str, u: float, moved: Callable[[float], tuple[np.ndarray, np.ndarray]]) -> None:
+        """A line whose sensitivity is the change of every result with the record moved by ±u."""
+        if u <= 0:
+            return
+        plus, minus = again(*moved(u)), again(*moved(-u))
         for name in values:
             if name in plus and name in minus:
-                lines[name].append(Contribution("synchronisation (skew of the angle readings)", "s", u,
-                                                (plus[name] - minus[name]) / (2 * u)))
-    linear = again(a_in, "linear")
+                lines[name].append(Contribution(source, unit, u, (plus[name] - minus[name]) / (2 * u),
+                                                source.split(",")[0]))
+
+    through("synchronisation (skew of the angle readings)", "s", chain.sync_skew_u_s,
+            lambda x: (np.interp(t - x, t, a_in), a_out))
+    # the output encoder's error at orders 1 and 2 (its RMS shared by the two, each a cosine and a sine of unknown
+    # size) and the input encoder's once per input turn: the record moved by each shape
+    phi_out = a_out / ARCSEC_PER_RAD
+    u_low = chain.output_encoder_u_arcsec / math.sqrt(2.0)
+    for m in (1, 2):
+        for label, shape in (("cosine", np.cos(m * phi_out)), ("sine", np.sin(m * phi_out))):
+            through(f"output encoder (orders 1–2), order {m} {label}", "arcsec", u_low,
+                    lambda x, s=shape: (a_in, a_out + x * s))
+    theta_in = a_in / ARCSEC_PER_RAD
+    for label, shape in (("cosine", np.cos(theta_in)), ("sine", np.sin(theta_in))):
+        through(f"input encoder (once per input turn), {label}", "arcsec (input)", chain.input_encoder_u_arcsec,
+                lambda x, s=shape: (a_in + x * s, a_out))
+    linear = again(a_in, a_out, "linear")
     for name in values:
         if name in linear:
             half = abs(linear[name] - values[name]) / 2.0
             if half > 0:
                 lines[name].append(Contribution("speed ripple (resampling onto the angle grid)", "arcsec",
                                                 half / math.sqrt(3.0), 1.0))
-    revolutions = min(d.revolutions for d in nominal.per_direction.values())
-    i = nominal.ratio
-    u_out_all = math.hypot(chain.output_encoder_u_arcsec, chain.output_encoder_high_order_u_arcsec)
     with threadpool_limits(limits=1, user_api="blas"):
         scatter = _peak_to_peak_scatter(nominal)
     threshold = max(_threshold_amplitude(d) for d in nominal.per_direction.values())
+    u_high = chain.output_encoder_high_order_u_arcsec
     type_a_u: dict[str, float] = {}
     for name in values:
         if name.startswith("te_order_"):
             line = next(ln for ln in nominal.te_orders if te_order_name(ln) == name)
-            k = line.order_per_output_rev
-            u_enc = chain.output_encoder_u_arcsec if k <= 2.5 else chain.output_encoder_high_order_u_arcsec
-            lines[name].append(Contribution("output encoder", "arcsec", u_enc, math.sqrt(2.0)))
-            if any(abs(k - m * i) <= 0.5 / revolutions for m in (1, 2)):
-                lines[name].append(Contribution("input encoder", "arcsec (input)", chain.input_encoder_u_arcsec,
-                                                math.sqrt(2.0) / i))
+            if line.order_per_output_rev > 2.5:  # the encoder's higher orders: a sinusoid of unknown phase there
+                lines[name].append(Contribution("output encoder (higher orders)", "arcsec", u_high, 1.0))
             type_a_u[name] = line.u_amplitude_arcsec
         else:
-            lines[name].append(Contribution("output encoder", "arcsec", u_out_all, math.sqrt(2.0)))
-            lines[name].append(Contribution("input encoder", "arcsec (input)", chain.input_encoder_u_arcsec,
-                                            math.sqrt(2.0) / i))
+            lines[name].append(Contribution("output encoder (higher orders)", "arcsec", u_high, math.sqrt(2.0)))
             lines[name].append(Contribution("lines below the detection threshold", "arcsec",
                                             threshold / math.sqrt(3.0), 2.0))
             type_a_u[name] = scatter[name]
@@ -220,6 +232,8 @@ def te_allowance(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, outpu
                 skew = np.maximum(skew, np.abs(plus - minus) / 2.0)
         out = []
         for idx, k in enumerate(orders):
+            # a finding is a vector: what the chain can add there is a sinusoid of any phase, whose amplitude has
+            # the RMS √2·u
             u_enc = chain.output_encoder_u_arcsec if k <= 2.5 else chain.output_encoder_high_order_u_arcsec
             parts = [math.sqrt(2.0) * u_enc, skew[idx]]
             if any(abs(k - m * ratio) <= 0.5 / revolutions for m in (1, 2)):

@@ -99,4 +99,4 @@ def test_simulated_unit_within_u_with_its_components(catalogue, name):
     _within_u(unit, ev, budgets)
     # the input's order carries the input encoder's error (20″/i): its U says so
     line = min(ev.te_orders, key=lambda ln: abs(ln.order_per_output_rev - unit.ratio))
-    assert budgets[te_order_name(line)].dominant == "input encoder"
+    assert budgets[te_order_name(line)].dominant == "input encoder (once per input turn)"
