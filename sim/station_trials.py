@@ -16,7 +16,8 @@ applied, run 2 (the same unit, a new recording) is compared with the new model. 
 ``--coverage``: the four methods on simulated stations whose instruments carry errors drawn from their declared
 uncertainties (the output encoder's graduation at orders 1–2, the input encoder's once-per-turn error at any phase,
 the readings' skew, both torque channels' gain and zero): per result the share of stations whose U covers the
-simulator's truth, the median U and what 95 % needs.
+simulator's truth, the median U and what 95 % needs; and the transmission error of the independent generator's units
+(``indep-rv``, ``indep-hd``: its own instruments and errors, the trials' declared chain) against its own truth.
 
 Rates: ``named`` — run 1 names the hidden order (order within 1 %, amplitude within 10 %, the right component) and
 nothing else; ``closed`` — run 2 ``consistent``; ``unexplained`` — (foreign) run 1 reports the order (within 1 %)
@@ -302,10 +303,45 @@ def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAI
     return out
 
 
+def coverage_independent(kind: str, seed: int) -> dict[str, tuple[float, float]]:
+    """The transmission error of one unit of the independent generator (its errors drawn per seed) against the
+    generator's own truth, with the trials' declared chain: (error, U) per result."""
+    errors: RvErrors | HdErrors = RvErrors() if kind == "rv" else HdErrors()
+    teeth = RV_TEETH if kind == "rv" else HD_TEETH
+    g = generate(errors, None, Recording(), seed=seed, unit_seed=seed)
+    ev = evaluate_transmission_error(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ratio=g.ratio, teeth=teeth)
+    budgets = te_budgets(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ev, CHAIN, teeth=teeth)
+    out: dict[str, tuple[float, float]] = {}
+
+    def truth_pp(d: Any) -> float:
+        phi = np.linspace(d.phi_start_rad, d.phi_end_rad, 400_001)
+        te = sum(src.amplitude_arcsec * np.sin(src.order * phi + math.radians(g.project_phase_deg(src)))
+                 for src in g.sources)
+        return float(np.ptp(te))
+
+    truths = {name: truth_pp(d) for name, d in ev.per_direction.items()}
+    by_order = {round(src.order, 3): src for src in g.sources}
+    for key, b in budgets.items():
+        if key.startswith("te_order_"):
+            src = by_order.get(round(float(key.split("_")[2]), 3))
+            if src is not None:
+                out[f"te_order_{src.component}"] = (b.value - src.amplitude_arcsec, b.expanded)
+        elif key == "transmission_error_arcsec":
+            out[key] = (b.value - max(truths.values()), b.expanded)
+        else:
+            out[key] = (b.value - truths[key.split("_")[0]], b.expanded)
+    for src in g.sources:
+        out.setdefault(f"te_order_{src.component}", (math.inf, 0.0))
+    return out
+
+
 def coverage(name: str, seeds: int, first_seed: int = 1) -> dict[str, dict[str, float]]:
     """Per result: the share of stations whose U covers the truth, the median U and the RMS error (U/2 is what a
     95 % interval of a normal error needs, so median U / (2·RMS error) near 1 is tight, above 1 generous)."""
-    runs = [coverage_run(name, s) for s in range(first_seed, first_seed + seeds)]
+    if name.startswith("indep-"):
+        runs = [coverage_independent(name.removeprefix("indep-"), s) for s in range(first_seed, first_seed + seeds)]
+    else:
+        runs = [coverage_run(name, s) for s in range(first_seed, first_seed + seeds)]
     out = {}
     for key in runs[0]:
         pairs = [r[key] for r in runs if key in r]
@@ -330,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.coverage:
         table = {}
-        for name in ("RV-110E", "HFUC-32-100"):
+        for name in ("RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"):
             start = time.perf_counter()
             table[name] = coverage(name, args.seeds, args.first_seed)
             if not args.json:

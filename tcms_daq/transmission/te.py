@@ -91,6 +91,7 @@ class TeDirection:
     curve_angle_deg: np.ndarray = field(repr=False)  # output angle of the curve, deg, from phi_start
     curve_arcsec: np.ndarray = field(repr=False)  # the measured TE there (trend and mean removed)
     curve_fit_arcsec: np.ndarray = field(repr=False)  # the sum of the lines there
+    offset_arcsec: float = 0.0  # φ = θ_in/i + offset: the output encoder's zero against the input's
 
     @property
     def resolution_orders(self) -> float:
@@ -468,7 +469,7 @@ def evaluate_direction(record: TeRecord, table: list[ComponentOrder] | None, max
         lines=lines, phi_start_rad=float(phi_rad[0]), phi_end_rad=float(phi_rad[0] + span_rad),
         samples=m,
         curve_angle_deg=np.degrees(phi_rad[curve_idx] - phi_rad[0]),
-        curve_arcsec=measured[curve_idx], curve_fit_arcsec=fit[curve_idx])
+        curve_arcsec=measured[curve_idx], curve_fit_arcsec=fit[curve_idx], offset_arcsec=record.offset_arcsec)
 
 
 def _sum_of_lines(phi_rad: np.ndarray, lines: list[TeLine]) -> np.ndarray:

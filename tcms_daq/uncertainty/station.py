@@ -7,18 +7,22 @@ transmission error the noise around each line of the spectrum), Type B from the 
 enters the record in a known way (a torque scale or zero, the skew between the two angle readings: the record is
 perturbed by ± the step and evaluated again, central differences).
 
-Transmission error (per direction's peak-to-peak, the larger of the two, and each order's amplitude):
+Transmission error (per direction's peak-to-peak, the larger of the two, and each order's amplitude). The noise
+and the encoders' errors move the fitted lines' coefficients linearly, but an amplitude or a peak-to-peak is not
+linear in them (a small line's amplitude grows with any error across it): their lines are a Monte Carlo over the
+coefficients (JCGM 101 on the fitted model, 400 draws): the RMS change of each result, its spread and its mean
+shift together.
 
-* noise — each line's amplitude has u = √(E|A|²/2) from the noise bins around it; the peak-to-peak's is the scatter
-  of the peak-to-peak over draws of all lines' coefficients with that noise (Type A, ~100 noise bins: 100 dof);
+* noise — each line's coefficients with the noise around it (√(E|A|²/2) from ~130 bins; Type A, 100 dof);
+* output encoder (orders 1–2) — its error over the revolution (``output_encoder_u_arcsec``, RMS: mounting and
+  graduation; shared by the two orders, each a cosine and a sine of standard uncertainty u/√2), the same in both
+  directions, through the fit of each shape with the record's columns;
+* input encoder (once per input turn) — its error (``input_encoder_u_arcsec``, RMS, input arcsec: a cosine and a
+  sine of that standard uncertainty of the input angle), read as −e/i on the TE;
+* output encoder (higher orders) — ``output_encoder_high_order_u_arcsec`` (RMS) as a sinusoid of unknown phase at a
+  line's order (sensitivity 1), on the peak-to-peak √2 (at the maximum and the minimum);
 * lines below the detection threshold — a line of at most the threshold amplitude A_th may have been left out; it
   moves the peak-to-peak by at most 2·A_th (rectangular);
-* output encoder — its error over the revolution at orders 1 and 2 (``output_encoder_u_arcsec``, RMS: mounting and
-  graduation; shared by the two orders, each a cosine and a sine of standard uncertainty u/√2) through the
-  evaluation: the output record moved by each shape; above (``output_encoder_high_order_u_arcsec``, RMS) a sinusoid
-  of unknown phase at a line's order (sensitivity 1), on the peak-to-peak √2 (at the maximum and the minimum);
-* input encoder — its once-per-input-turn error (``input_encoder_u_arcsec``, RMS, input arcsec: a cosine and a sine
-  of that standard uncertainty) through the evaluation: it reaches the TE divided by i at the input's order;
 * synchronisation — the input angle latched ±``sync_skew_u_s`` later, evaluated again with the same orders: it
   carries the measured speed and its ripple (a constant skew at a constant speed only shifts the TE);
 * speed ripple — the record resampled onto the angle grid linearly instead of by a cubic spline, evaluated again:
@@ -62,7 +66,7 @@ from tcms_daq.uncertainty.budget import Budget, Contribution, combine
 from tcms_daq.units import ARCSEC_PER_RAD
 
 NOISE_DOF = 100.0  # the noise level of a line comes from ~130 bins around it
-NOISE_DRAWS = 100
+MC_DRAWS = 400
 NOISE_SEED = 20_261_127
 BOOTSTRAP_DRAWS = 8
 
@@ -93,33 +97,78 @@ def _match(values: dict[str, float], moved: TeEvaluation) -> dict[str, float]:
     return out
 
 
-def _peak_to_peak_scatter(ev: TeEvaluation, draws: int = NOISE_DRAWS) -> dict[str, float]:
-    """Standard deviation of each direction's peak-to-peak (and of the larger) over draws of the lines'
-    coefficients with their noise."""
-    rng = np.random.default_rng(NOISE_SEED)
-    per: dict[str, list[float]] = {}
-    for name, d in ev.per_direction.items():
-        if not d.lines:
-            per[name] = [0.0] * draws
-            continue
-        top = max(ln.order_per_output_rev for ln in d.lines)
-        phi = np.linspace(d.phi_start_rad, d.phi_end_rad, max(2048, int(16 * top * d.revolutions)))
-        c = np.array([ln.amplitude_arcsec * math.sin(math.radians(ln.phase_deg)) for ln in d.lines])
-        s = np.array([ln.amplitude_arcsec * math.cos(math.radians(ln.phase_deg)) for ln in d.lines])
-        u = np.array([ln.u_amplitude_arcsec for ln in d.lines])
-        k = np.array([ln.order_per_output_rev for ln in d.lines])
-        cos, sin = np.cos(np.outer(k, phi)), np.sin(np.outer(k, phi))
-        values = []
-        for _ in range(draws):
-            cc = c + u * rng.standard_normal(c.size)
-            ss = s + u * rng.standard_normal(s.size)
-            te = cc @ cos + ss @ sin
-            values.append(float(np.max(te) - np.min(te)))
-        per[name] = values
-    out = {f"{name}_transmission_error_arcsec": float(np.std(v, ddof=1)) for name, v in per.items()}
-    top = np.maximum(*[np.array(v) for v in per.values()])
-    out["transmission_error_arcsec"] = float(np.std(top, ddof=1))
+@dataclass(frozen=True)
+class _Lines:
+    """One direction's lines as coefficients of TE = Σ c·cos kφ + s·sin kφ, and the dense grid of its span."""
+
+    orders: np.ndarray
+    coef: np.ndarray  # [c1, s1, c2, s2, …]
+    u: np.ndarray  # each line's noise u, per coefficient
+    cos: np.ndarray
+    sin: np.ndarray
+    phi: np.ndarray  # the record's even grid (rad)
+    direction: TeDirection
+
+
+def _lines_of(d: TeDirection) -> _Lines:
+    k = np.array([ln.order_per_output_rev for ln in d.lines])
+    coef = np.array([x for ln in d.lines for x in (ln.amplitude_arcsec * math.sin(math.radians(ln.phase_deg)),
+                                                   ln.amplitude_arcsec * math.cos(math.radians(ln.phase_deg)))])
+    top = float(k.max()) if k.size else 1.0
+    dense = np.linspace(d.phi_start_rad, d.phi_end_rad, max(2048, int(16 * top * d.revolutions)))
+    grid = d.phi_start_rad + np.arange(d.samples) * (d.phi_end_rad - d.phi_start_rad) / d.samples
+    u = np.repeat([ln.u_amplitude_arcsec for ln in d.lines], 2)
+    return _Lines(k, coef, u, np.cos(np.outer(k, dense)), np.sin(np.outer(k, dense)), grid, d)
+
+
+def _shape_response(lines: _Lines, shapes: np.ndarray) -> np.ndarray:
+    """How each line's coefficients move when the record moves by each shape (columns of ``shapes`` on the
+    record's grid): the least-squares fit of the shape with the record's columns (the constant, the trend, the
+    lines), rows = shapes."""
+    phi = lines.phi
+    cols = [np.ones_like(phi), phi - phi.mean()]
+    for k in lines.orders:
+        cols += [np.cos(k * phi), np.sin(k * phi)]
+    coef, *_ = np.linalg.lstsq(np.column_stack(cols), shapes, rcond=None)
+    return np.asarray(coef[2:].T)
+
+
+def _results_of(ev: TeEvaluation, per: dict[str, _Lines], coefs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The TE results for draws of every direction's coefficients (arrays draws × 2L): each direction's peak-to-peak,
+    the larger, and each combined line's amplitude (the mean of the directions' phasors at its order)."""
+    out: dict[str, np.ndarray] = {}
+    for name, lines in per.items():
+        c, s = coefs[name][:, 0::2], coefs[name][:, 1::2]
+        te = c @ lines.cos + s @ lines.sin
+        out[f"{name}_transmission_error_arcsec"] = te.max(axis=1) - te.min(axis=1)
+    out["transmission_error_arcsec"] = np.maximum.reduce([out[f"{n}_transmission_error_arcsec"] for n in per])
+    tolerance = 0.5 / min(d.revolutions for d in ev.per_direction.values())
+    for line in ev.te_orders:
+        phasors = []
+        for name, lines in per.items():
+            idx = np.flatnonzero(np.abs(lines.orders - line.order_per_output_rev) <= tolerance)
+            if idx.size:
+                j = int(idx[np.argmin(np.abs(lines.orders[idx] - line.order_per_output_rev))])
+                phasors.append(coefs[name][:, 2 * j + 1] + 1j * coefs[name][:, 2 * j])
+        if phasors:
+            out[te_order_name(line)] = np.abs(np.mean(phasors, axis=0))
     return out
+
+
+def _line_monte_carlo(ev: TeEvaluation, per: dict[str, _Lines], sources: dict[str, dict[str, np.ndarray]],
+                      sigma: float, draws: int, shared: bool, rng: np.random.Generator) -> dict[str, float]:
+    """RMS change of each result (its spread and its mean shift: an amplitude or a peak-to-peak is not linear in the
+    coefficients, and a small line's amplitude grows with any error across it) when the coefficients move by
+    ``sources[direction]`` (shapes × 2L) times draws of N(0, σ²) per shape, the same draw in both directions when
+    ``shared`` (one encoder's error), else independent."""
+    nominal = {k: v[0] for k, v in _results_of(ev, per, {n: ln.coef[None, :] for n, ln in per.items()}).items()}
+    common = sigma * rng.standard_normal((draws, next(iter(sources.values())).shape[0]))
+    coefs = {}
+    for name, lines in per.items():
+        x = common if shared else sigma * rng.standard_normal((draws, sources[name].shape[0]))
+        coefs[name] = lines.coef[None, :] + x @ sources[name]
+    moved = _results_of(ev, per, coefs)
+    return {k: float(np.sqrt(np.mean((v - nominal[k]) ** 2))) for k, v in moved.items() if k in nominal}
 
 
 def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_angle_arcsec: npt.ArrayLike,
@@ -154,18 +203,6 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
 
     through("synchronisation (skew of the angle readings)", "s", chain.sync_skew_u_s,
             lambda x: (np.interp(t - x, t, a_in), a_out))
-    # the output encoder's error at orders 1 and 2 (its RMS shared by the two, each a cosine and a sine of unknown
-    # size) and the input encoder's once per input turn: the record moved by each shape
-    phi_out = a_out / ARCSEC_PER_RAD
-    u_low = chain.output_encoder_u_arcsec / math.sqrt(2.0)
-    for m in (1, 2):
-        for label, shape in (("cosine", np.cos(m * phi_out)), ("sine", np.sin(m * phi_out))):
-            through(f"output encoder (orders 1–2), order {m} {label}", "arcsec", u_low,
-                    lambda x, s=shape: (a_in, a_out + x * s))
-    theta_in = a_in / ARCSEC_PER_RAD
-    for label, shape in (("cosine", np.cos(theta_in)), ("sine", np.sin(theta_in))):
-        through(f"input encoder (once per input turn), {label}", "arcsec (input)", chain.input_encoder_u_arcsec,
-                lambda x, s=shape: (a_in + x * s, a_out))
     linear = again(a_in, a_out, "linear")
     for name in values:
         if name in linear:
@@ -173,8 +210,35 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
             if half > 0:
                 lines[name].append(Contribution("speed ripple (resampling onto the angle grid)", "arcsec",
                                                 half / math.sqrt(3.0), 1.0))
+    # the encoders' errors and the noise: Monte Carlo over the lines' coefficients (each source moves them linearly,
+    # the results are not linear in them: JCGM 101 on the fitted model)
+    rng = np.random.default_rng(NOISE_SEED)
+    per = {name: _lines_of(d) for name, d in nominal.per_direction.items() if d.lines}
     with threadpool_limits(limits=1, user_api="blas"):
-        scatter = _peak_to_peak_scatter(nominal)
+        mc: dict[str, dict[str, float]] = {}
+        if per:
+            noise = {name: np.diag(ln.u) for name, ln in per.items()}
+            mc["noise"] = _line_monte_carlo(nominal, per, noise, 1.0, MC_DRAWS, False, rng)
+            if chain.output_encoder_u_arcsec > 0:
+                shapes = {name: _shape_response(ln, np.column_stack(
+                    [f(m * ln.phi) for m in (1, 2) for f in (np.cos, np.sin)])) for name, ln in per.items()}
+                mc["output encoder (orders 1–2)"] = _line_monte_carlo(
+                    nominal, per, shapes, chain.output_encoder_u_arcsec / math.sqrt(2.0), MC_DRAWS, True, rng)
+            if chain.input_encoder_u_arcsec > 0:
+                i = nominal.ratio
+                shapes = {}
+                for name, ln in per.items():
+                    theta_in = i * (ln.phi - ln.direction.offset_arcsec / ARCSEC_PER_RAD)
+                    # the input's error e reads as −e/i on the TE (θ_out − θ_in/i)
+                    shapes[name] = -_shape_response(ln, np.column_stack([np.cos(theta_in), np.sin(theta_in)])) / i
+                mc["input encoder (once per input turn)"] = _line_monte_carlo(
+                    nominal, per, shapes, chain.input_encoder_u_arcsec, MC_DRAWS, True, rng)
+    for source, changes in mc.items():
+        if source == "noise":
+            continue
+        for name, u in changes.items():
+            if name in lines and u > 0:
+                lines[name].append(Contribution(source, "arcsec", u, 1.0))
     threshold = max(_threshold_amplitude(d) for d in nominal.per_direction.values())
     u_high = chain.output_encoder_high_order_u_arcsec
     type_a_u: dict[str, float] = {}
@@ -183,19 +247,17 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
             line = next(ln for ln in nominal.te_orders if te_order_name(ln) == name)
             if line.order_per_output_rev > 2.5:  # the encoder's higher orders: a sinusoid of unknown phase there
                 lines[name].append(Contribution("output encoder (higher orders)", "arcsec", u_high, 1.0))
-            type_a_u[name] = line.u_amplitude_arcsec
         else:
             lines[name].append(Contribution("output encoder (higher orders)", "arcsec", u_high, math.sqrt(2.0)))
             lines[name].append(Contribution("lines below the detection threshold", "arcsec",
                                             threshold / math.sqrt(3.0), 2.0))
-            type_a_u[name] = scatter[name]
+        type_a_u[name] = mc.get("noise", {}).get(name, 0.0)
     return {name: combine(values[name], "arcsec", type_a_u[name], NOISE_DOF, _type_a_source(name),
                           [c for c in lines[name] if c.u > 0]) for name in values}
 
 
 def _type_a_source(name: str) -> str:
-    return ("noise around the line (spectrum)" if name.startswith("te_order_")
-            else f"noise ({NOISE_DRAWS} draws of the lines with their noise)")
+    return f"noise around the lines ({MC_DRAWS} draws of their coefficients)"
 
 
 def _threshold_amplitude(d: TeDirection) -> float:
