@@ -252,7 +252,8 @@ def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAI
     spec = load_reducer_catalogue()[name]
     unit = unit_from_spec(spec)
     sim = spec.sim.transmission
-    teeth = spec.kinematics.teeth(spec.kind)  # type: ignore[union-attr]
+    assert sim is not None and spec.kinematics is not None  # unit_from_spec refuses an entry without them
+    teeth = spec.kinematics.teeth(spec.kind)
     rng = np.random.default_rng(seed)
     sensors, start = _drawn_sensors(rng, chain)
     out: dict[str, tuple[float, float]] = {}
@@ -280,8 +281,8 @@ def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAI
     st = evaluate_starting_torque(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"])
     for key, b in starting_torque_budgets(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"], st,
                                           chain).items():
-        truth = {"forward": starting_torque_truth(unit, 1.0), "reverse": starting_torque_truth(unit, -1.0)}
-        expected = truth.get(key.split("_")[0], max(truth.values()))
+        starting = {"forward": starting_torque_truth(unit, 1.0), "reverse": starting_torque_truth(unit, -1.0)}
+        expected = starting.get(key.split("_")[0], max(starting.values()))
         out[key] = (b.value - expected, b.expanded)
     speeds = [500.0, 1500.0, 3000.0]
     c = record_speed_run(unit, no_load_profile(speeds, 1.5), sensors, seed=seed).columns

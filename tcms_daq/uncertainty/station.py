@@ -155,7 +155,7 @@ def _results_of(ev: TeEvaluation, per: dict[str, _Lines], coefs: dict[str, np.nd
     return out
 
 
-def _line_monte_carlo(ev: TeEvaluation, per: dict[str, _Lines], sources: dict[str, dict[str, np.ndarray]],
+def _line_monte_carlo(ev: TeEvaluation, per: dict[str, _Lines], sources: dict[str, np.ndarray],
                       sigma: float, draws: int, shared: bool, rng: np.random.Generator) -> dict[str, float]:
     """RMS change of each result (its spread and its mean shift: an amplitude or a peak-to-peak is not linear in the
     coefficients, and a small line's amplitude grows with any error across it) when the coefficients move by
