@@ -15,6 +15,7 @@ from tcms_daq.units import ARCSEC_PER_ARCMIN, ARCSEC_PER_RAD
 
 if TYPE_CHECKING:
     from tcms_daq.analysis.gaps import GapLimits
+    from tcms_daq.transmission.kinematics import Teeth
 
 # ------------------------------------------------------------------------------------------------- reducers
 
@@ -37,11 +38,87 @@ class ReducerSimSpec(BaseModel):
     lost_motion_zone_arcsec: float = Field(12.0, ge=0.0)
     lost_motion_zone_pct: float = Field(1.0, gt=0.0, le=50.0)
     friction_transition_pct: float = Field(50.0, gt=0.0, le=200.0)
+    transmission: TransmissionSimSpec | None = None  # the turning unit (sim/transmission.py); None: not simulated
+
+
+class TeHarmonicSpec(BaseModel):
+    """One harmonic of a simulated unit's transmission error at ``harmonic`` × the order of ``component``
+    (``tcms_daq.transmission.kinematics``): TE += amplitude·sin(order·φ + phase), φ the output angle (rad)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    component: str = Field(min_length=1)
+    harmonic: int = Field(1, ge=1, le=10)
+    amplitude_arcsec: float = Field(ge=0.0, le=3600.0)
+    phase_deg: float = 0.0
+
+
+class TransmissionSimSpec(BaseModel):
+    """[reducers.<NAME>.sim.transmission]: what the simulated unit does when it turns (sim/transmission.py).
+
+    harmonics: its transmission error, per component of its kinematics. Friction at the input shaft (N·m):
+    breakaway_torque_nm (static: the starting torque), coulomb_torque_nm (running), viscous_nm_per_krpm (per
+    1000 rpm of input speed at reference_temperature_c; × exp(−viscous_temperature_coefficient_per_k·ΔT) at
+    other temperatures); direction_asymmetry_pct: the negative direction's friction is larger by this share, the
+    positive's smaller. The meshes lose a share of the transmitted torque that is solved so that the efficiency
+    at rated output torque and rated_input_speed_rpm is rated_efficiency_pct (at the reference temperature).
+    input_inertia_kg_m2: what the input drive accelerates (its rotor and the reducer's input side).
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    harmonics: list[TeHarmonicSpec] = Field(default_factory=list)
+    breakaway_torque_nm: float = Field(gt=0.0)
+    coulomb_torque_nm: float = Field(gt=0.0)
+    viscous_nm_per_krpm: float = Field(0.0, ge=0.0)
+    viscous_temperature_coefficient_per_k: float = Field(0.03, ge=0.0, le=0.5)
+    reference_temperature_c: float = Field(25.0, ge=-40.0, le=150.0)
+    direction_asymmetry_pct: float = Field(0.0, ge=0.0, lt=50.0)
+    rated_efficiency_pct: float = Field(gt=0.0, lt=100.0)
+    rated_input_speed_rpm: float = Field(gt=0.0)
+    input_inertia_kg_m2: float = Field(5e-4, gt=0.0)
+
+    @model_validator(mode="after")
+    def _breakaway(self) -> TransmissionSimSpec:
+        if self.breakaway_torque_nm < self.coulomb_torque_nm:
+            raise ValueError(f"breakaway_torque_nm ({self.breakaway_torque_nm}) must be at least "
+                             f"coulomb_torque_nm ({self.coulomb_torque_nm})")
+        return self
+
+
+class ReducerKinematics(BaseModel):
+    """[reducers.<NAME>.kinematics]: the tooth numbers the orders of the transmission error come from
+    (``tcms_daq.transmission.kinematics``; docs/transmission.md derives the orders). RV: input_gear_teeth (Z1, the
+    pinion on the input shaft), spur_gear_teeth (Z2, on each crankshaft), crankshafts, cycloid_teeth, pins;
+    Harmonic Drive: flexspline_teeth, circular_spline_teeth. ``sources`` and ``assumed`` as the entry's own."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    input_gear_teeth: int | None = Field(None, ge=1, le=1000)
+    spur_gear_teeth: int | None = Field(None, ge=1, le=1000)
+    crankshafts: int | None = Field(None, ge=1, le=12)
+    cycloid_teeth: int | None = Field(None, ge=1, le=1000)
+    pins: int | None = Field(None, ge=2, le=1000)
+    flexspline_teeth: int | None = Field(None, ge=2, le=5000)
+    circular_spline_teeth: int | None = Field(None, ge=2, le=5000)
+    sources: dict[str, str] = Field(default_factory=dict)
+    assumed: list[str] = Field(default_factory=list)
+
+    def teeth(self, kind: str) -> Teeth:
+        """The core's form (checks the numbers fit the kind: ValueError naming the problem)."""
+        from tcms_daq.transmission.kinematics import Teeth
+
+        return Teeth(kind=kind, input_gear=self.input_gear_teeth, spur_gear=self.spur_gear_teeth,  # type: ignore[arg-type]
+                     crankshafts=self.crankshafts, cycloid=self.cycloid_teeth, pins=self.pins,
+                     flexspline=self.flexspline_teeth, circular_spline=self.circular_spline_teeth)
 
 
 # How far a measured rigidity may lie from the catalogue's before the verdict fails, per reducer family (%):
 # catalogue rigidities are typical values, not guaranteed minima.
 RIGIDITY_TOLERANCE_PCT = {"rv": 20.0, "harmonic": 30.0}
+# How far the ratio of an entry's tooth numbers may lie from its printed ratio: catalogues print ratios to two
+# decimals (a ratio 1 + 40·61/14 = 175.2857… is printed 175.28).
+RATIO_TOLERANCE = 0.005
 
 
 class ReducerSpec(BaseModel):
@@ -71,6 +148,7 @@ class ReducerSpec(BaseModel):
     rigidity_min_nm_per_arcmin: float | None = Field(None, gt=0.0)
     rigidity_tolerance_pct: float | None = Field(None, gt=0.0, lt=100.0)  # None: the family's default
     sim: ReducerSimSpec = Field(default_factory=ReducerSimSpec)
+    kinematics: ReducerKinematics | None = None
     sources: dict[str, str] = Field(default_factory=dict)
     assumed: list[str] = Field(default_factory=list)
 
@@ -92,7 +170,32 @@ class ReducerSpec(BaseModel):
         for key in list(self.sources) + list(self.assumed):
             if key not in known:
                 raise ValueError(f"sources/assumed name unknown field {key!r}")
+        self._check_kinematics()
         return self
+
+    def _check_kinematics(self) -> None:
+        """The tooth numbers fit the kind, give the catalogue's ratio, and every simulated harmonic names one of
+        the kind's components."""
+        from tcms_daq.transmission.kinematics import COMPONENTS, ratio
+
+        if self.kinematics is not None:
+            known = set(ReducerKinematics.model_fields) - {"sources", "assumed"}
+            for key in list(self.kinematics.sources) + list(self.kinematics.assumed):
+                if key not in known:
+                    raise ValueError(f"kinematics.sources/assumed name unknown field {key!r}")
+            teeth = self.kinematics.teeth(self.kind)
+            if self.ratio is None:
+                raise ValueError("kinematics need the entry's ratio (the catalogue's, to check them against)")
+            if abs(ratio(teeth) - self.ratio) > RATIO_TOLERANCE:
+                raise ValueError(f"kinematics give ratio {ratio(teeth):.6g}, the entry says {self.ratio:g}")
+        transmission = self.sim.transmission
+        if transmission is not None:
+            if self.kinematics is None:
+                raise ValueError("sim.transmission needs the entry's kinematics (its orders come from them)")
+            for h in transmission.harmonics:
+                if h.component not in COMPONENTS[self.kind]:
+                    raise ValueError(f"sim.transmission: unknown {self.kind} component {h.component!r} "
+                                     f"(components: {', '.join(COMPONENTS[self.kind])})")
 
     @property
     def hd_breakpoints_nm(self) -> tuple[float, float] | None:
@@ -249,11 +352,32 @@ class ChainUncertainty(_Declared):
 DecisionRule = Literal["simple", "guarded"]
 
 
+class StationUncertainty(_Declared):
+    """[uncertainty.station]: the declared standard uncertainties (k = 1) of the turning tests' chain
+    (``tcms_daq.uncertainty.station``). output_encoder_u_arcsec: the output encoder's error over a revolution (RMS;
+    graduation and mounting, at low orders), output_encoder_high_order_u_arcsec: its error at higher orders (RMS of
+    the interpolation error); input_encoder_u_arcsec: the input encoder's error in input arcsec (RMS over an input
+    revolution; it reaches the transmission error divided by the ratio, at the input's order); sync_skew_u_s: the
+    skew between the two angle readings; the input and output torque channels (scale, zero)."""
+
+    output_encoder_u_arcsec: float = Field(0.0, ge=0.0)
+    output_encoder_high_order_u_arcsec: float = Field(0.0, ge=0.0)
+    input_encoder_u_arcsec: float = Field(0.0, ge=0.0)
+    sync_skew_u_s: float = Field(0.0, ge=0.0)
+    input_torque: TorqueUncertainty = Field(default_factory=TorqueUncertainty)
+    output_torque: TorqueUncertainty = Field(default_factory=TorqueUncertainty)
+
+    def declared(self) -> bool:
+        return super().declared() or self.input_torque.declared() or self.output_torque.declared()
+
+
 class BenchUncertainty(_Declared):
-    """[uncertainty] of a bench config: what is not one instrument's (the compensation model, temperature)."""
+    """[uncertainty] of a bench config: what is not one instrument's (the compensation model, temperature), and the
+    turning tests' chain ([uncertainty.station])."""
 
     compensation: CompensationUncertainty = Field(default_factory=CompensationUncertainty)
     temperature: TemperatureUncertainty = Field(default_factory=TemperatureUncertainty)
+    station: StationUncertainty = Field(default_factory=StationUncertainty)
 
 
 # ------------------------------------------------------------------------------------------------- bench
@@ -574,6 +698,43 @@ class RichReducerConfig(BaseModel):
     viscous_arcsec_per_nm_per_s: float = Field(5e-4, ge=0.0)
 
 
+class ExtraOrder(BaseModel):
+    """A hidden harmonic of the simulated unit's transmission error that its model does not have: TE +=
+    amplitude·sin(order·φ + phase), φ the output angle (rad), order per output revolution (any order: one of the
+    kinematics' or one that belongs to no component)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    order: float = Field(gt=0.0, le=100_000.0)
+    amplitude_arcsec: float = Field(ge=0.0, le=3600.0)
+    phase_deg: float = 0.0
+
+
+class SimTransmission(BaseModel):
+    """[sim.transmission]: the simulated bench's second axis (sim/transmission.py): the unit turns, driven at its
+    input. Off by default: the stiffness bench is unchanged without it. The unit's harmonics and friction come from
+    the catalogue entry ([reducers.<NAME>.sim.transmission]); ``extra`` adds hidden orders.
+
+    input_encoder_counts_per_rev: the input encoder's resolution; input_encoder_error_arcsec: the amplitude of its
+    once-per-input-revolution error (input arcsec); sync_skew_s: how much later the input angle is latched than the
+    output angle; speed_ripple_pct, speed_ripple_per_input_rev: the input drive's speed ripple (amplitude in % of
+    the speed, its order per input revolution); input_torque_noise_nm: the input torque reading's noise;
+    temperature_c: the unit's (oil) temperature.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    enabled: bool = False
+    extra: list[ExtraOrder] = Field(default_factory=list)
+    input_encoder_counts_per_rev: int = Field(2**20, ge=4)
+    input_encoder_error_arcsec: float = Field(0.0, ge=0.0)
+    sync_skew_s: float = Field(0.0, ge=-1.0, le=1.0)
+    speed_ripple_pct: float = Field(0.0, ge=0.0, lt=50.0)
+    speed_ripple_per_input_rev: float = Field(1.0, gt=0.0)
+    input_torque_noise_nm: float = Field(0.002, ge=0.0)
+    temperature_c: float = Field(25.0, ge=-40.0, le=150.0)
+
+
 class SimConfig(BaseModel):
     """The simulated bench (sim/): clock, drive, sensors; ``effects`` is the [sim.effects] table (sim/effects.py).
 
@@ -600,6 +761,7 @@ class SimConfig(BaseModel):
     effects: dict[str, Any] = Field(default_factory=dict)
     model: Literal["simple", "rich"] = "simple"  # the reducer model: see RichReducerConfig
     rich: RichReducerConfig = Field(default_factory=RichReducerConfig)
+    transmission: SimTransmission = Field(default_factory=SimTransmission)
 
 
 class ServiceSection(BaseModel):

@@ -3,7 +3,8 @@
 * No cycle among the parts: the tcms_daq subpackages, ``drivers`` and ``sim`` (installed as ``tcms_daq.drivers`` and
   ``tcms_daq.sim``: the folders beside ``tcms_daq/`` are named by the package they are installed as).
 * Drivers know nothing of the simulator.
-* The pure core (units, errors, samples, crossval, analysis, compensation, discrepancy, procedure, uncertainty, and the
+* The pure core (units, errors, samples, crossval, analysis, compensation, discrepancy, procedure, transmission,
+  uncertainty, and the
   protocol definitions drivers and simulators share) imports nothing of the shell (drivers, sim, acquisition, store, service, cli, config files and the environment) nor the I/O libraries,
   and never reads the environment.
 """
@@ -19,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = {"tcms_daq": "tcms_daq", "drivers": "tcms_daq.drivers", "sim": "tcms_daq.sim"}
 CORE = {"tcms_daq.units", "tcms_daq.errors", "tcms_daq.samples", "tcms_daq.crossval", "tcms_daq.analysis",
         "tcms_daq.compensation", "tcms_daq.discrepancy", "tcms_daq.procedure", "tcms_daq.protocols",
-        "tcms_daq.runstate", "tcms_daq.uncertainty", "tcms_daq.identity", "tcms_daq.spc"}
+        "tcms_daq.runstate", "tcms_daq.transmission", "tcms_daq.uncertainty", "tcms_daq.identity", "tcms_daq.spc"}
 SHELL = {"tcms_daq.drivers", "tcms_daq.sim", "tcms_daq.acquisition", "tcms_daq.store", "tcms_daq.service", "tcms_daq.cli",
          "tcms_daq.settings"}
 IO_LIBRARIES = {"fastapi", "starlette", "uvicorn", "serial", "pymodbus", "can", "canopen", "psycopg", "asyncua",

@@ -90,7 +90,7 @@ def test_harmonic_without_k3_and_bad_breakpoints(write, reducers_text):
 
 
 def test_sources_must_name_fields(write, reducers_text):
-    path = write("reducers.toml", reducers_text.replace('assumed = ["lost_motion_limit_arcsec"]', 'assumed = ["stiffnes"]', 1))
+    path = write("reducers.toml", reducers_text.replace('assumed = ["lost_motion_limit_arcsec", "ratio"]', 'assumed = ["stiffnes"]', 1))
     with pytest.raises(ConfigError, match=r"reducers\.RV-110E.*unknown field 'stiffnes'"):
         load_reducer_catalogue(path)
 
