@@ -147,6 +147,43 @@ def local_slope(torque_nm: np.ndarray, angle_arcsec: np.ndarray, segments: np.nd
     return slope
 
 
+def history_free_curve(torque_nm: np.ndarray, angle_arcsec: np.ndarray, direction: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(torque grid N·m, angle ″): the history-free part of a torque–angle trace, the mean of its loading and its
+    unloading curve (each the angle's mean in equal-width torque bins, at the bins' mean torque, on a common grid).
+    A friction loop that depends on the torque increments (Dahl, a play) is odd in the load direction and drops
+    out; what stays is the spring. Where one direction does not reach, the other is used with the half-width of
+    the loop at the nearest torque both reach; a trace loaded in one direction is its own curve."""
+    t = np.asarray(torque_nm, dtype=float)
+    a = np.asarray(angle_arcsec, dtype=float)
+    lo, hi = float(t.min()), float(t.max())
+    if not hi > lo:
+        return np.array([lo, lo + 1.0]), np.full(2, float(np.mean(a)))
+    curves = []
+    for sign in (1, -1):
+        rows = np.flatnonzero(direction == sign)
+        if len(rows) < 2:
+            continue
+        n_bins = int(np.clip(len(rows) // 8, 8, 400))
+        index = np.clip(((t[rows] - lo) / (hi - lo) * n_bins).astype(int), 0, n_bins - 1)
+        count = np.bincount(index, minlength=n_bins).astype(float)
+        used = count > 0
+        centre = np.bincount(index, weights=t[rows], minlength=n_bins)[used] / count[used]
+        mean = np.bincount(index, weights=a[rows], minlength=n_bins)[used] / count[used]
+        curves.append((centre, mean))
+    grid = np.unique(np.concatenate([c for c, _ in curves]))
+    if len(curves) == 1:
+        return grid, np.interp(grid, *curves[0])
+    (cu, mu), (cd, md) = curves
+    up = np.where((grid >= cu[0]) & (grid <= cu[-1]), np.interp(grid, cu, mu), np.nan)
+    down = np.where((grid >= cd[0]) & (grid <= cd[-1]), np.interp(grid, cd, md), np.nan)
+    both = np.isfinite(up) & np.isfinite(down)
+    if not both.any():
+        return grid, np.where(np.isfinite(up), up, down)
+    half = np.interp(grid, grid[both], 0.5 * (up - down)[both])  # the loop's half-width, held beyond the overlap
+    return grid, np.where(np.isfinite(up), up - half, down + half)
+
+
 def time_segments(time_s: np.ndarray, run_id: np.ndarray | None) -> np.ndarray:
     """Labels of stretches with continuous, increasing time (a new run or a time jump starts a new one)."""
     n = len(time_s)
@@ -220,6 +257,11 @@ class DesignData:
     def elapsed_s(self) -> np.ndarray:
         """Time since the first row (s): the clock the time-dependent effects run on."""
         return self.time_s - self.time_s[0]
+
+    @cached_property
+    def history_free(self) -> tuple[np.ndarray, np.ndarray]:
+        """The simulated curve's history-free part (:func:`history_free_curve`), computed once."""
+        return history_free_curve(self.torque_nm, self.sim_angle_arcsec, self.direction)
 
     @cached_property
     def segment_rows(self) -> list[np.ndarray]:
