@@ -9,12 +9,13 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from tcms_daq.samples import Samples
 
 TORQUE_SMOOTHING_S = 0.05
 MIN_SMOOTHING_SAMPLES = 5
+SMOOTHING_ORDER = 2  # local quadratic fits: the tips of the loops keep their torque
 
 
 def applied_torque_estimate(time_s: np.ndarray, torque_nm: np.ndarray,
@@ -24,9 +25,12 @@ def applied_torque_estimate(time_s: np.ndarray, torque_nm: np.ndarray,
     The forward model is hysteretic: fed the raw reading, sensor noise makes tiny load reversals that walk
     the model along minor loops, enough to name a spurious ``scale_error`` on a run without any effect (±500 N·m
     loops on the default simulated bench: 0.5″ RMS against the true twist; 0.06″ with this estimate, see
-    tests/discrepancy/test_discrepancy_stored.py). A centred (zero-phase) moving average over ``window_s``
-    takes out most of the noise; a play operator of three times the remaining noise then removes the reversals
-    the noise still makes. A trace whose typical step is more than twice the noise is used as it is.
+    tests/discrepancy/test_discrepancy_stored.py). A centred (zero-phase) local quadratic fit over ``window_s``
+    (Savitzky–Golay) takes out most of the noise; a play operator of three times the remaining noise then removes
+    the reversals the noise still makes. Quadratic, not a moving average: a moving average rounds each tip (a
+    ramp into a hold and out of it) by a share of the window — 0.15 N·m RMS over a 13.75 kHz run, whose model loop
+    then turned early, 0.03″ of coloured structure the verdict rightly found (0.03 N·m with the quadratic fit).
+    A trace whose typical step is more than twice the noise is used as it is.
     """
     torque = np.asarray(torque_nm, dtype=float)
     if len(torque) >= 5:
@@ -41,9 +45,10 @@ def applied_torque_estimate(time_s: np.ndarray, torque_nm: np.ndarray,
     n = int(round(window_s / float(np.median(dt)))) | 1 if len(dt) and window_s > 0 else 1
     if n < MIN_SMOOTHING_SAMPLES or len(torque) < 2 * n:
         return torque  # sampled too slowly to smooth without rounding the reversals off (and noise matters less)
-    smooth = savgol_filter(torque, n, 1, mode="interp")  # a moving average; straight-line fits at the ends
+    smooth = savgol_filter(torque, n, SMOOTHING_ORDER, mode="interp")
     noise_nm = 1.4826 * float(np.median(np.abs(torque - smooth)))
-    return _play(smooth, 3.0 * noise_nm / np.sqrt(n))
+    gain = float(np.sqrt(np.sum(savgol_coeffs(n, SMOOTHING_ORDER) ** 2)))  # the noise left: noise · gain
+    return _play(smooth, 3.0 * noise_nm * gain)
 
 
 def _play(x: np.ndarray, half_width: float) -> np.ndarray:
