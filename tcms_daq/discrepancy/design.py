@@ -153,12 +153,35 @@ def history_free_curve(torque_nm: np.ndarray, angle_arcsec: np.ndarray, directio
     unloading curve (each the angle's mean in equal-width torque bins, at the bins' mean torque, on a common grid).
     A friction loop that depends on the torque increments (Dahl, a play) is odd in the load direction and drops
     out; what stays is the spring. Where one direction does not reach, the other is used with the half-width of
-    the loop at the nearest torque both reach; a trace loaded in one direction is its own curve."""
+    the loop at the nearest torque both reach; a trace loaded in one direction is its own curve. The curve is
+    continued by a torque span at each end, straight with the slope of its last 2 % of torque, so it can be read
+    beyond the trace."""
     t = np.asarray(torque_nm, dtype=float)
     a = np.asarray(angle_arcsec, dtype=float)
     lo, hi = float(t.min()), float(t.max())
     if not hi > lo:
         return np.array([lo, lo + 1.0]), np.full(2, float(np.mean(a)))
+    return _continued(*_mean_of_directions(t, a, direction, lo, hi))
+
+
+def _continued(grid: np.ndarray, curve: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(grid, curve)`` with a point one span beyond each end, on the straight line of its last 2 % of torque."""
+    span = float(grid[-1] - grid[0])
+    if not span > 0:
+        return grid, curve
+    ends = []
+    for end, far in ((0, grid[0] - span), (-1, grid[-1] + span)):
+        near = np.flatnonzero(np.abs(grid - grid[end]) <= 0.02 * span)
+        if len(near) < 2:
+            near = np.array([0, 1]) if end == 0 else np.array([len(grid) - 2, len(grid) - 1])
+        slope = float(np.polyfit(grid[near], curve[near], 1)[0])
+        ends.append((far, curve[end] + slope * (far - grid[end])))
+    return (np.concatenate(([ends[0][0]], grid, [ends[1][0]])),
+            np.concatenate(([ends[0][1]], curve, [ends[1][1]])))
+
+
+def _mean_of_directions(t: np.ndarray, a: np.ndarray, direction: np.ndarray, lo: float, hi: float
+                        ) -> tuple[np.ndarray, np.ndarray]:
     curves = []
     for sign in (1, -1):
         rows = np.flatnonzero(direction == sign)
@@ -262,6 +285,11 @@ class DesignData:
     def history_free(self) -> tuple[np.ndarray, np.ndarray]:
         """The simulated curve's history-free part (:func:`history_free_curve`), computed once."""
         return history_free_curve(self.torque_nm, self.sim_angle_arcsec, self.direction)
+
+    @cached_property
+    def history_free_on_rows(self) -> np.ndarray:
+        """The history-free part at each row's torque (″)."""
+        return np.interp(self.torque_nm, *self.history_free)
 
     @cached_property
     def segment_rows(self) -> list[np.ndarray]:

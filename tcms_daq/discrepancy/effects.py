@@ -344,29 +344,15 @@ def skew_grid(data: DesignData) -> np.ndarray:
     return np.linspace(-tmax, tmax, n)
 
 
-def _on_curve(grid: np.ndarray, curve: np.ndarray, torque_nm: np.ndarray) -> np.ndarray:
-    """The curve at ``torque_nm``: interpolated, and continued beyond its ends with the slope of its last 2 % of
-    torque."""
-    out = np.interp(torque_nm, grid, curve)
-    reach = 0.02 * float(grid[-1] - grid[0])
-    for end, beyond in ((0, torque_nm < grid[0]), (-1, torque_nm > grid[-1])):
-        if beyond.any():
-            near = np.flatnonzero(np.abs(grid - grid[end]) <= reach)
-            if len(near) < 2:
-                near = np.array([0, 1]) if end == 0 else np.array([-2, -1])
-            slope = float(np.polyfit(grid[near], curve[near], 1)[0])
-            out[beyond] = curve[end] + slope * (torque_nm[beyond] - grid[end])
-    return out
-
-
 def torque_shift(data: DesignData, offset_nm: float, rows: np.ndarray | None = None) -> np.ndarray:
     """θ_hf(T − T0) − θ_hf(T) (″): the history-free part of the simulated curve (``DesignData.history_free``: the
-    mean of its loading and unloading curves) read ``offset_nm`` lower along the torque axis, at ``rows`` if given.
-    A simulation driven by a reading T0 high is this much off; the friction loop, which follows the torque's
-    increments, is not shifted."""
+    mean of its loading and unloading curves, continued straight beyond its ends) read ``offset_nm`` lower along
+    the torque axis, at ``rows`` if given. A simulation driven by a reading T0 high is this much off; the friction
+    loop, which follows the torque's increments, is not shifted."""
     grid, curve = data.history_free
     torque = data.torque_nm if rows is None else data.torque_nm[rows]
-    return _on_curve(grid, curve, torque - offset_nm) - _on_curve(grid, curve, torque)
+    here = data.history_free_on_rows if rows is None else data.history_free_on_rows[rows]
+    return np.interp(torque - offset_nm, grid, curve) - here
 
 
 def torque_offset_grid(data: DesignData) -> np.ndarray:
