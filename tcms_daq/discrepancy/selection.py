@@ -226,14 +226,20 @@ def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.nda
         if 0 < k < len(fs) - 1 and max(fs[k] - fs[k - 1], fs[k + 1] - fs[k]) <= 1.5 * step:
             return 1.0 / _parabolic(fs, sse[order], k)
         # beside a band the grid leaves out (near the signal period): a parabola through a neighbour across the
-        # band would put the period inside it; scan the admissible neighbourhood finely instead
-        fine = 1.0 / np.linspace(fs[k] - step, fs[k] + step, FINE_POINTS)
-        fine = fine[(fine > 0) & cat.clear_of_signal_period(cols.data, fine)]
-        if len(fine) < 3:
+        # band would put the period inside it; scan the admissible neighbourhood finely instead. Only when the
+        # best admissible period is the one nearest the band is the data's period inside it (a beat with the
+        # signal period): then it is taken there, where the identifiability check sees the two terms cancel
+        f_fine = np.linspace(fs[k] - step, fs[k] + step, FINE_POINTS)
+        f_fine = f_fine[f_fine > 0]
+        ok = cat.clear_of_signal_period(cols.data, 1.0 / f_fine)
+        if ok.sum() < 3:
             return float(values[i])
         theta = cols.data.sim_angle_arcsec[scan_rows]
-        fine_sse = np.array([_periodic_sse(theta, w, r, float(p)) for p in fine])
-        return float(fine[int(np.argmin(fine_sse))])
+        fine_sse = np.full(len(f_fine), np.inf)
+        fine_sse[ok] = [_periodic_sse(theta, w, r, 1.0 / float(f)) for f in f_fine[ok]]
+        j = int(np.argmin(fine_sse))
+        at_band = (j + 1 < len(ok) and not ok[j + 1]) or (j > 0 and not ok[j - 1])
+        return 1.0 / _parabolic(fs, sse[order], k) if at_band else 1.0 / float(f_fine[j])
     return _parabolic(values, sse, i)
 
 
