@@ -153,14 +153,21 @@ def history_free_curve(torque_nm: np.ndarray, angle_arcsec: np.ndarray, directio
     unloading curve (each the angle's mean in equal-width torque bins, at the bins' mean torque, on a common grid).
     A friction loop that depends on the torque increments (Dahl, a play) is odd in the load direction and drops
     out; what stays is the spring. Where one direction does not reach, the other is used with the half-width of
-    the loop at the nearest torque both reach; a trace loaded in one direction is its own curve. The curve is
-    continued by a torque span at each end, straight with the slope of its last 2 % of torque, so it can be read
-    beyond the trace."""
+    the loop at the nearest torque both reach; a trace loaded in one direction is its own curve. The first branch
+    is left out when its direction has others: it starts from whatever state the friction was left in, not on the
+    loop (a virgin start on the simulated bench is 17″ off it, and its share of the bins' means put a 6 N·m torque
+    offset at −5 … −15 %). The curve is continued by a torque span at each end, straight with the slope of its last
+    2 % of torque, so it can be read beyond the trace."""
     t = np.asarray(torque_nm, dtype=float)
     a = np.asarray(angle_arcsec, dtype=float)
+    direction = np.asarray(direction)
     lo, hi = float(t.min()), float(t.max())
     if not hi > lo:
         return np.array([lo, lo + 1.0]), np.full(2, float(np.mean(a)))
+    starts = branch_starts(direction)
+    if len(starts) > 1 and np.count_nonzero(direction[starts] == direction[0]) > 1:
+        rest = slice(int(starts[1]), None)
+        t, a, direction = t[rest], a[rest], direction[rest]
     return _continued(*_mean_of_directions(t, a, direction, lo, hi))
 
 
