@@ -26,10 +26,11 @@ grows with the torque amplitude, a vibration periodic in time, lost counts (thre
 that drifts with a temperature ramp. Each carries where it is (time spans, a torque window with its direction, or a
 period in time), so the trials check that the workflow's ``unexplained`` block locates it.
 
-    python -m tcms_daq.sim.independent [--seeds 5] [--rate-hz 1000] [--grid own_grid|both] [--family NAME] [--json]
+    python -m tcms_daq.sim.independent [--seeds 5] [--rate-hz 50 --rate-hz 1000] [--grid own_grid|both]
+                                       [--family NAME] [--json | --markdown]
 
-prints per family (and grid): extra names, parameters within 10 %, out-of-catalogue never ``explained`` and
-located.
+prints per family (grid and rate): extra names, parameters within 10 %, out-of-catalogue never ``explained`` and
+located; ``--markdown`` the table of docs/discrepancy.md.
 """
 
 from __future__ import annotations
@@ -356,13 +357,15 @@ class Outcome:
     grid: str = "same_rows"
     aliases: list[list[str]] = field(default_factory=list)  # alias groups reported (names), not named
     pairing: str = "same_rows"  # how the workflow put the simulation onto the measured rows
+    rate_hz: float = 50.0
 
     @property
     def extra_names(self) -> list[str]:
         return sorted(set(self.named) - set(self.truth))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"family": self.family, "grid": self.grid, "seed": self.seed, "verdict": self.verdict,
+        return {"family": self.family, "grid": self.grid, "rate_hz": self.rate_hz, "seed": self.seed,
+                "in_catalogue": self.in_catalogue, "verdict": self.verdict,
                 "named": self.named, "truth": self.truth, "errors": self.errors, "extra_names": self.extra_names,
                 "aliases": self.aliases, "pairing": self.pairing, "located": self.located, "seconds": self.seconds}
 
@@ -380,15 +383,21 @@ def run_family(name: str, seed: int, programme: Programme = Programme(), grid: s
     loc = None if family.in_catalogue else located(name, run.where, result.verdict.unexplained)
     return Outcome(name, seed, family.in_catalogue, result.verdict.verdict, result.names, run.truth, errors, loc,
                    seconds, grid, [list(a.names) for a in result.aliases],
-                   result.pairing.mode if result.pairing is not None else "same_rows")
+                   result.pairing.mode if result.pairing is not None else "same_rows", programme.rate_hz)
+
+
+def _label(o: Outcome, rates: int) -> str:
+    grid = "" if o.grid == "same_rows" else f"@{o.grid}"
+    return f"{o.family}{grid}" + (f"@{o.rate_hz:g}Hz" if rates > 1 else "")
 
 
 def summarise(outcomes: list[Outcome]) -> dict[str, dict[str, Any]]:
-    """Per family and grid: runs, extra-name rate, named-right rate (hidden named, within 10 %), explained/located
-    rates. Keys are ``family`` (same rows) or ``family@own_grid``."""
+    """Per family, grid (and rate, when there are several): runs, extra-name rate, named-right rate (hidden named,
+    within 10 %), explained/located rates. Keys are ``family`` (same rows), ``family@own_grid`` (``…@1000Hz``)."""
     out: dict[str, dict[str, Any]] = {}
-    for key in dict.fromkeys((o.family, o.grid) for o in outcomes):
-        runs = [o for o in outcomes if (o.family, o.grid) == key]
+    rates = len({o.rate_hz for o in outcomes})
+    for label in dict.fromkeys(_label(o, rates) for o in outcomes):
+        runs = [o for o in outcomes if _label(o, rates) == label]
         row: dict[str, Any] = {"runs": len(runs), "extra_names": sum(bool(o.extra_names) for o in runs) / len(runs),
                                "verdicts": {v: sum(o.verdict == v for o in runs) for v in
                                             dict.fromkeys(o.verdict for o in runs)}}
@@ -403,8 +412,43 @@ def summarise(outcomes: list[Outcome]) -> dict[str, dict[str, Any]]:
         if not runs[0].in_catalogue:
             row["explained"] = sum(o.verdict == "explained" for o in runs) / len(runs)
             row["located"] = sum(bool(o.located) for o in runs) / len(runs)
-        out[key[0] if key[1] == "same_rows" else f"{key[0]}@{key[1]}"] = row
+        out[label] = row
     return out
+
+
+def markdown_table(outcomes: list[Outcome]) -> str:
+    """A family per row, a (rate, grid) per column: for catalogue families the runs whose every named parameter is
+    within 10 % with the largest |error|, extra names, verdicts other than the expected one; out of the catalogue,
+    how many were ``explained`` and how many located."""
+    columns = sorted({(o.rate_hz, o.grid) for o in outcomes}, key=lambda c: (c[0], GRIDS.index(c[1])))
+    head = "| family | " + " | ".join(f"{r:g} Hz, {g.replace('_', ' ')}" for r, g in columns) + " |"
+    lines = [head, "|---|" + "---|" * len(columns)]
+    for family in dict.fromkeys(o.family for o in outcomes):
+        cells = []
+        for rate, grid in columns:
+            runs = [o for o in outcomes if (o.family, o.rate_hz, o.grid) == (family, rate, grid)]
+            if not runs:
+                cells.append("")
+                continue
+            n, extra = len(runs), sum(bool(o.extra_names) for o in runs)
+            other = [o.verdict for o in runs if o.truth and o.verdict != "explained"]
+            if not runs[0].in_catalogue:
+                cell = (f"explained {sum(o.verdict == 'explained' for o in runs)}/{n}, located "
+                        f"{sum(bool(o.located) for o in runs)}/{n}")
+            elif runs[0].truth:
+                errors = [e for o in runs for e in o.errors.values()]
+                within = sum(bool(o.errors) and set(o.truth) <= set(o.named)
+                             and all(abs(e) <= 0.10 for e in o.errors.values()) for o in runs)
+                cell = f"{within}/{n} within 10 %" + (f" (max {max(abs(e) for e in errors):.1%})" if errors else "")
+            else:
+                cell = f"{sum(o.verdict == 'consistent' for o in runs)}/{n} consistent"
+            if runs[0].in_catalogue:
+                cell += f", {extra} extra" if extra else ""
+                if other:
+                    cell += f", {len(other)} {other[0]}" if len(set(other)) == 1 else f", {len(other)} not explained"
+            cells.append(cell)
+        lines.append(f"| {family} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def totals(outcomes: list[Outcome]) -> dict[str, Any]:
@@ -427,35 +471,40 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--family", action="append", choices=sorted(FAMILIES))
-    parser.add_argument("--rate-hz", type=float, default=50.0)
+    parser.add_argument("--rate-hz", type=float, action="append", help="measured sample rate (repeat for several; "
+                        "default 50)")
     parser.add_argument("--grid", choices=[*GRIDS, "both"], default="same_rows",
                         help="the simulation on the measured rows, on its own time grid, or both")
     parser.add_argument("--raw-torque", action="store_true",
                         help="same rows: drive the simulation by the raw torque reading (no 20 ms moving average)")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--markdown", action="store_true", help="print the per-family table only")
     args = parser.parse_args(argv)
-    programme = Programme(rate_hz=args.rate_hz, sim_torque_filter_s=0.0 if args.raw_torque else 0.02)
     grids = GRIDS if args.grid == "both" else (args.grid,)
+    rates = args.rate_hz or [50.0]
     outcomes = []
-    for name in args.family or FAMILIES:
-        for grid in grids:
-            for seed in range(args.first_seed, args.first_seed + args.seeds):
-                o = run_family(name, seed, programme, grid)
-                outcomes.append(o)
-                if not args.json:
-                    label = name if grid == "same_rows" else f"{name}@{grid}"
-                    print(f"{label:35s} seed {seed}: {o.verdict:20s} named {o.named or '-'} "
-                          f"{' '.join(f'{k} {v:+.1%}' for k, v in o.errors.items())}"
-                          f"{' aliases ' + str(o.aliases) if o.aliases else ''}"
-                          f"{'' if o.located is None else ' located' if o.located else ' NOT located'} "
-                          f"({o.seconds:.1f} s)", flush=True)
+    for rate in rates:
+        programme = Programme(rate_hz=rate, sim_torque_filter_s=0.0 if args.raw_torque else 0.02)
+        for name in args.family or FAMILIES:
+            for grid in grids:
+                for seed in range(args.first_seed, args.first_seed + args.seeds):
+                    o = run_family(name, seed, programme, grid)
+                    outcomes.append(o)
+                    if not (args.json or args.markdown):
+                        print(f"{_label(o, len(rates)):45s} seed {seed}: {o.verdict:20s} named {o.named or '-'} "
+                              f"{' '.join(f'{k} {v:+.1%}' for k, v in o.errors.items())}"
+                              f"{' aliases ' + str(o.aliases) if o.aliases else ''}"
+                              f"{'' if o.located is None else ' located' if o.located else ' NOT located'} "
+                              f"({o.seconds:.1f} s)", flush=True)
     summary = summarise(outcomes)
     total = totals(outcomes)
-    if args.json:
+    if args.markdown:
+        print(markdown_table(outcomes), end="")
+    elif args.json:
         print(json.dumps({"summary": summary, "totals": total, "runs": [o.to_dict() for o in outcomes]}, indent=1))
     else:
         for name, row in summary.items():
-            print(f"{name:35s} " + ", ".join(f"{k} {v:.0%}" if isinstance(v, float) else f"{k} {v}"
+            print(f"{name:45s} " + ", ".join(f"{k} {v:.0%}" if isinstance(v, float) else f"{k} {v}"
                                              for k, v in row.items()))
         t = total
         print(f"extra names in {t['with_extra_names']} of {t['catalogue_runs']} catalogue runs; hidden effect named "
