@@ -2,7 +2,8 @@
 
 Derived signals every catalogue term is built from: load direction (+1 while the torque increases,
 −1 while it decreases, from a hysteresis turning-point detector so noise does not flip it), the local
-slope dθ_sim/dT of the simulated curve, the groups for blocked cross-validation (runs, else loops between
+slope dθ_sim/dT of the simulated curve (for a user's declared effect), the simulated curve's history-free part
+(for reading it at T − T0: a torque offset), the groups for blocked cross-validation (runs, else loops between
 torque minima, else contiguous blocks) and the time-continuous segments (for re-evaluating the simulation
 at t + τ).
 """
