@@ -230,7 +230,7 @@ def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.nda
         # best admissible period is the one nearest the band is the data's period inside it (a beat with the
         # signal period): then it is taken there, where the identifiability check sees the two terms cancel
         f_fine = np.linspace(fs[k] - step, fs[k] + step, FINE_POINTS)
-        f_fine = f_fine[f_fine > 0]
+        f_fine = f_fine[(f_fine >= fs[0]) & (f_fine <= fs[-1])]  # the grid's span: ≥ 1.5 cycles, above p_min
         ok = cat.clear_of_signal_period(cols.data, 1.0 / f_fine)
         if ok.sum() < 3:
             return float(values[i])
