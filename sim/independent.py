@@ -477,6 +477,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the simulation on the measured rows, on its own time grid, or both")
     parser.add_argument("--raw-torque", action="store_true",
                         help="same rows: drive the simulation by the raw torque reading (no 20 ms moving average)")
+    parser.add_argument("--torque-noise-nm", type=float, default=Programme.torque_noise_nm,
+                        help="white noise of the torque reading (N·m, default %(default)s)")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--markdown", action="store_true", help="print the per-family table only")
     args = parser.parse_args(argv)
@@ -484,7 +486,8 @@ def main(argv: list[str] | None = None) -> int:
     rates = args.rate_hz or [50.0]
     outcomes = []
     for rate in rates:
-        programme = Programme(rate_hz=rate, sim_torque_filter_s=0.0 if args.raw_torque else 0.02)
+        programme = Programme(rate_hz=rate, sim_torque_filter_s=0.0 if args.raw_torque else 0.02,
+                              torque_noise_nm=args.torque_noise_nm)
         for name in args.family or FAMILIES:
             for grid in grids:
                 for seed in range(args.first_seed, args.first_seed + args.seeds):
