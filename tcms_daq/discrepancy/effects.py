@@ -356,6 +356,7 @@ def torque_shift(data: DesignData, offset_nm: float, rows: np.ndarray | None = N
 
 
 def torque_offset_grid(data: DesignData) -> np.ndarray:
+    """Torque offsets (N·m) searched: ±1.2 × the plausible range, so a best value beyond it shows as implausible."""
     bound = 1.2 * TORQUE_OFFSET_SHARE * _spans(data)[2]
     return np.linspace(-bound, bound, TORQUE_OFFSET_GRID)
 
