@@ -6,8 +6,8 @@ across batches (the load direction of the applied torque, the slope dθ/dT of th
 the elapsed time) and applies every active effect's streaming form to each batch. The torque is the applied
 (noise-free) torque and the angle the angle signal before the effects; ``time_skew`` delays the torque reading
 instead (the reading at t is the applied torque at t − τ), so a simulation driven by the reading is the true
-angle taken τ late. A physical zero offset of the torque reading is the bench's own ``torque_offset_nm``; the
-effect ``torque_zero_offset`` is the first-order form −T0·dθ/dT along the true twist.
+angle taken τ late, and ``torque_zero_offset`` adds T0 to the torque reading (a simulation driven by the reading
+runs T0 further along the torque axis: the physical offset, as the bench's own ``torque_offset_nm``).
 
 Configuration (bench TOML; an empty table or ``enabled = false`` switches an effect off)::
 

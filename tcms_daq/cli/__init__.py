@@ -14,28 +14,46 @@ import argparse
 import importlib
 import pkgutil
 import sys
+from typing import Any
 
 from tcms_daq.cli.options import apply_sim_urls
 from tcms_daq.errors import TcmsError
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="tcms", description="Torsional characteristic test bench for precision reducers."
-    )
-    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
-        register = getattr(module, "register", None)
-        if register is not None:
-            register(subparsers)
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``tcms`` parser with every command; with ``command`` (the name given on the command line) only that
+    command's module is imported when it registers it (each module imports what its command needs: the others
+    cost a second or more of start-up), else every module."""
+    names = sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
+    if command is not None:
+        module = command.replace("-", "_")
+        if module in names:
+            parser, subparsers = _parser()
+            _register(module, subparsers)
+            if command in subparsers.choices:
+                return parser
+    parser, subparsers = _parser()
+    for name in names:
+        _register(name, subparsers)
     return parser
 
 
+def _parser() -> tuple[argparse.ArgumentParser, Any]:
+    parser = argparse.ArgumentParser(
+        prog="tcms", description="Torsional characteristic test bench for precision reducers."
+    )
+    return parser, parser.add_subparsers(dest="command", metavar="COMMAND")
+
+
+def _register(name: str, subparsers: Any) -> None:
+    register = getattr(importlib.import_module(f"{__name__}.{name}"), "register", None)
+    if register is not None:
+        register(subparsers)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    given = sys.argv[1:] if argv is None else argv
+    parser = build_parser(given[0] if given and not given[0].startswith("-") else None)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

@@ -30,6 +30,7 @@ from tcms_daq.discrepancy.effects import (
     SEPARATING_RUN_BY_MEMBER,
     DeclaredEffect,
     EffectDefinition,
+    clear_of_signal_period,
     interpolation_periods,
     load_entry_point_effects,
     periodic_grid,
@@ -45,7 +46,7 @@ CATALOGUE: dict[str, EffectDefinition] = REGISTRY  # the same mapping: registrat
 
 __all__ = ["BUILT_IN", "CATALOGUE", "DECLARED", "EFFECT_NAMES", "ENTRY_POINT_GROUP", "INTERPOLATION_ERROR", "MAX_SKEW_S",
            "MIN_IDENTIFIED_CYCLES", "ONE_TO_ONE_ALIAS", "PERIOD_EXCLUSION", "DeclaredEffect", "Effect",
-           "available", "columns", "columns_at", "grid", "identification_limit", "interpolation_periods",
+           "available", "clear_of_signal_period", "columns", "columns_at", "grid", "identification_limit", "interpolation_periods",
            "load_entry_point_effects", "parameters", "periodic_grid", "plausibility", "register_effect",
            "separating_experiment", "separating_run", "signature", "sincos", "skew_grid", "skew_shift", "unregister_effect"]
 

@@ -2,7 +2,8 @@
 
 Derived signals every catalogue term is built from: load direction (+1 while the torque increases,
 −1 while it decreases, from a hysteresis turning-point detector so noise does not flip it), the local
-slope dθ_sim/dT of the simulated curve, the groups for blocked cross-validation (runs, else loops between
+slope dθ_sim/dT of the simulated curve (for a user's declared effect), the simulated curve's history-free part
+(for reading it at T − T0: a torque offset), the groups for blocked cross-validation (runs, else loops between
 torque minima, else contiguous blocks) and the time-continuous segments (for re-evaluating the simulation
 at t + τ).
 """
@@ -157,6 +158,73 @@ def local_slope(torque_nm: np.ndarray, angle_arcsec: np.ndarray, segments: np.nd
     return slope
 
 
+def history_free_curve(torque_nm: np.ndarray, angle_arcsec: np.ndarray, direction: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(torque grid N·m, angle ″): the history-free part of a torque–angle trace, the mean of its loading and its
+    unloading curve (each the angle's mean in equal-width torque bins, at the bins' mean torque, on a common grid).
+    A friction loop that depends on the torque increments (Dahl, a play) is odd in the load direction and drops
+    out; what stays is the spring. Where one direction does not reach, the other is used with the half-width of
+    the loop at the nearest torque both reach; a trace loaded in one direction is its own curve. The first branch
+    is left out when its direction has others: it starts from whatever state the friction was left in, not on the
+    loop (a virgin start on the simulated bench is 17″ off it, and its share of the bins' means put a 6 N·m torque
+    offset at −5 … −15 %). The curve is continued by a torque span at each end, straight with the slope of its last
+    2 % of torque, so it can be read beyond the trace."""
+    t = np.asarray(torque_nm, dtype=float)
+    a = np.asarray(angle_arcsec, dtype=float)
+    direction = np.asarray(direction)
+    lo, hi = float(t.min()), float(t.max())
+    if not hi > lo:
+        return np.array([lo, lo + 1.0]), np.full(2, float(np.mean(a)))
+    starts = branch_starts(direction)
+    if len(starts) > 1 and np.count_nonzero(direction[starts] == direction[0]) > 1:
+        rest = slice(int(starts[1]), None)
+        t, a, direction = t[rest], a[rest], direction[rest]
+    return _continued(*_mean_of_directions(t, a, direction, lo, hi))
+
+
+def _continued(grid: np.ndarray, curve: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(grid, curve)`` with a point one span beyond each end, on the straight line of its last 2 % of torque."""
+    span = float(grid[-1] - grid[0])
+    if not span > 0:
+        return grid, curve
+    ends = []
+    for end, far in ((0, grid[0] - span), (-1, grid[-1] + span)):
+        near = np.flatnonzero(np.abs(grid - grid[end]) <= 0.02 * span)
+        if len(near) < 2:
+            near = np.array([0, 1]) if end == 0 else np.array([len(grid) - 2, len(grid) - 1])
+        slope = float(np.polyfit(grid[near], curve[near], 1)[0])
+        ends.append((far, curve[end] + slope * (far - grid[end])))
+    return (np.concatenate(([ends[0][0]], grid, [ends[1][0]])),
+            np.concatenate(([ends[0][1]], curve, [ends[1][1]])))
+
+
+def _mean_of_directions(t: np.ndarray, a: np.ndarray, direction: np.ndarray, lo: float, hi: float
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    curves = []
+    for sign in (1, -1):
+        rows = np.flatnonzero(direction == sign)
+        if len(rows) < 2:
+            continue
+        n_bins = int(np.clip(len(rows) // 8, 8, 400))
+        index = np.clip(((t[rows] - lo) / (hi - lo) * n_bins).astype(int), 0, n_bins - 1)
+        count = np.bincount(index, minlength=n_bins).astype(float)
+        used = count > 0
+        centre = np.bincount(index, weights=t[rows], minlength=n_bins)[used] / count[used]
+        mean = np.bincount(index, weights=a[rows], minlength=n_bins)[used] / count[used]
+        curves.append((centre, mean))
+    grid = np.unique(np.concatenate([c for c, _ in curves]))
+    if len(curves) == 1:
+        return grid, np.interp(grid, *curves[0])
+    (cu, mu), (cd, md) = curves
+    up = np.where((grid >= cu[0]) & (grid <= cu[-1]), np.interp(grid, cu, mu), np.nan)
+    down = np.where((grid >= cd[0]) & (grid <= cd[-1]), np.interp(grid, cd, md), np.nan)
+    both = np.isfinite(up) & np.isfinite(down)
+    if not both.any():
+        return grid, np.where(np.isfinite(up), up, down)
+    half = np.interp(grid, grid[both], 0.5 * (up - down)[both])  # the loop's half-width, held beyond the overlap
+    return grid, np.where(np.isfinite(up), up - half, down + half)
+
+
 def time_segments(time_s: np.ndarray, run_id: np.ndarray | None) -> np.ndarray:
     """Labels of stretches with continuous, increasing time (a new run or a time jump starts a new one)."""
     n = len(time_s)
@@ -230,6 +298,16 @@ class DesignData:
     def elapsed_s(self) -> np.ndarray:
         """Time since the first row (s): the clock the time-dependent effects run on."""
         return self.time_s - self.time_s[0]
+
+    @cached_property
+    def history_free(self) -> tuple[np.ndarray, np.ndarray]:
+        """The simulated curve's history-free part (:func:`history_free_curve`), computed once."""
+        return history_free_curve(self.torque_nm, self.sim_angle_arcsec, self.direction)
+
+    @cached_property
+    def history_free_on_rows(self) -> np.ndarray:
+        """The history-free part at each row's torque (″)."""
+        return np.interp(self.torque_nm, *self.history_free)
 
     @cached_property
     def segment_rows(self) -> list[np.ndarray]:

@@ -18,7 +18,8 @@ scale_error          s·θ_sim                                        ratio
 interpolation_error  A·sin(2π·θ_sim/P + ψ), P = signal period or ½  period_arcsec, amplitude_arcsec, phase_rad
 periodic_error       the same at another period found by search     period_arcsec, amplitude_arcsec, phase_rad
 backlash             −(b/2)·d, d = +1 loading / −1 unloading        backlash_arcsec (> 0: a wider loop)
-torque_zero_offset   −T0·dθ_sim/dT (slope along the simulated trace)  offset_nm
+torque_zero_offset   θ_hf(T − T0) − θ_hf(T): the simulated curve's     offset_nm (> 0: the reading is high)
+                     history-free part read T0 along the torque axis
 nonlinear_stiffness  c·T³ (odd in torque)                           coef_arcsec_per_nm3
 ==================== ============================================== =======================================
 
@@ -43,6 +44,8 @@ if TYPE_CHECKING:
 ENTRY_POINT_GROUP = "tcms_daq.effects"
 
 MAX_SKEW_S = 0.25
+TORQUE_OFFSET_SHARE = 0.05  # a plausible torque zero offset is at most this share of the torque span
+TORQUE_OFFSET_GRID = 161  # grid values over ±1.2 × the plausible range
 PERIOD_EXCLUSION = 0.04  # periodic_error keeps 4 % away from the signal period and its half
 MAX_PERIOD_GRID = 240
 # A periodic term with fewer cycles than this inside the angle span is fitted, but cannot be told from a smooth
@@ -338,6 +341,23 @@ def skew_grid(data: DesignData) -> np.ndarray:
     return np.linspace(-tmax, tmax, n)
 
 
+def torque_shift(data: DesignData, offset_nm: float, rows: np.ndarray | None = None) -> np.ndarray:
+    """θ_hf(T − T0) − θ_hf(T) (″): the history-free part of the simulated curve (``DesignData.history_free``: the
+    mean of its loading and unloading curves, continued straight beyond its ends) read ``offset_nm`` lower along
+    the torque axis, at ``rows`` if given. A simulation driven by a reading T0 high is this much off; the friction
+    loop, which follows the torque's increments, is not shifted."""
+    grid, curve = data.history_free
+    torque = data.torque_nm if rows is None else data.torque_nm[rows]
+    here = data.history_free_on_rows if rows is None else data.history_free_on_rows[rows]
+    return np.interp(torque - offset_nm, grid, curve) - here
+
+
+def torque_offset_grid(data: DesignData) -> np.ndarray:
+    """Torque offsets (N·m) searched: ±1.2 × the plausible range, so a best value beyond it shows as implausible."""
+    bound = 1.2 * TORQUE_OFFSET_SHARE * _spans(data)[2]
+    return np.linspace(-bound, bound, TORQUE_OFFSET_GRID)
+
+
 def interpolation_periods(data: DesignData) -> np.ndarray:
     return np.array([data.signal_period_arcsec, data.signal_period_arcsec / 2.0])
 
@@ -361,10 +381,18 @@ def periodic_grid(data: DesignData) -> np.ndarray:
     if len(f) > MAX_PERIOD_GRID:
         f = np.linspace(1.0 / p_max, 1.0 / p_min, MAX_PERIOD_GRID)
     periods = 1.0 / f
+    return periods[clear_of_signal_period(data, periods)]
+
+
+def clear_of_signal_period(data: DesignData, periods: np.ndarray) -> np.ndarray:
+    """Which ``periods`` a free-period error may take: more than ``PERIOD_EXCLUSION`` from the signal period and its
+    half, and at least one cycle per angle span away from them (closer is the interpolation error)."""
+    span = float(np.ptp(data.sim_angle_arcsec)) or 1.0
+    periods = np.asarray(periods, dtype=float)
     keep = np.ones(len(periods), dtype=bool)
     for p in interpolation_periods(data):
-        keep &= (np.abs(periods / p - 1.0) > PERIOD_EXCLUSION) & (np.abs(f - 1.0 / p) >= 1.0 / span)
-    return periods[keep]
+        keep &= (np.abs(periods / p - 1.0) > PERIOD_EXCLUSION) & (np.abs(1.0 / periods - 1.0 / p) >= 1.0 / span)
+    return keep
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -427,6 +455,46 @@ class _TorqueLag:
 
 
 @dataclass
+class _TorqueOffset(EffectDefinition):
+    """A zero offset of the torque reading: the simulation, driven by the reading, is the reducer T0 further
+    along the torque axis (a re-evaluation of its history-free curve, with gain 1)."""
+
+    def columns(self, data: DesignData, nl: float | None = None, rows: np.ndarray | None = None) -> np.ndarray:
+        return torque_shift(data, _value(nl, self.name), rows)[:, None]
+
+    def parameters_from(self, coef: np.ndarray, nl: float | None) -> dict[str, float]:
+        return {"offset_nm": _value(nl, self.name)}
+
+    def grid(self, data: DesignData) -> np.ndarray:
+        return torque_offset_grid(data)
+
+    def implausible(self, params: Params, data: DesignData) -> str | None:
+        return _torque_offset_bound(params["offset_nm"], data)
+
+    def formula(self, signals: Signals, params: Params) -> np.ndarray:
+        raise TypeError("torque_zero_offset re-reads the simulated curve: use signature() on a design or streaming()")
+
+    def signature(self, data: DesignData, params: Params) -> np.ndarray:
+        return torque_shift(data, params["offset_nm"])
+
+    def streaming(self, params: Params) -> Streaming:
+        return _TorqueReadingOffset(float(params["offset_nm"]))
+
+
+@dataclass
+class _TorqueReadingOffset:
+    """The torque reading is the applied torque plus T0 (the simulated bench's hidden torque zero offset)."""
+
+    offset_nm: float
+
+    def torque_signal_nm(self, time_s: np.ndarray, torque_signal_nm: np.ndarray) -> np.ndarray:
+        return torque_signal_nm + self.offset_nm
+
+    def angle_arcsec(self, signals: Signals) -> np.ndarray:
+        return np.zeros(len(signals.torque_nm))
+
+
+@dataclass
 class _Periodic(EffectDefinition):
     """A·sin(2π·θ/P + ψ); the period is searched on a grid (the signal period and its half, or free)."""
 
@@ -480,12 +548,10 @@ def _fraction_of_span(what: str, power: int) -> Callable[[float, DesignData], st
     return bound
 
 
-def _torque_scale(signals: Signals) -> np.ndarray:
-    return -np.asarray(signals.slope_arcsec_per_nm, dtype=float)
-
-
 def _torque_offset_bound(value: float, data: DesignData) -> str | None:
-    return "torque offset above 5 % of the torque span" if abs(value) > 0.05 * _spans(data)[2] else None
+    if abs(value) > TORQUE_OFFSET_SHARE * _spans(data)[2]:
+        return f"torque offset above {TORQUE_OFFSET_SHARE:.0%} of the torque span"
+    return None
 
 
 def _scale_compensator(params: Params) -> Term:
@@ -547,12 +613,13 @@ BACKLASH = register_effect(LinearEffect(
     typical={"backlash_arcsec": 2.0}, kept_in_model="needs the load direction, not a function of (θ, T, t)",
     column=lambda s: -0.5 * np.asarray(s.direction, dtype=float),
     bound=lambda v, d: "backlash above 120 ″" if abs(v) > 120.0 else None), built_in=True).name
-TORQUE_ZERO_OFFSET = register_effect(LinearEffect(
+TORQUE_ZERO_OFFSET = register_effect(_TorqueOffset(
     "torque_zero_offset", ("offset_nm",), ("N·m",),
-    "torque sensor zero offset: the angle shifted along the simulated curve by T0 (−T0·dθ/dT)", "even",
-    "|T0| ≤ 5 % of the torque span", typical={"offset_nm": 8.0},
-    kept_in_model="needs the slope along the trace, not a function of (θ, T, t)",
-    column=_torque_scale, bound=_torque_offset_bound), built_in=True).name
+    "torque sensor zero offset: the simulated curve's history-free part read T0 along the torque axis "
+    "(θ_hf(T − T0) − θ_hf(T))", "even", f"|T0| ≤ {TORQUE_OFFSET_SHARE:.0%} of the torque span",
+    nonlinear="offset_nm", fixed_gain=True, typical={"offset_nm": 8.0},
+    kept_in_model="needs the simulated curve along the torque axis, not a function of (θ, T, t)"),
+    built_in=True).name
 NONLINEAR_STIFFNESS = register_effect(LinearEffect(
     "nonlinear_stiffness", ("coef_arcsec_per_nm3",), ("″/(N·m)³",),
     "stiffness that changes with torque, odd in torque (c·T³)", "even",

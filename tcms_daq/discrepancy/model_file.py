@@ -21,7 +21,7 @@ Format ``tcms-discrepancy-model/1``::
 
 The re-simulated angle is θ_sim + offset + Σ signature(term). The compensator's term registry
 (``tcms_daq.compensation.terms``) models encoder errors as functions of (θ, T, t) only; ``time_skew``,
-``backlash`` and ``torque_zero_offset`` need the trace (time shift, load direction, slope), so the
+``backlash`` and ``torque_zero_offset`` need the trace (time shift, load direction, simulated curve), so the
 discrepancy model has this file of its own. The same ``[[terms]]`` map one-to-one onto the simulated bench's
 ``[sim.effects]`` table (:func:`sim_effects_table`).
 """

@@ -3,9 +3,11 @@
 All fits are least squares of the residual r = measured − simulated on a constant offset plus the effects'
 columns; ``time_skew`` and ``torque_zero_offset`` enter with gain 1 (their re-evaluated simulation is
 subtracted from the target).
-Nonlinear parameters (period, skew) are chosen inside every training fold: a grid search of the fold's
-residual (on at most ``SCAN_ROWS`` evenly strided training rows) refined by parabolic interpolation, then all
-linear coefficients are refitted jointly on every training row. The selection itself runs on at most
+Nonlinear parameters (period, skew, torque offset) are chosen inside every training fold: a grid search of the
+fold's residual (on at most ``SCAN_ROWS`` evenly strided training rows) refined by parabolic interpolation — a
+fixed-gain term's best grid step scanned again finely on every training row, a free period beside the band left out
+around the signal period scanned finely on its admissible side — then all linear coefficients are refitted jointly
+on every training row. The selection itself runs on at most
 ``SELECT_ROWS`` evenly strided rows (densely sampled runs carry far more rows than the choice needs); the
 final fit and the outer folds of the nested CV use every row.
 
@@ -25,6 +27,7 @@ import numpy as np
 from tcms_daq.crossval import leave_one_group_out
 from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import MIN_GROUPS, DesignData, block_groups
+from tcms_daq.discrepancy.effects import sincos
 
 SCAN_ROWS = 3000
 SELECT_ROWS = 12000  # the selection runs on at most this many evenly strided rows
@@ -32,6 +35,7 @@ MAX_TERMS = 4
 MIN_STEP_GAIN = 0.01  # continue the path while a step cuts the CV RMS by ≥ 1 %
 MIN_GAIN = 0.03  # an accepted term must cut the CV RMS by ≥ 3 %
 ALIAS_CORR = 0.9
+FINE_POINTS = 9  # a fixed-gain term's best grid step is scanned again at this many points
 
 
 class Columns:
@@ -160,10 +164,12 @@ def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.nda
     values, prods = cols.grid(name)
     w: np.ndarray | None = np.zeros(int(cols.in_scan.sum()))
     in_train = train[cols.in_scan[train]]
+    scan_rows = np.flatnonzero(cols.in_scan)  # the rows of w and r
     if len(in_train) < 8:
         in_train = train
         w = None
     if w is None:  # tiny data: evaluate the grid on the training rows directly
+        scan_rows = in_train
         r = residual[in_train]
         stack = np.stack([cat.columns_at(name, cols.data, float(v), in_train) for v in values])
         if cat.CATALOGUE[name].fixed_gain:
@@ -202,12 +208,48 @@ def scan_nonlinear(cols: Columns, name: str, residual: np.ndarray, train: np.nda
     refine = cat.CATALOGUE[name].grid_refine
     if refine == "discrete":
         return float(values[i])
+    if cat.CATALOGUE[name].fixed_gain and 0 < i < len(values) - 1:
+        # a re-evaluation's error need not be quadratic over a grid step, and a few rows may carry most of what
+        # identifies it (a lost-motion zone crossed in a few samples): that step's neighbourhood is scanned
+        # again finely on every training row
+        values = np.linspace(values[i - 1], values[i + 1], FINE_POINTS)
+        d = np.stack([cat.columns_at(name, cols.data, float(v), train)[:, 0] for v in values])
+        r = residual[train]
+        n, r1 = float(len(train)), float(r.sum())
+        sse = float(r @ r) - 2.0 * (d @ r) + (d * d).sum(axis=1) - (r1 - d.sum(axis=1)) ** 2 / n
+        i = int(np.argmin(sse))
     if refine == "frequency":
         f = 1.0 / values
         order = np.argsort(f)
-        fi = _parabolic(f[order], sse[order], int(np.flatnonzero(order == i)[0]))
-        return 1.0 / fi
+        fs, k = f[order], int(np.flatnonzero(order == i)[0])
+        step = float(np.median(np.diff(fs))) if len(fs) > 2 else 0.0
+        if 0 < k < len(fs) - 1 and max(fs[k] - fs[k - 1], fs[k + 1] - fs[k]) <= 1.5 * step:
+            return 1.0 / _parabolic(fs, sse[order], k)
+        # beside a band the grid leaves out (near the signal period): a parabola through a neighbour across the
+        # band would put the period inside it; scan the admissible neighbourhood finely instead. Only when the
+        # best admissible period is the one nearest the band is the data's period inside it (a beat with the
+        # signal period): then it is taken there, where the identifiability check sees the two terms cancel
+        f_fine = np.linspace(fs[k] - step, fs[k] + step, FINE_POINTS)
+        f_fine = f_fine[(f_fine >= fs[0]) & (f_fine <= fs[-1])]  # the grid's span: ≥ 1.5 cycles, above p_min
+        ok = cat.clear_of_signal_period(cols.data, 1.0 / f_fine)
+        if ok.sum() < 3:
+            return float(values[i])
+        theta = cols.data.sim_angle_arcsec[scan_rows]
+        fine_sse = np.full(len(f_fine), np.inf)
+        fine_sse[ok] = [_periodic_sse(theta, w, r, 1.0 / float(f)) for f in f_fine[ok]]
+        j = int(np.argmin(fine_sse))
+        at_band = (j + 1 < len(ok) and not ok[j + 1]) or (j > 0 and not ok[j - 1])
+        return 1.0 / _parabolic(fs, sse[order], k) if at_band else 1.0 / float(f_fine[j])
     return _parabolic(values, sse, i)
+
+
+def _periodic_sse(theta: np.ndarray, w: np.ndarray, r: np.ndarray, period: float) -> float:
+    """Weighted residual sum of squares of ``r`` after an offset and a sinusoid in ``theta`` of ``period``."""
+    x = np.column_stack((np.ones(len(theta)), sincos(theta, period)))
+    xw = x * w[:, None]
+    beta = np.linalg.solve(xw.T @ x + 1e-9 * np.eye(3), xw.T @ r)
+    e = r - x @ beta
+    return float(e @ (w * e))
 
 
 @dataclass
