@@ -274,6 +274,7 @@ class SimulatedBench:
                 "true_angle_arcsec": true_angle,
                 "torque_signal_nm": applied,
                 "angle_signal_arcsec": true_angle,
+                "drive_enabled": np.full(len(time_s), self.drive.enabled),
             }
             if self.effects is not None:
                 returned = self.effects(cols)

@@ -7,7 +7,9 @@ the elapsed time) and applies every active effect's streaming form to each batch
 (noise-free) torque and the angle the angle signal before the effects; ``time_skew`` delays the torque reading
 instead (the reading at t is the applied torque at t − τ), so a simulation driven by the reading is the true
 angle taken τ late, and ``torque_zero_offset`` adds T0 to the torque reading (a simulation driven by the reading
-runs T0 further along the torque axis: the physical offset, as the bench's own ``torque_offset_nm``).
+runs T0 further along the torque axis) while the loader's drive is enabled: the amplifier's zero shifting with the
+servo drive's switching, a common offset on real benches, which the procedure's tare (taken with the drive
+disabled) cannot remove. (The bench's own ``torque_offset_nm`` is an offset at all times, which the tare removes.)
 
 Configuration (bench TOML; an empty table or ``enabled = false`` switches an effect off)::
 
@@ -29,8 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from tcms_daq.discrepancy.effects import REGISTRY, TIME_SKEW, BatchSignals, Streaming
+from tcms_daq.discrepancy.effects import REGISTRY, TIME_SKEW, TORQUE_ZERO_OFFSET, BatchSignals, Streaming
 from tcms_daq.errors import ConfigError
+
+#: effects on the torque reading that act only while the loader's drive is enabled (its switching shifts the
+#: amplifier's zero after the tare, which is taken with the drive disabled)
+WHILE_DRIVE_ENABLED = frozenset({TORQUE_ZERO_OFFSET})
 
 
 def _simulated() -> list[str]:
@@ -99,14 +105,14 @@ class EffectsHook:
     """The bench's ``effects`` hook: changes the torque and angle signals of each batch (stateful)."""
 
     effects: HiddenEffects
-    _terms: list[Streaming] = field(default_factory=list)
+    _terms: list[tuple[str, Streaming]] = field(default_factory=list)
     _t0: float | None = None
     _last_torque: float | None = None
     _direction: float = 1.0
     _last_slope: float = 0.0
 
     def __post_init__(self) -> None:
-        self._terms = [REGISTRY[n].streaming(self.effects.table[n]) for n in self.effects.active]
+        self._terms = [(n, REGISTRY[n].streaming(self.effects.table[n])) for n in self.effects.active]
 
     def __call__(self, cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         t = np.asarray(cols["time_s"], dtype=float)
@@ -119,9 +125,11 @@ class EffectsHook:
             self._t0 = float(t[0])
         signals = BatchSignals(t - self._t0, applied, angle, self._directions(applied),
                                self._slope(applied, np.asarray(cols["true_angle_arcsec"], float)))
+        enabled = np.asarray(cols.get("drive_enabled", np.ones(len(t), dtype=bool)), dtype=bool)
         add = np.zeros_like(angle)
-        for term in self._terms:
-            torque = term.torque_signal_nm(t, torque)
+        for name, term in self._terms:
+            changed = term.torque_signal_nm(t, torque)
+            torque = np.where(enabled, changed, torque) if name in WHILE_DRIVE_ENABLED else changed
             add += term.angle_arcsec(signals)
         out = dict(cols)
         out["torque_signal_nm"] = torque
@@ -165,4 +173,4 @@ def from_config(table: dict[str, Any], *, seed: int = 0) -> EffectsHook | None:
     return EffectsHook(effects)
 
 
-__all__ = ["HiddenEffects", "EffectsHook", "effects_from_table", "effects_to_table", "from_config"]
+__all__ = ["WHILE_DRIVE_ENABLED", "HiddenEffects", "EffectsHook", "effects_from_table", "effects_to_table", "from_config"]
