@@ -36,6 +36,7 @@ BOOTSTRAP_DRAWS = 8
 BOOTSTRAP_SEED = 20_240_611
 SAMPLING_LINE = "interpolation at the local sample spacing"
 BIAS_LINE = "estimator bias at the measured noise"
+LOOPS_LINE = "repeatability (loop-to-loop, n = {n})"  # the Type A line when it is the loop scatter alone
 # the level of the preliminary F-test that decides whether the loop scatter and the noise bootstrap are pooled
 # (a "sometimes pool" rule: Bancroft 1944; Bancroft & Han 1983 give 0.25–0.35 for few degrees of freedom)
 POOLING_LEVEL = 0.25
@@ -312,26 +313,31 @@ def record_type_a(nominal: Evaluation, names: list[str], noise: dict[str, NoiseB
     for name in names:
         boot = noise.get(name)
         u_l, dof_l = _type_a(loop_values(nominal, name)) if n >= 2 else (None, None)
-        if boot is None or (u_l is not None and dof_l is not None and _loops_vary_more(u_l, dof_l, boot)):
-            out[name] = TypeA(u_l, dof_l, f"repeatability (loop-to-loop, n = {n})")
-        elif u_l is None or dof_l is None:
-            out[name] = TypeA(boot.scatter, boot.draws - 1.0,
-                              f"noise within the record ({boot.draws} re-evaluations with fresh noise)" if n >= 2
-                              else "noise within the one loop (loop-to-loop repeatability not assessed)")
+        if u_l is None or dof_l is None:
+            out[name] = (TypeA(None, None, LOOPS_LINE.format(n=n)) if boot is None else
+                         TypeA(boot.scatter, boot.draws - 1.0,
+                               f"noise within the record ({boot.draws} re-evaluations with fresh noise)" if n >= 2
+                               else "noise within the one loop (loop-to-loop repeatability not assessed)"))
+        elif boot is None:
+            out[name] = TypeA(u_l, dof_l, LOOPS_LINE.format(n=n))
         else:
-            dof_n = boot.draws - 1.0
-            pooled = math.sqrt((dof_l * u_l**2 + dof_n * boot.scatter**2) / (dof_l + dof_n))
-            out[name] = TypeA(pooled, dof_l + dof_n, f"repeatability and noise within the record, pooled (n = {n}, "
-                                                    f"{boot.draws} re-evaluations with fresh noise)")
+            u, dof, loops_alone = pooled_type_a(u_l, dof_l, boot.scatter, boot.draws - 1.0)
+            out[name] = (TypeA(u_l, dof_l, LOOPS_LINE.format(n=n)) if loops_alone else
+                         TypeA(float(u), float(dof), f"repeatability and noise within the record, pooled (n = {n}, "
+                                                     f"{boot.draws} re-evaluations with fresh noise)"))
     return out
 
 
-def _loops_vary_more(u_loops: float, dof_loops: float, boot: NoiseBootstrap) -> bool:
-    """Whether the loop scatter exceeds the noise bootstrap's at the POOLING_LEVEL (one-sided F-test)."""
-    if boot.scatter <= 0.0:
-        return u_loops > 0.0
-    critical = float(fdtri(dof_loops, boot.draws - 1.0, 1.0 - POOLING_LEVEL))
-    return (u_loops / boot.scatter) ** 2 > critical
+def pooled_type_a(u_loops: npt.ArrayLike, dof_loops: npt.ArrayLike, u_noise: npt.ArrayLike, dof_noise: npt.ArrayLike,
+                  level: float = POOLING_LEVEL) -> tuple[Any, Any, Any]:
+    """(u, degrees of freedom, loops alone?) of the Type A from the loop scatter and the noise bootstrap, elementwise:
+    pooled unless u_loops²/u_noise² exceeds the 1 − ``level`` quantile of F(dof_loops, dof_noise) (level 0: always
+    pooled), then the loop scatter alone. ``benchmarks.coverage.pooling`` gives the trade of ``level``."""
+    u_l, u_n = np.asarray(u_loops, dtype=float), np.asarray(u_noise, dtype=float)
+    dof_l, dof_n = np.asarray(dof_loops, dtype=float), np.asarray(dof_noise, dtype=float)
+    loops_alone = u_l**2 > fdtri(dof_l, dof_n, 1.0 - level) * u_n**2
+    pooled = np.sqrt((dof_l * u_l**2 + dof_n * u_n**2) / (dof_l + dof_n))
+    return np.where(loops_alone, u_l, pooled), np.where(loops_alone, dof_l, dof_l + dof_n), loops_alone
 
 
 def _drift_correction(time_s: np.ndarray, torque_nm: np.ndarray, angle_arcsec: np.ndarray,
