@@ -57,6 +57,9 @@ class QuantityStats:
     expanded: list[float] = field(default_factory=list)
     truth: list[float] = field(default_factory=list)
     loops_alone: list[bool] = field(default_factory=list)  # the Type A line was the loop scatter alone
+    # the error left after the chain's gain errors' linear part (error − Σ c_i·x_i: the budget's sensitivities, the
+    # run's drawn gains), in the run's U: the noise's and the estimator's own
+    beyond_chain: list[float] = field(default_factory=list)
 
     def summary(self) -> dict[str, float]:
         """Bias (mean error, in the unit and in % of the value), its standard error, the scatter, the coverage, the
@@ -81,6 +84,8 @@ class QuantityStats:
             "U_over_needed": 1.0 / f95 if f95 > 0 else float("inf"),
             "worst_error_in_U": float(np.max(in_u)),
             "loops_alone": float(np.mean(self.loops_alone)) if self.loops_alone else float("nan"),
+            "beyond_chain_sd_over_U": float(np.std(self.beyond_chain, ddof=1)) if n > 1 else float("nan"),
+            "beyond_chain_max_over_U": float(np.max(np.abs(self.beyond_chain))) if n else float("nan"),
         }
 
 
@@ -105,10 +110,11 @@ class FamilyResult:
         return float(pairs.mean()), float(pairs.std(ddof=1) / math.sqrt(pairs.size))
 
 
-def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty
-               ) -> dict[str, tuple[float, float, bool]] | str:
-    """(error against the truth, U, whether the Type A line is the loop scatter alone) per quantity of one run
-    through ``tcms analyze --uncertainty``, or why not."""
+def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty, gains: dict[str, float]
+               ) -> dict[str, tuple[float, float, bool, float]] | str:
+    """(error against the truth, U, whether the Type A line is the loop scatter alone, the error beyond the linear
+    part of the drawn ``gains`` (chain input name → relative error) in U) per quantity of one run through
+    ``tcms analyze --uncertainty``, or why not."""
     settings = EvaluationSettings(rated_torque_nm=reducer.rated_torque_nm, lost_motion_pct=LOST_MOTION_PCT)
     try:
         ev = evaluate_test(record.time_s, record.torque_nm, record.angle_arcsec, settings, chain=chain)
@@ -118,8 +124,13 @@ def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty
     if missing:
         return f"no U for {missing[0]}: {ev.warnings}"
     loops = LOOPS_LINE.format(n=ev.n_loops)
-    return {q: (float(ev.uncertainty[q]["value"]) - record.truth[q], float(ev.uncertainty[q]["U"]),
-                any(line["source"] == loops for line in ev.uncertainty[q]["budget"])) for q in QUANTITIES}
+    out = {}
+    for q in QUANTITIES:
+        entry = ev.uncertainty[q]
+        error, expanded = float(entry["value"]) - record.truth[q], float(entry["U"])
+        linear = sum(float(line["sensitivity"]) * gains.get(line["source"], 0.0) for line in entry["budget"])
+        out[q] = (error, expanded, any(line["source"] == loops for line in entry["budget"]), (error - linear) / expanded)
+    return out
 
 
 def _twin_errors(record: Record, reducer: Reducer) -> dict[str, float] | str:
@@ -146,16 +157,18 @@ def run_family(family: Family, runs: int, seed: int = SEED, chain: ChainUncertai
     failed: list[str] = []
     for k in range(runs):
         drawn = draw(family, rng)
-        outcome = _evaluated(drawn.readings(), drawn.reducer, chain)
+        outcome = _evaluated(drawn.readings(), drawn.reducer, chain,
+                             {"torque scale": drawn.torque_gain, "angle scale": drawn.angle_gain})
         twin = _twin_errors(drawn.readings(-1.0), drawn.reducer) if k < twins and not isinstance(outcome, str) else {}
         if isinstance(outcome, str) or isinstance(twin, str):
             failed.append(outcome if isinstance(outcome, str) else str(twin))
             continue
-        for q, (error, expanded, loops_alone) in outcome.items():
+        for q, (error, expanded, loops_alone, beyond_chain) in outcome.items():
             stats[q].errors.append(error)
             stats[q].expanded.append(expanded)
             stats[q].truth.append(drawn.truth[q])
             stats[q].loops_alone.append(loops_alone)
+            stats[q].beyond_chain.append(beyond_chain)
             if twin_stats is not None and q in twin:
                 twin_stats[q].errors.append(twin[q])
                 twin_stats[q].expanded.append(expanded)
