@@ -302,7 +302,7 @@ def record_type_a(nominal: Evaluation, names: list[str], noise: dict[str, NoiseB
     loops that share a turning point included. When the loops scatter no more than the noise explains (one-sided
     F-test: u_L²/u_N² below its 1 − POOLING_LEVEL quantile) the two are pooled, variances weighted by their
     degrees of freedom, degrees of freedom summed: two estimates of one variance (the larger of them, the rule
-    before, overstated u by some 15 % and, when the loops happened to be larger, brought their k of 3.2–4.3).
+    before, overstated u by some 14 % and, when the loops happened to be larger, brought their k of 3.2–4.3).
     When the loops scatter significantly more they vary beyond the noise (creep, temperature, a loop unlike the
     others), which the bootstrap cannot see and pooling would average away: the loop scatter alone is the line.
     With 2–3 degrees of freedom no level catches a twofold excess reliably; the lenient 0.25 catches more of it
