@@ -17,18 +17,20 @@ from __future__ import annotations
 
 import math
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.coverage.families import CHAIN_TOML, FAMILIES, LOST_MOTION_PCT, Family, draw
 from benchmarks.coverage.physics import Record, Reducer
-from tcms_daq.analysis.evaluation import EvaluationSettings
+from tcms_daq.analysis.evaluation import EvaluationSettings, evaluate
 from tcms_daq.config.loader import load_chain_uncertainty
 from tcms_daq.config.models import ChainUncertainty
 from tcms_daq.errors import EvaluationError
 from tcms_daq.procedure.evaluation import evaluate_test
+from tcms_daq.uncertainty import result_values
+from tcms_daq.uncertainty.budget import LOOPS_LINE
 
 QUANTITIES = ("rigidity_nm_per_arcmin", "lost_motion_arcsec", "backlash_arcsec")
 SHORT = {"rigidity_nm_per_arcmin": "rigidity", "lost_motion_arcsec": "lost motion", "backlash_arcsec": "backlash"}
@@ -54,6 +56,10 @@ class QuantityStats:
     errors: list[float] = field(default_factory=list)
     expanded: list[float] = field(default_factory=list)
     truth: list[float] = field(default_factory=list)
+    loops_alone: list[bool] = field(default_factory=list)  # the Type A line was the loop scatter alone
+    # the error left after the chain's gain errors' linear part (error − Σ c_i·x_i: the budget's sensitivities, the
+    # run's drawn gains), in the run's U: the noise's and the estimator's own
+    beyond_chain: list[float] = field(default_factory=list)
 
     def summary(self) -> dict[str, float]:
         """Bias (mean error, in the unit and in % of the value), its standard error, the scatter, the coverage, the
@@ -77,6 +83,9 @@ class QuantityStats:
             "U_needed_95": f95 * median_u,
             "U_over_needed": 1.0 / f95 if f95 > 0 else float("inf"),
             "worst_error_in_U": float(np.max(in_u)),
+            "loops_alone": float(np.mean(self.loops_alone)) if self.loops_alone else float("nan"),
+            "beyond_chain_sd_over_U": float(np.std(self.beyond_chain, ddof=1)) if n > 1 else float("nan"),
+            "beyond_chain_max_over_U": float(np.max(np.abs(self.beyond_chain))) if n else float("nan"),
         }
 
 
@@ -85,24 +94,27 @@ class FamilyResult:
     family: Family
     stats: dict[str, QuantityStats]
     failed: list[str]
-    twins: dict[str, QuantityStats] | None = None  # the antithetic twin of each run, in the same order
+    twins: dict[str, QuantityStats] | None = None  # the antithetic twins of the first runs, in the same order
 
     def summary(self) -> dict[str, dict[str, float]]:
         return {q: s.summary() for q, s in self.stats.items()}
 
     def paired_bias_over_U(self, quantity: str) -> tuple[float, float]:
-        """(mean, standard error) over the runs of error/U averaged with the antithetic twin's: the errors that are
-        linear in the gain errors and the noise cancel in each pair, what is left is the estimator's bias."""
-        if self.twins is None:
-            raise ValueError("run_family(..., twins=True) draws the twins")
+        """(mean, standard error) over the twinned runs of the pair's mean error in the run's own U: the errors that
+        are linear in the gain errors and the noise cancel in each pair, what is left is the estimator's bias."""
+        if not self.twins:
+            raise ValueError("run_family(..., twins=N) draws the twins")
         own, twin = self.stats[quantity], self.twins[quantity]
-        pairs = 0.5 * (np.asarray(own.errors) / np.asarray(own.expanded)
-                       + np.asarray(twin.errors) / np.asarray(twin.expanded))
+        n = len(twin.errors)
+        pairs = 0.5 * (np.asarray(own.errors[:n]) + np.asarray(twin.errors)) / np.asarray(own.expanded[:n])
         return float(pairs.mean()), float(pairs.std(ddof=1) / math.sqrt(pairs.size))
 
 
-def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty) -> dict[str, tuple[float, float]] | str:
-    """(error against the truth, U) per quantity of one run through ``tcms analyze --uncertainty``, or why not."""
+def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty, gains: dict[str, float]
+               ) -> dict[str, tuple[float, float, bool, float]] | str:
+    """(error against the truth, U, whether the Type A line is the loop scatter alone, the error beyond the linear
+    part of the drawn ``gains`` (chain input name → relative error) in U) per quantity of one run through
+    ``tcms analyze --uncertainty``, or why not."""
     settings = EvaluationSettings(rated_torque_nm=reducer.rated_torque_nm, lost_motion_pct=LOST_MOTION_PCT)
     try:
         ev = evaluate_test(record.time_s, record.torque_nm, record.angle_arcsec, settings, chain=chain)
@@ -111,47 +123,73 @@ def _evaluated(record: Record, reducer: Reducer, chain: ChainUncertainty) -> dic
     missing = [q for q in QUANTITIES if ev.uncertainty.get(q) is None]
     if missing:
         return f"no U for {missing[0]}: {ev.warnings}"
-    return {q: (float(ev.uncertainty[q]["value"]) - record.truth[q], float(ev.uncertainty[q]["U"]))
-            for q in QUANTITIES}
+    loops = LOOPS_LINE.format(n=ev.n_loops)
+    out = {}
+    for q in QUANTITIES:
+        entry = ev.uncertainty[q]
+        error, expanded = float(entry["value"]) - record.truth[q], float(entry["U"])
+        linear = sum(float(line["sensitivity"]) * gains.get(line["source"], 0.0) for line in entry["budget"])
+        out[q] = (error, expanded, any(line["source"] == loops for line in entry["budget"]), (error - linear) / expanded)
+    return out
+
+
+def _twin_errors(record: Record, reducer: Reducer) -> dict[str, float] | str:
+    """The error against the truth per quantity of a run's antithetic twin: its values only (``evaluate``, what
+    ``evaluate_test`` evaluates before the budget), the pair is judged in the run's own U."""
+    settings = EvaluationSettings(rated_torque_nm=reducer.rated_torque_nm, lost_motion_pct=LOST_MOTION_PCT)
+    try:
+        values = result_values(evaluate(record.time_s, record.torque_nm, record.angle_arcsec, **asdict(settings)))
+    except EvaluationError as exc:
+        return str(exc)
+    missing = [q for q in QUANTITIES if q not in values]
+    return f"twin: no {missing[0]}" if missing else {q: values[q] - record.truth[q] for q in QUANTITIES}
 
 
 def run_family(family: Family, runs: int, seed: int = SEED, chain: ChainUncertainty | None = None,
-               twins: bool = False) -> FamilyResult:
-    """``runs`` runs of one family through the evaluation with its budget; the errors against the truth. With
-    ``twins`` each run's antithetic twin is evaluated too (``FamilyResult.twins``; a run is kept only when both
-    are evaluated)."""
+               twins: int = 0) -> FamilyResult:
+    """``runs`` runs of one family through the evaluation with its budget; the errors against the truth. The first
+    ``twins`` runs are evaluated again as their antithetic twins (``FamilyResult.twins``, U the run's own; such a
+    run is kept only when both are evaluated)."""
     chain = chain if chain is not None else declared_chain()
     rng = np.random.default_rng([seed, FAMILIES.index(family) if family in FAMILIES else 99])
     stats = {q: QuantityStats() for q in QUANTITIES}
-    twin_stats = {q: QuantityStats() for q in QUANTITIES} if twins else None
+    twin_stats = {q: QuantityStats() for q in QUANTITIES} if twins > 0 else None
     failed: list[str] = []
-    for _ in range(runs):
+    for k in range(runs):
         drawn = draw(family, rng)
-        outcomes = [_evaluated(drawn.readings(sign), drawn.reducer, chain) for sign in ((1.0, -1.0) if twins else (1.0,))]
-        evaluated = [o for o in outcomes if not isinstance(o, str)]
-        if len(evaluated) < len(outcomes):
-            failed.extend(o for o in outcomes if isinstance(o, str))
+        outcome = _evaluated(drawn.readings(), drawn.reducer, chain,
+                             {"torque scale": drawn.torque_gain, "angle scale": drawn.angle_gain})
+        twin = _twin_errors(drawn.readings(-1.0), drawn.reducer) if k < twins and not isinstance(outcome, str) else {}
+        if isinstance(outcome, str) or isinstance(twin, str):
+            failed.append(outcome if isinstance(outcome, str) else str(twin))
             continue
-        for into, outcome in zip([stats] if twin_stats is None else [stats, twin_stats], evaluated, strict=True):
-            for q, (error, expanded) in outcome.items():
-                into[q].errors.append(error)
-                into[q].expanded.append(expanded)
-                into[q].truth.append(drawn.truth[q])
+        for q, (error, expanded, loops_alone, beyond_chain) in outcome.items():
+            stats[q].errors.append(error)
+            stats[q].expanded.append(expanded)
+            stats[q].truth.append(drawn.truth[q])
+            stats[q].loops_alone.append(loops_alone)
+            stats[q].beyond_chain.append(beyond_chain)
+            if twin_stats is not None and q in twin:
+                twin_stats[q].errors.append(twin[q])
+                twin_stats[q].expanded.append(expanded)
+                twin_stats[q].truth.append(drawn.truth[q])
     return FamilyResult(family, stats, failed, twin_stats)
 
 
 def markdown_table(results: list[FamilyResult]) -> str:
-    """Per family and quantity: bias (and in % of the value), coverage, median U, the U 95 % needs, their ratio."""
+    """Per family and quantity: bias (and in % of the value), coverage, median U, the U 95 % needs, their ratio, and
+    the share of runs whose Type A line is the loop scatter alone (the loops vary beyond the noise, or the record has
+    no measured noise)."""
     lines = ["| family | quantity | runs | bias | bias / U | coverage | median U | U needed (95 %) | "
-             "U / needed |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "U / needed | Type A loops alone |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for res in results:
         for q, s in res.summary().items():
             unit = UNITS[q]
             lines.append(
                 f"| {res.family.name} | {SHORT[q]} | {s['runs']} | {s['bias']:+.3g} {unit} ({s['bias_pct']:+.3f} %) | "
                 f"{s['bias_over_U']:+.2f} | {100 * s['coverage']:.1f} % | {s['median_U']:.3g} | "
-                f"{s['U_needed_95']:.3g} | {s['U_over_needed']:.2f} |")
+                f"{s['U_needed_95']:.3g} | {s['U_over_needed']:.2f} | {100 * s['loops_alone']:.0f} % |")
     return "\n".join(lines)
 
 

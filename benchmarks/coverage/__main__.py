@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 
-from benchmarks.coverage import RUNS, SEED, declared_chain, markdown_table, run_family
+from benchmarks.coverage import RUNS, SEED, SHORT, declared_chain, markdown_table, run_family
 from benchmarks.coverage.families import FAMILIES
 
 
@@ -29,6 +29,9 @@ def main(argv: list[str] | None = None) -> int:
         res = run_family(family, args.runs, args.seed, chain)
         print(f"[coverage] {family.name}: {family.describe()} — {args.runs} runs in "
               f"{time.perf_counter() - started:.0f} s, {len(res.failed)} not evaluated", file=sys.stderr, flush=True)
+        beyond = "; ".join(f"{SHORT[q]} sd {s['beyond_chain_sd_over_U']:.3f} U, max {s['beyond_chain_max_over_U']:.2f} U"
+                           for q, s in res.summary().items())
+        print(f"    error beyond the chain's gain errors: {beyond}", file=sys.stderr, flush=True)
         for msg in res.failed[:3]:
             print(f"    {msg}", file=sys.stderr)
         results.append(res)

@@ -87,7 +87,23 @@ def _windows(torque_nm: np.ndarray, torque_smooth_nm: np.ndarray, direction: int
     idx = start[:, None] + np.arange(n)[None, :]
     weight = np.abs(torque_nm[idx] - levels[:, None]) <= 0.5 * max_span_nm
     weight |= (idx == first[:, None]) | (idx == first[:, None] - 1)
+    # Only the samples within the span are fitted: each level's used samples packed to the left in their order (the
+    # fits may cut each group of levels to its own widest), the columns no level uses dropped. The fits are the
+    # same sums without their zero terms; a long window (noisy data) that the span cuts short then costs what its
+    # used samples cost.
+    packed = np.argsort(~weight, axis=1, kind="stable")[:, : int(weight.sum(axis=1).max())]
+    idx, weight = np.take_along_axis(idx, packed, axis=1), np.take_along_axis(weight, packed, axis=1)
     return _Windows(levels, idx, weight, first, reached)
+
+
+def _by_width(count: np.ndarray, rows: np.ndarray) -> list[np.ndarray]:
+    """``rows`` (a mask over the levels) split in two by their used sample count: those up to twice the median and
+    the rest (a level in a hold uses its whole window, a level on the move a few samples), so that each part is
+    fitted over its own widest window, not every level over the widest of all."""
+    if not rows.any():
+        return []
+    narrow = rows & (count <= 2 * np.median(count[rows]))
+    return [part for part in (narrow, rows & ~narrow) if part.any()]
 
 
 def angle_at_torque(
@@ -117,10 +133,11 @@ def angle_at_torque(
     u = np.clip(2.0 * (t - t_lo) / (t_hi - t_lo) - 1.0, -1.0, 1.0)
     values = np.stack([torque_nm[idx], angle_arcsec[idx]], axis=2)
     coef = np.zeros((levels.size, QUADRATIC_DEGREE + 1, 2))
-    quadratic = w.quadratic
+    quadratic, count = w.quadratic, w.count
     for degree, rows in ((QUADRATIC_DEGREE, quadratic), (1, ~quadratic)):
-        if rows.any():
-            coef[rows, : degree + 1] = _solve(u[rows], weight[rows].astype(float), values[rows], degree)
+        for part in _by_width(count, rows):
+            m = int(count[part].max())  # the used samples are packed to the left (``_windows``)
+            coef[part, : degree + 1] = _solve(u[part, :m], weight[part, :m].astype(float), values[part, :m], degree)
     c = coef[:, :, 0]  # torque polynomial in u
     p = coef[:, :, 1]  # angle polynomial in u
     # Solve torque(u*) = level for the root inside the window (stable quadratic formula; linear if c2 = 0).

@@ -611,6 +611,7 @@ ZH: dict[str, str] = {
     "source.estimator bias at the measured noise": "实测噪声下的估计偏差",
     "source.interpolation at the local sample spacing": "局部采样间隔下的插值误差",
     "source.noise_redraws": "记录内噪声（{draws} 次以新噪声重新评定）",
+    "source.repeatability_pooled": "重复性与记录内噪声，合并（n = {n}，{draws} 次以新噪声重新评定）",
     "source.basis_declared": "声明的测量链：{where}",
     "source.basis_type_a_config": "仅 A 类（{config} 中未声明不确定度）",
     "source.basis_type_a_cli": "仅 A 类（未给出 --uncertainty 文件）",
@@ -775,6 +776,8 @@ SOURCE_PATTERNS: tuple[tuple[str, str], ...] = (
     (r"^interpolation error \((?P<period>[^″]+)″ period\), cosine$", "source.interpolation_cosine"),
     (r"^repeatability \(loop-to-loop, n = (?P<n>\d+)\)$", "source.repeatability"),
     (r"^noise within the record \((?P<draws>\d+) re-evaluations with fresh noise\)$", "source.noise_redraws"),
+    (r"^repeatability and noise within the record, pooled \(n = (?P<n>\d+), (?P<draws>\d+) re-evaluations with fresh "
+     r"noise\)$", "source.repeatability_pooled"),
 )
 
 

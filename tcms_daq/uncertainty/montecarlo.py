@@ -2,8 +2,9 @@
 budgets of ``tcms_daq.uncertainty.budget``.
 
 Each draw applies every declared Type B input at once (Gaussian, estimate 0, its standard uncertainty) to the
-record and evaluates it; the loop-to-loop scatter (Type A), which a draw cannot repeat, is added to each result
-as a scaled and shifted t-distribution with n − 1 degrees of freedom (JCGM 101 6.4.9). The coverage interval is
+record and evaluates it; the budget's Type A line (the loop scatter and the noise bootstrap, ``record_type_a``),
+which a draw cannot repeat, is added to each result as a scaled and shifted t-distribution with its degrees of
+freedom (JCGM 101 6.4.9). The coverage interval is
 the probabilistically symmetric 95 % interval of the results.
 """
 
@@ -16,7 +17,7 @@ import numpy.typing as npt
 
 from tcms_daq.analysis.evaluation import Evaluation, EvaluationSettings
 from tcms_daq.config.models import ChainUncertainty
-from tcms_daq.uncertainty.budget import _evaluate, _type_a, loop_values, result_values
+from tcms_daq.uncertainty.budget import _evaluate, _noise_bootstrap, record_type_a, result_values
 from tcms_daq.uncertainty.chain import chain_inputs
 
 
@@ -39,7 +40,7 @@ class MonteCarloResult:
 def monte_carlo(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: npt.ArrayLike,
                 settings: EvaluationSettings, chain: ChainUncertainty | None, nominal: Evaluation,
                 draws: int = 400, seed: int = 0) -> dict[str, MonteCarloResult]:
-    """JCGM 101 propagation of the declared chain (and the loop scatter) through ``evaluate``; per result name."""
+    """JCGM 101 propagation of the declared chain (and the Type A line) through ``evaluate``; per result name."""
     t = np.asarray(time_s, dtype=float)
     torque0 = np.asarray(torque_nm, dtype=float)
     angle0 = np.asarray(angle_arcsec, dtype=float)
@@ -47,7 +48,7 @@ def monte_carlo(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: n
     fixed = replace(settings, test_torque_nm=nominal.test_torque_nm)
     inputs = chain_inputs(chain, nominal.test_torque_nm) if chain is not None else []
     names = list(result_values(nominal))
-    type_a = {name: _type_a(loop_values(nominal, name)) for name in names}
+    type_a = record_type_a(nominal, names, _noise_bootstrap(t, torque0, angle0, fixed, nominal, names))
     samples: dict[str, list[float]] = {name: [] for name in names}
     for _ in range(draws):
         torque, angle = torque0, angle0
@@ -55,7 +56,7 @@ def monte_carlo(time_s: npt.ArrayLike, torque_nm: npt.ArrayLike, angle_arcsec: n
             torque, angle = inp.apply(torque, angle, float(rng.normal(0.0, inp.u)))
         values = result_values(_evaluate(t, torque, angle, fixed))
         for name in names:
-            u_a, dof = type_a[name]
+            u_a, dof = type_a[name].u, type_a[name].dof
             scatter = u_a * float(rng.standard_t(dof)) if u_a is not None and dof is not None else 0.0
             samples[name].append(values[name] + scatter)
     out = {}

@@ -166,6 +166,8 @@ def test_uncertainty_sources_in_chinese_by_the_cores_own_names():
             assert f'"{key.removeprefix("source.")}"' in core, f"{key}: the core names no such source"
     assert messages.source_text("interpolation error (72″ period), sine", "zh") == "细分误差（信号周期 72″），正弦分量"
     assert messages.source_text("repeatability (loop-to-loop, n = 3)", "zh") == "重复性（循环间，n = 3）"
+    assert messages.source_text("repeatability and noise within the record, pooled (n = 4, 8 re-evaluations with fresh "
+                                "noise)", "zh") == "重复性与记录内噪声，合并（n = 4，8 次以新噪声重新评定）"
     assert messages.source_text("torque scale", "zh") == "扭矩标度"
     assert messages.source_text("torque scale", "en") == "torque scale"
     assert messages.source_text("a source of a later version", "zh") == "a source of a later version"
