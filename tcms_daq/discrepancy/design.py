@@ -161,7 +161,8 @@ def local_slope(torque_nm: np.ndarray, angle_arcsec: np.ndarray, segments: np.nd
 def history_free_curve(torque_nm: np.ndarray, angle_arcsec: np.ndarray, direction: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
     """(torque grid N·m, angle ″): the history-free part of a torque–angle trace, the mean of its loading and its
-    unloading curve (each the angle's mean in equal-width torque bins, at the bins' mean torque, on a common grid).
+    unloading curve (each the angle's mean in equal-width torque bins, at the bins' mean torque, on a common grid,
+    once each branch's smooth level against it is taken out: :func:`_direction_curve`).
     A friction loop that depends on the torque increments (Dahl, a play) is odd in the load direction and drops
     out; what stays is the spring. Where one direction does not reach, the other is used with the half-width of
     the loop at the nearest torque both reach; a trace loaded in one direction is its own curve. The first branch
@@ -231,17 +232,17 @@ def _direction_curve(t: np.ndarray, a: np.ndarray, branch: np.ndarray, lo: float
     the level of the typical branch.
 
     The branches of one direction need not lie on one curve: a friction loop remembers where a branch began (the
-    RV-110E's Dahl loop over 539 N·m of torque: in the service's programme the branch that starts at the reversal
-    at zero torque between the two rates lies 16″ off the others 100 N·m after it, and the next one 3.7 … 1.2″ over
-    its first 700 N·m). A bin's plain mean then depends on which branches have a sample in it, and a branch ramped faster has
-    one in every third 4 N·m bin only (12 N·m a sample at 600 N·m/s and 50 Hz): the curve came out with a saw tooth
-    of that period, 0.25″ RMS about the model's midline, and the torque offset's signature read off it was 0.28″ RMS
-    wrong against a signature of 0.42″ (8 N·m; the offset not named over the service). Each branch's level is its
-    deviation from the curve, smoothed by a local straight line over ±``BRANCH_LEVEL_SPAN`` of the span (at least
-    twice the largest typical step of a branch, so every branch has samples in the window); the samples less their
-    level lie on one curve whatever bins they fall in (0.016″ RMS about the midline), and the curve is put at the
-    median of the branches' levels, so a branch that began elsewhere does not bend it by its share of a mean (its
-    share put the offset 2.5 % low)."""
+    RV-110E's Dahl loop over 539 N·m of torque: in the service's programme the branch that starts at the reversal at
+    zero torque between the two rates lies 16″ off the others 100 N·m after it, and the next one 3.7 … 1.2″ over its
+    first 700 N·m). A bin's plain mean then depends on which branches have a sample in it, and a branch ramped
+    faster has one in every third 4 N·m bin only (12 N·m a sample at 600 N·m/s and 50 Hz): the curve came out with a
+    saw tooth of that period, 0.25″ RMS about its smooth (cubic) trend, and the torque offset's signature read off
+    it was 0.28″ RMS wrong against a signature of 0.42″ (8 N·m; the offset not named over the service). Each
+    branch's level is its deviation from the curve, smoothed by a local straight line over ±``BRANCH_LEVEL_SPAN`` of
+    the span (at least twice the largest typical step of a branch, so every branch has samples in the window); the
+    samples less their level lie on one curve whatever bins they fall in (0.016″ RMS about its trend), and the curve
+    is put at the median of the branches' levels, so a branch that began elsewhere does not bend it by its share of
+    a mean (its share put the offset 2.5 % low)."""
     n_bins = int(np.clip(len(t) // 8, 8, 400))
     index = np.clip(((t - lo) / (hi - lo) * n_bins).astype(int), 0, n_bins - 1)
     count = np.bincount(index, minlength=n_bins).astype(float)

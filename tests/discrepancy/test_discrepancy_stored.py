@@ -123,10 +123,12 @@ def test_compared_up_to_the_programmes_end_not_after_the_loader_is_disabled():
     back when the procedure disables the loader: the model, driven by the reading, then reverses inside the
     lost-motion zone while the reducer stays. Compared rows end at the programme's end when the run records it,
     else where the reading leaves the level its last branch reached; a final hold in the noise is kept."""
+    from tcms_daq.sim.effects import from_config
+
+    reducer = load_reducer_catalogue()["RV-110E"]
     for offset_nm in (8.0, 0.0):
-        overrides = ("sim.sample_rate_hz=50",) + ((f"sim.effects.torque_zero_offset.offset_nm={offset_nm}",)
-                                                  if offset_nm else ())
-        bench = SimulatedBench.from_config(load_bench_config(None, overrides), seed=3)
+        bench = SimulatedBench(physics_from_spec(reducer), reducer=reducer, sample_rate_hz=50.0, seed=3,
+                               effects=from_config({"torque_zero_offset": {"offset_nm": offset_nm}}))
         bench.set_drive_enabled(True)
         parts = []
         for start, target in ((0, -500), (-500, 500), (500, -500), (-500, 0)):
