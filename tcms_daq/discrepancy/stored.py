@@ -195,6 +195,50 @@ def first_branch_end(torque_nm: np.ndarray) -> int:
     return int(turns[0]) if len(turns) else 0
 
 
+def compared_rows(time_s: np.ndarray, torque_nm: np.ndarray, programme_end_s: float | None = None) -> slice:
+    """The rows of a stored run to compare with its re-simulation: from its first load reversal
+    (:func:`first_branch_end`) to the end of its programme — ``programme_end_s`` (clock s, the run's time) when
+    the run records it (the end of its last loop), else where the torque leaves the level its last branch reached
+    (:func:`last_branch_end`).
+
+    After the programme the procedure disables the loader. A torque reading whose zero shifts with the drive's
+    switching (an amplifier's zero, which the tare before the drive is enabled does not see) shifts back there, and
+    whether the reading shows it depends on where the last ramp stopped. On the simulated bench with a hidden 8 N·m
+    offset, run 1's reading dropped from 5 to 0 N·m at the disabling while the reducer stayed (the model, driven by
+    the reading, reversed inside the lost-motion zone: its last 10 rows 1.5–4.7″ off, half the run's residual
+    variance); run 2's last ramp stopped at a reading of −0.45 N·m, the reducer at −8.45 N·m, and at the disabling
+    the reducer went to zero through the lost-motion zone while the reading stayed (5″ over 10 rows, which the
+    reading cannot show: run 2 unexplained)."""
+    start = first_branch_end(torque_nm)
+    if programme_end_s is not None:
+        end = int(np.searchsorted(np.asarray(time_s, dtype=float), programme_end_s, side="right"))
+    else:
+        end = last_branch_end(torque_nm)
+    return slice(start, max(start, end))
+
+
+def last_branch_end(torque_nm: np.ndarray) -> int:
+    """The end (exclusive) of a run's last branch: the first row where the torque leaves the level that branch
+    reached (by more than three times the torque noise, two rows running), the run's length when it stays there.
+    A run that does not record its programme's end is compared up to here (:func:`compared_rows`)."""
+    from tcms_daq.discrepancy.design import load_direction, reversals, torque_noise_nm
+
+    t = np.asarray(torque_nm, dtype=float)
+    n = len(t)
+    if n < 2:
+        return n
+    direction = load_direction(t)
+    turns = reversals(direction)
+    start = int(turns[-1]) if len(turns) else 0
+    part = t[start:]
+    extreme = start + int(np.argmax(part) if direction[-1] > 0 else np.argmin(part))
+    band = 3.0 * torque_noise_nm(t)
+    level = float(np.median(part[np.abs(part - t[extreme]) <= 2.0 * band]))
+    away = np.abs(t[extreme + 1:] - level) > band
+    both = np.flatnonzero(away & np.append(away[1:], True))
+    return extreme + 1 + int(both[0]) if len(both) else n
+
+
 # The request fields a separating run keeps from the run it follows (who and what is tested, not how).
 _KEPT_REQUEST_FIELDS = ("cycles", "serial_number", "operator", "decision_rule", "customer",
                         "order_number", "ambient_temperature_c")

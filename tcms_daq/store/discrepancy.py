@@ -5,6 +5,7 @@ service; the forward model comes from the caller (``sim.physics.catalogue_model`
 from __future__ import annotations
 
 import json
+import math
 import re
 import time
 from collections.abc import Callable
@@ -20,7 +21,7 @@ from tcms_daq.discrepancy.model_file import (
     resimulated_samples,
 )
 from tcms_daq.discrepancy.report import render_html
-from tcms_daq.discrepancy.stored import ForwardModel, first_branch_end, resimulate
+from tcms_daq.discrepancy.stored import ForwardModel, compared_rows, resimulate
 from tcms_daq.discrepancy.workflow import DiscrepancyResult
 from tcms_daq.errors import DataFormatError, TcmsError
 from tcms_daq.samples import Samples, write_csv
@@ -95,9 +96,20 @@ def pair_from_store(store: Store, run_id: str, model_for: ModelForReducer, where
 
     # the whole run, so the model's loop state is its own; its initial state fitted against the model in use
     simulated = resimulate(measured, model_for(name), with_terms if terms is not None else None)
-    start = first_branch_end(measured.torque_nm)  # compared from the first reversal: the state before is unknown
-    measured, simulated = measured.select(slice(start, None)), simulated.select(slice(start, None))
+    # compared from the first reversal (the state before is unknown) to the programme's end (the loader disabled)
+    rows = compared_rows(measured.time_s, measured.torque_nm, programme_end_s(record))
+    measured, simulated = measured.select(rows), simulated.select(rows)
     return measured, with_terms(simulated)
+
+
+def programme_end_s(record: StoredRun) -> float | None:
+    """Where a stored run's programme ended (clock s): the end of its last loop in its results (the evaluation's
+    loop times; the final ramp to zero and the loader's disabling come after it), None when it has none."""
+    loops = (record.results or {}).get("loops")
+    ends = [float(lp["end_time_s"]) for lp in loops if isinstance(lp, dict)
+            and isinstance(lp.get("end_time_s"), int | float) and not isinstance(lp.get("end_time_s"), bool)
+            and math.isfinite(lp["end_time_s"])] if isinstance(loops, list) else []
+    return max(ends) if ends else None
 
 
 def suggested_runs(result: DiscrepancyResult, record: StoredRun | None, measured: Samples) -> list[dict[str, Any]]:

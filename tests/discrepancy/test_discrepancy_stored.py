@@ -9,7 +9,13 @@ from tcms_daq.sim.bench import SimulatedBench
 from tcms_daq.sim.physics import TwistState, catalogue_model, physics_from_spec, twist_arcsec
 
 from tcms_daq.config import load_bench_config, load_reducer_catalogue
-from tcms_daq.discrepancy.stored import applied_torque_estimate, resimulate
+from tcms_daq.discrepancy.stored import (
+    applied_torque_estimate,
+    compared_rows,
+    first_branch_end,
+    last_branch_end,
+    resimulate,
+)
 from tcms_daq.samples import Samples
 
 
@@ -110,3 +116,29 @@ def test_the_friction_state_is_fitted_against_the_bench_model_in_use():
 
     assert worst(resimulate(measured, catalogue_model("RV-110E")).angle_arcsec) > 0.1  # 0.197″
     assert worst(resimulate(measured, catalogue_model("RV-110E"), bench_model).angle_arcsec) < 0.01  # 0.000″
+
+
+def test_compared_up_to_the_programmes_end_not_after_the_loader_is_disabled():
+    """A torque reading's zero that shifts while the drive is enabled (the simulated bench's hidden offset) shifts
+    back when the procedure disables the loader: the model, driven by the reading, then reverses inside the
+    lost-motion zone while the reducer stays. Compared rows end at the programme's end when the run records it,
+    else where the reading leaves the level its last branch reached; a final hold in the noise is kept."""
+    from tcms_daq.sim.effects import from_config
+
+    reducer = load_reducer_catalogue()["RV-110E"]
+    for offset_nm in (8.0, 0.0):
+        bench = SimulatedBench(physics_from_spec(reducer), reducer=reducer, sample_rate_hz=50.0, seed=3,
+                               effects=from_config({"torque_zero_offset": {"offset_nm": offset_nm}}))
+        bench.set_drive_enabled(True)
+        parts = []
+        for start, target in ((0, -500), (-500, 500), (500, -500), (-500, 0)):
+            bench.set_torque_target(float(target), 500.0)
+            parts.append(bench.advance(abs(target - start) / 500.0 + 0.2))
+        end_s = float(parts[-1].time_s[-1])
+        bench.set_drive_enabled(False)
+        parts.append(bench.advance(0.3))
+        run = Samples.concat(parts)
+        disabled = int(np.searchsorted(run.time_s, end_s, side="right"))
+        assert compared_rows(run.time_s, run.torque_nm, end_s).stop == disabled
+        assert last_branch_end(run.torque_nm) == (disabled if offset_nm else len(run))
+        assert compared_rows(run.time_s, run.torque_nm).start == first_branch_end(run.torque_nm) > 0

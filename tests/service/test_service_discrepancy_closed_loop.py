@@ -25,18 +25,11 @@ from tcms_daq.service.closed_loop import bench_config_with_effects, programme_s,
 SIM_SPEED = 200.0  # simulated seconds per real second: the programme's pace does not change what is sampled
 REPRESENTATIVE = [("thermal_drift+backlash", 1.0)]
 EVERY_CASE = [(case, size) for case in CASES if case != "null" for size in (0.5, 1.0)]
-# The torque zero offset in its first-order form (−T0·dθ/dT along the trace) is not closed over the service: the
-# offset column's slope is regressed on the noisy reading, and in the programme's holds, where the re-simulation's
-# torque now holds still, it is 0 while the bench holds the last slope (issue 24; the offset's estimator is being
-# replaced, and the bench is to hide it as an offset of the reading, which the procedure's tare removes).
-OPEN = {"torque_zero_offset"}
 
 
 def _cases() -> list:
     chosen = EVERY_CASE if os.environ.get("TCMS_CLOSED_LOOP") == "all" else REPRESENTATIVE
-    return [pytest.param(c, s, id=f"{c}-{s:g}", marks=pytest.mark.xfail(reason="issue 24: offset estimator",
-                                                                          strict=False) if c in OPEN else ())
-            for c, s in chosen]
+    return [pytest.param(c, s, id=f"{c}-{s:g}") for c, s in chosen]
 
 
 @pytest.mark.parametrize(("case", "size"), _cases())
