@@ -28,7 +28,14 @@ import numpy as np
 
 from tcms_daq.analysis.evaluation import DECISIONS
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import HEADLINES, decision, headline_results, run_identity, test_method
+from tcms_daq.identity import (
+    HEADLINES,
+    decision,
+    headline_results,
+    method_headlines,
+    run_identity,
+    test_method,
+)
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples, samples_from_columns
 
@@ -133,10 +140,11 @@ def brief_results(results: Mapping[str, Any] | None) -> dict[str, Any] | None:
     the verdict and ``passed``; None for none."""
     if results is None:
         return None
-    out = {k: results[k] for k in (*BRIEF_KEYS, "verdict", "passed") if k in results}
+    keys = (*BRIEF_KEYS, *(h.key for h in method_headlines(results) if h.key not in BRIEF_KEYS))
+    out = {k: results[k] for k in (*keys, "verdict", "passed", "method") if k in results}
     table = results.get("uncertainty")
     if isinstance(table, Mapping):
-        out["uncertainty"] = {k: table[k] for k in BRIEF_KEYS if k in table}
+        out["uncertainty"] = {k: table[k] for k in keys if k in table}
     return out
 
 
