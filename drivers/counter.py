@@ -8,9 +8,9 @@ with the output angle (axis 1, arcsec) in ``value`` and the input angle (axis 2,
 lost) and a signal fault of either axis raise DeviceFault; a broken block MalformedReply.
 
 Time stamps: each frame carries the latch time on the card's clock (µs). The driver maps it onto its own clock by
-the line through the first and the latest (request time, newest latch time) pair of the reads: a constant offset
-(the newest latch is at most one period before the request) plus the drift of the card's clock against the host's
-— and a simulator's speed.
+the offset of its quickest read when the two clocks run at one rate (the newest latch taken between request and
+reply: their middle, as NTP), else (a simulator at another speed than the driver's clock) by the line through the
+first and the latest (request time, newest latch time) pair.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ from tcms_daq.protocols.counter import (
 
 LATCH_SEQ_COLUMN = "latch_seq"
 MIN_DRIFT_SPAN_S = 1.0  # the clock line's slope is estimated once the card's times span this much
+SAME_RATE = 0.05  # clocks whose rates differ less than this share run at one rate (offset only)
 
 
 def _read_line(port: serial.SerialBase) -> bytes:
@@ -76,6 +77,8 @@ class Counter2Axis(SerialInstrument):
                          parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE)
         self._first: tuple[float, float] | None = None  # (host s, card s) of the first read with frames
         self._latest: tuple[float, float] | None = None
+        self._offset: float | None = None  # host − card of the quickest read (s)
+        self._round_trip = float("inf")  # that read's round trip (s)
 
     def _command(self, line: str) -> str:
         reply = require_terminated(self.name, self.link.exchange(line.encode("ascii") + b"\n", _read_line))
@@ -102,6 +105,7 @@ class Counter2Axis(SerialInstrument):
         self._command(f"RATE {options.rate_hz}")
         self._command("START")
         self._first = self._latest = None
+        self._offset, self._round_trip = None, float("inf")
 
     def close(self) -> None:
         try:
@@ -112,12 +116,22 @@ class Counter2Axis(SerialInstrument):
         super().close()
 
     def _card_to_clock(self, card_s: np.ndarray) -> np.ndarray:
+        """The card's latch times on the driver's clock. When the two clocks run at one rate (within
+        ``SAME_RATE``: a crystal's drift is tens of ppm, a few ms over a minute's test; the bench's clock runs at a
+        simulator's speed), by the offset of the quickest read so far: its newest latch taken between request and
+        reply, at their middle (error at most half its round trip, as NTP's). A quicker read moves the offset by less
+        than the round trips differ; a reader that needs strictly increasing times drops what falls behind.
+        Otherwise (another rate, once the card's times span ``MIN_DRIFT_SPAN_S``) by the line through the first and
+        the latest (request time, newest latch) pair."""
         first, latest = self._first, self._latest
         if first is None or latest is None:
             return card_s
         span = latest[1] - first[1]
         scale = (latest[0] - first[0]) / span if span >= MIN_DRIFT_SPAN_S else 1.0
-        return first[0] + (card_s - first[1]) * scale
+        if abs(scale - 1.0) > SAME_RATE:
+            return first[0] + (card_s - first[1]) * scale
+        assert self._offset is not None
+        return card_s + self._offset
 
     def read(self) -> Batch:
         frames: list[tuple[int, int, int, int, int]] = []
@@ -132,10 +146,16 @@ class Counter2Axis(SerialInstrument):
                 raise DeviceFault(self.name, f"FIFO overflow: {lost} latched pairs lost (read more often)")
             frames += part
             if part:
+                reply_s = self.clock()
                 pair = (request_s, part[-1][1] / 1e6)
                 if self._first is None:
                     self._first = pair
                 self._latest = pair
+                # the newest latch was taken while the READ was on the way: the middle of request and reply, the
+                # read that took the least time the best (its error at most half its round trip)
+                round_trip = reply_s - request_s
+                if self._offset is None or round_trip <= self._round_trip:
+                    self._offset, self._round_trip = 0.5 * (request_s + reply_s) - pair[1], round_trip
             if len(part) < MAX_FRAMES_PER_READ:
                 break
         if not frames:
