@@ -8,8 +8,8 @@ with the output angle (axis 1, arcsec) in ``value`` and the input angle (axis 2,
 lost) and a signal fault of either axis raise DeviceFault; a broken block MalformedReply.
 
 Time stamps: each frame carries the latch time on the card's clock (µs). The driver maps it onto its own clock by
-the offset of its quickest read when the two clocks run at one rate (the newest latch taken between request and
-reply: their middle, as NTP), else (a simulator at another speed than the driver's clock) by the line through the
+the offset of its quickest recent read when the two clocks run at one rate (the newest latch taken between request
+and reply: their middle, as NTP), slewed so that the times never step, else (a simulator at another speed than the driver's clock) by the line through the
 first and the latest (request time, newest latch time) pair.
 """
 
@@ -48,6 +48,8 @@ from tcms_daq.protocols.counter import (
 LATCH_SEQ_COLUMN = "latch_seq"
 MIN_DRIFT_SPAN_S = 1.0  # the clock line's slope is estimated once the card's times span this much
 SAME_RATE = 0.05  # clocks whose rates differ less than this share run at one rate (offset only)
+OFFSET_WINDOW_S = 10.0  # the offset's target: the quickest read of this long (a drifting card is followed)
+OFFSET_SLEW = 0.01  # the offset in use moves toward its target at most this many s per s
 
 
 def _read_line(port: serial.SerialBase) -> bytes:
@@ -77,8 +79,10 @@ class Counter2Axis(SerialInstrument):
                          parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE)
         self._first: tuple[float, float] | None = None  # (host s, card s) of the first read with frames
         self._latest: tuple[float, float] | None = None
-        self._offset: float | None = None  # host − card of the quickest read (s)
+        self._offset: float | None = None  # host − card in use (s)
+        self._target: float | None = None  # host − card of the quickest recent read (s)
         self._round_trip = float("inf")  # that read's round trip (s)
+        self._target_at = self._updated_at = 0.0
 
     def _command(self, line: str) -> str:
         reply = require_terminated(self.name, self.link.exchange(line.encode("ascii") + b"\n", _read_line))
@@ -105,7 +109,8 @@ class Counter2Axis(SerialInstrument):
         self._command(f"RATE {options.rate_hz}")
         self._command("START")
         self._first = self._latest = None
-        self._offset, self._round_trip = None, float("inf")
+        self._offset = self._target = None
+        self._round_trip = float("inf")
 
     def close(self) -> None:
         try:
@@ -115,12 +120,26 @@ class Counter2Axis(SerialInstrument):
             pass
         super().close()
 
+    def _track_offset(self, request_s: float, reply_s: float, newest_card_s: float) -> None:
+        """The newest latch was taken while the READ was on the way: host − card ≈ the middle of request and reply
+        − the newest latch (error at most half the round trip, as NTP's). The target is the quickest read's of the
+        last ``OFFSET_WINDOW_S`` (a drifting card is followed); the offset in use slews toward it at most
+        ``OFFSET_SLEW`` s per s, so the mapped times never step (a step would be a gap, or a jump back, in the record)."""
+        estimate, round_trip = 0.5 * (request_s + reply_s) - newest_card_s, reply_s - request_s
+        if (self._target is None or round_trip <= self._round_trip
+                or request_s - self._target_at > OFFSET_WINDOW_S):
+            self._target, self._round_trip, self._target_at = estimate, round_trip, request_s
+        if self._offset is None:
+            self._offset = self._target
+        else:
+            limit = OFFSET_SLEW * max(0.0, request_s - self._updated_at)
+            self._offset += max(-limit, min(limit, self._target - self._offset))
+        self._updated_at = request_s
+
     def _card_to_clock(self, card_s: np.ndarray) -> np.ndarray:
         """The card's latch times on the driver's clock. When the two clocks run at one rate (within
         ``SAME_RATE``: a crystal's drift is tens of ppm, a few ms over a minute's test; the bench's clock runs at a
-        simulator's speed), by the offset of the quickest read so far: its newest latch taken between request and
-        reply, at their middle (error at most half its round trip, as NTP's). A quicker read moves the offset by less
-        than the round trips differ; a reader that needs strictly increasing times drops what falls behind.
+        simulator's speed), by the offset :meth:`_track_offset` keeps (no step: the record stays continuous).
         Otherwise (another rate, once the card's times span ``MIN_DRIFT_SPAN_S``) by the line through the first and
         the latest (request time, newest latch) pair."""
         first, latest = self._first, self._latest
@@ -151,11 +170,7 @@ class Counter2Axis(SerialInstrument):
                 if self._first is None:
                     self._first = pair
                 self._latest = pair
-                # the newest latch was taken while the READ was on the way: the middle of request and reply, the
-                # read that took the least time the best (its error at most half its round trip)
-                round_trip = reply_s - request_s
-                if self._offset is None or round_trip <= self._round_trip:
-                    self._offset, self._round_trip = 0.5 * (request_s + reply_s) - pair[1], round_trip
+                self._track_offset(request_s, reply_s, pair[1])
             if len(part) < MAX_FRAMES_PER_READ:
                 break
         if not frames:

@@ -64,6 +64,7 @@ DEFAULT_EFFICIENCY_DWELL_S = 2.0
 PAUSE_S = 0.5
 SETTLE_S = 0.3  # after a change of speed or load, before the stretch a step is for
 SPEED_LIMIT_SHARE = 0.95  # of the input drive's limit: the highest speed a plan commands
+LOAD_RAMP_S = 1.0  # the loader ramps its torque at the rated torque per this many seconds
 
 
 @dataclass(frozen=True)
@@ -194,7 +195,7 @@ def build_method_plan(method: str, reducer: ReducerSpec, bench: BenchConfig, *,
                                  f"N·m of {reducer.name} or the bench limit {bench.bench.max_torque_nm:g} N·m")
         return value
 
-    slope = max(reducer.rated_torque_nm / 2.0, bench.bench.min_rate_nm_per_s)
+    slope = max(reducer.rated_torque_nm / LOAD_RAMP_S, bench.bench.min_rate_nm_per_s)
     params: dict[str, Any] = {}
     steps: list[MethodStep] = []
     if method == "transmission-error":
