@@ -195,8 +195,10 @@ class MethodRun(TestRun):
             return
         self._input_stopped = True
         trip = acq.trip
-        if trip is not None and trip.interlock == "lost_instrument" and "input_drive" in trip.reason:
-            self.record.notes.append("input drive lost: no stop commanded (its own watchdog stops it)")
+        failing = acq.station.link_failing()
+        if (trip is not None and trip.interlock == "lost_instrument" and "input_drive" in trip.reason) or failing:
+            self.record.notes.append(f"input drive lost{f' ({failing})' if failing else ''}: no stop commanded "
+                                     "(its own watchdog stops it)")
             return
         with acq.station.drive_lock:
             self.bench.stop_input_drive()

@@ -1,7 +1,7 @@
 """The turning tests (issue 28) through `tcms run --method` on the in-process simulated station
 (config/bench-station.toml: the second axis turns the core's unit, sim/instruments/drivetrain.py UnitDriveTrain):
 for RV-110E and HFUC-32-100 every result of each method lies within its U of the simulated unit's exact truth, and
-the transmission error finds the unit's orders with their components and nothing else. A bench without the second
+the transmission error finds the unit's orders with their components and nothing else (beyond its U of nothing). A bench without the second
 axis refuses a turning method naming what it lacks; the input drive's fault and its lost link end a run aborted,
 with the input stopped (or left to its watchdog), and an operator's abort stops it too."""
 
@@ -52,9 +52,14 @@ def test_each_method_within_u_of_the_simulated_truth(capsys, reducer, method, ar
         expected = {round(h.harmonic * orders[h.component], 3): h.component if h.harmonic == 1 else
                     f"{h.component} {h.harmonic}×" for h in spec.sim.transmission.harmonics}
         found = {round(ln["order"]): ln["components"] for ln in out["te_orders"]}
-        assert set(found) == {round(k) for k in expected}, (found, expected)
+        assert set(found) >= {round(k) for k in expected}, (found, expected)
         for k, component in expected.items():
             assert component in found[round(k)], (k, component, found)
+        # a line at an order the unit has not is noise that passed the pursuit's 1 % false alarm: within its U of 0
+        for ln in out["te_orders"]:
+            if round(ln["order"]) not in {round(k) for k in expected}:
+                entry = table[f"te_order_{ln['order']:.4g}_amplitude_arcsec"]
+                assert entry["value"] <= entry["U"], (ln, entry["U"])
         assert all(math.isfinite(v) for v in out["te_curve"]["forward"]["te_arcsec"])
         assert len(out["te_spectrum"]["reverse"]["order"]) == len(out["te_spectrum"]["reverse"]["amplitude_arcsec"])
 
