@@ -20,7 +20,7 @@ from tcms_daq.sim.instruments.loop import PeriodicThread
 
 FILTER_WINDOW_S = 0.1  # an amplifier's filtered value averages this long (simulated s)
 RECENT_SAMPLES = 2048  # torque readings kept for it
-MAX_TICK_REAL_S = 0.5  # the longest real time one tick makes up (was 0.1: a loaded machine's stalls fell behind)
+MAX_TICK_REAL_S = 0.1  # the longest real time one tick makes up
 
 
 class BenchLike(Protocol):
@@ -175,8 +175,7 @@ class SharedPhysics:
 
     def _tick(self) -> None:
         now = time.monotonic()
-        # cap one step so a process stopped for long does not produce a huge jump of the simulated clock; a stall
-        # shorter than the cap is made up in one step, so the simulated clock keeps its pace against its clients'
-        # (a bench clock at real time × speed: the readings of a polled instrument are stamped on it)
+        # cap one step so a stalled process does not produce a huge jump of the simulated clock (a jump shows its
+        # clients the physics of a whole stall between two readings; the clock falls behind instead)
         self.advance(min(now - self._last_tick_s, MAX_TICK_REAL_S) * self.speed)
         self._last_tick_s = now

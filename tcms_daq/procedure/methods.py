@@ -143,10 +143,21 @@ class MethodRejected(ValueError):
     """A turning test the bench cannot run: one line naming what is missing or out of bounds."""
 
 
+#: angle sources that carry no input angle beside the output's (not an angle pair for the methods)
+NOT_A_PAIR = ("nd287-coupled",)
+
+
 def missing_for(method: str, bench: BenchConfig) -> list[str]:
     """What ``method`` needs that the bench config has not, in words (empty: nothing)."""
-    return [f"[instruments.{kind}] ({words})" for kind, words in NEEDS.get(method, ())
-            if getattr(bench.instruments, kind) is None]
+    out = []
+    for kind, words in NEEDS.get(method, ()):
+        instrument = getattr(bench.instruments, kind)
+        if instrument is None:
+            out.append(f"[instruments.{kind}] ({words})")
+        elif kind == "input_angle" and instrument.driver in NOT_A_PAIR:
+            out.append(f"[instruments.{kind}] as an angle pair source such as counter-2axis (the {instrument.driver} "
+                       "driver reads the coupled display, no input angle)")
+    return out
 
 
 def input_speed_limit_rpm(bench: BenchConfig) -> float | None:

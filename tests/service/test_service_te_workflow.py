@@ -31,8 +31,8 @@ def _run(client, request: dict) -> dict:
     ("HFUC-32-100", {"order": 27.3, "amplitude_arcsec": 1.5, "phase_deg": 200.0}, None),
 ], ids=["named-and-closed", "unexplained"])
 def test_hidden_order_named_applied_and_closed(settings_factory, reducer, hidden, component):
-    extra = "[{order = %g, amplitude_arcsec = %g, phase_deg = %g}]" % (
-        hidden["order"], hidden["amplitude_arcsec"], hidden["phase_deg"])
+    extra = ("[{" + ", ".join(f"{k} = {hidden[k]:g}" for k in ("order", "amplitude_arcsec", "phase_deg"))
+             + "}]")
     runner = BenchRunner.from_config(STATION, sim_speed=400.0,
                                      overrides=[f"sim.transmission.extra={extra}", f'sim.reducer="{reducer}"'])
     with serve(settings_factory(config_path=STATION, sim_speed=400.0), runner) as server, server.client() as c:
