@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from tcms_daq.errors import TcmsError
+from tcms_daq.samples import INPUT_ANGLE_COLUMN as _INPUT_ANGLE_COLUMN
 
 if TYPE_CHECKING:  # the mixin below runs on a SerialInstrument's link (transport imports this module)
     from tcms_daq.drivers.transport import SerialLink
@@ -282,6 +283,6 @@ class InputDrive(Protocol):
     def fault_reset(self) -> None: ...
 
 
-#: the extra column of an angle pair source (the counter card, the ND 287 in coupled mode): the input angle (arcsec
-#: of the input shaft), beside the output angle in ``Batch.value``
-INPUT_ANGLE_COLUMN = "input_angle_arcsec"
+#: the extra column of an angle pair source (the counter card): the input angle (arcsec of the input shaft), beside
+#: the output angle in ``Batch.value`` (one definition: ``tcms_daq.samples``)
+INPUT_ANGLE_COLUMN = _INPUT_ANGLE_COLUMN

@@ -121,6 +121,9 @@ class SimulatedBench:
         if effects is None and sim.effects:
             effects = _effects_from_config(sim.effects, seed=self.seed, source=cfg.source_path)
         self.effects = effects
+        # the output's rotation driven from the input (arcsec at the sample times; the turning unit's, set by the
+        # in-process second axis: sim.virtual), added to the true angle before the measuring chain; None: none
+        self.output_rotation: Callable[[np.ndarray], np.ndarray] | None = None
         self._twist_state = TwistState()
         self._n = 0  # samples emitted; sample k is at k / sample_rate_hz
         self._now_s = 0.0
@@ -268,6 +271,8 @@ class SimulatedBench:
                 twist, self._twist_state = twist_arcsec(applied, self.physics, self._twist_state)
             # the true angle is the output's absolute angle: its position plus the twist (0 at position 0)
             true_angle = twist + position_deg * ARCSEC_PER_DEG if (self._position_deg or self._move) else twist
+            if self.output_rotation is not None:  # the second axis turns the output through the reducer
+                true_angle = true_angle + np.asarray(self.output_rotation(time_s), dtype=float)
             cols = {
                 "time_s": time_s,
                 "applied_torque_nm": applied,

@@ -261,3 +261,53 @@ def record_torque_run(unit: UnitPhysics, ramps: Sequence[TorqueRamp], sensors: S
                  np.zeros_like(t), seed, measuring_chain)
     cols["input_speed_rpm"] = np.concatenate([p.input_speed_rpm for p in parts])
     return StationRun(cols, unit, sensors)
+
+
+# ------------------------------------------------------------------------------------------------- truth of a run
+
+
+def method_truth(unit: UnitPhysics, method: str, results: dict, temperature_c: float = 25.0) -> dict[str, float]:
+    """What a turning test of ``unit`` must find, exactly, under the names of its results (the results contract of
+    docs/transmission.md): the transmission error's peak-to-peak over each direction's evaluated output angles and
+    the amplitudes of the unit's orders (``te_order_<k>_amplitude_arcsec``), the starting torques, the no-load
+    torques at the evaluated speeds, the efficiencies at the parameters the run used (``results["parameters"]``)."""
+    from tcms_daq.sim.transmission import (
+        efficiency_truth,
+        no_load_torque_truth,
+        starting_torque_truth,
+        te_peak_to_peak_truth,
+    )
+
+    out: dict[str, float] = {}
+    params = results.get("parameters") or {}
+    if method == "transmission-error":
+        for name, d in (results.get("per_direction") or {}).items():
+            out[f"{name}_transmission_error_arcsec"] = te_peak_to_peak_truth(
+                unit, math.radians(d["phi_start_deg"]), math.radians(d["phi_end_deg"]))
+        if out:
+            out["transmission_error_arcsec"] = max(out.values())
+        # each order of the unit under the name of the line found at it (within half a bin: a line's order is
+        # refined off its bin), else under its own order's name (a line the evaluation did not find)
+        revolutions = min((int(d["revolutions"]) for d in (results.get("per_direction") or {}).values()), default=1)
+        found = [float(line["order"]) for line in results.get("te_orders") or []]
+        for h in unit.harmonics:
+            k = h.order_per_output_rev
+            near = min(found, key=lambda f: abs(f - k), default=None)
+            order = near if near is not None and abs(near - k) <= 0.5 / revolutions else k
+            out[f"te_order_{order:.4g}_amplitude_arcsec"] = h.amplitude_arcsec
+    elif method == "starting-torque":
+        forward, reverse = starting_torque_truth(unit, 1.0), starting_torque_truth(unit, -1.0)
+        out = {"forward_starting_torque_nm": forward, "reverse_starting_torque_nm": reverse,
+               "starting_torque_nm": max(forward, reverse)}
+    elif method == "no-load-torque":
+        for n in results.get("speeds_rpm") or params.get("speeds_rpm") or []:
+            n = abs(float(n))
+            fwd, rev = no_load_torque_truth(unit, n, temperature_c), no_load_torque_truth(unit, -n, temperature_c)
+            out[f"no_load_torque_nm@{n:g}rpm"] = 0.5 * (fwd + rev)
+            out[f"forward_no_load_torque_nm@{n:g}rpm"] = fwd
+            out[f"reverse_no_load_torque_nm@{n:g}rpm"] = rev
+    elif method == "efficiency":
+        speed, load = float(params["input_speed_rpm"]), float(params["load_torque_nm"])
+        out = {"forward_efficiency": efficiency_truth(unit, load, speed, temperature_c),
+               "reverse_efficiency": efficiency_truth(unit, load, -speed, temperature_c)}
+    return out

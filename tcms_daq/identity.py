@@ -31,6 +31,31 @@ HEADLINES: tuple[Headline, ...] = (
     Headline("lost_motion_arcsec", "lost motion", "arcsec"),
     Headline("backlash_arcsec", "backlash", "arcsec"),
 )
+#: the headline results of the turning tests (docs/transmission.md, the results contract); the no-load torque's are
+#: one per speed (``no_load_torque_nm@<n>rpm``: :func:`method_headlines`)
+METHOD_HEADLINES: dict[str, tuple[Headline, ...]] = {
+    "transmission-error": (Headline("transmission_error_arcsec", "transmission error", "arcsec"),
+                           Headline("forward_transmission_error_arcsec", "transmission error, forward", "arcsec"),
+                           Headline("reverse_transmission_error_arcsec", "transmission error, reverse", "arcsec")),
+    "starting-torque": (Headline("starting_torque_nm", "starting torque", "N·m"),
+                        Headline("forward_starting_torque_nm", "starting torque, forward", "N·m"),
+                        Headline("reverse_starting_torque_nm", "starting torque, reverse", "N·m")),
+    "no-load-torque": (),
+    "efficiency": (Headline("forward_efficiency", "efficiency, forward", "1"),
+                   Headline("reverse_efficiency", "efficiency, reverse", "1")),
+}
+
+
+def method_headlines(results: Mapping[str, Any] | None) -> tuple[Headline, ...]:
+    """The headline results of a run: the stiffness test's, or its turning method's (``results["method"]``)."""
+    method = (results or {}).get("method")
+    if method not in METHOD_HEADLINES:
+        return HEADLINES
+    if method == "no-load-torque":
+        speeds = (results or {}).get("speeds_rpm") or []
+        return tuple(Headline(f"no_load_torque_nm@{float(n):g}rpm", f"no-load torque at {float(n):g} rpm", "N·m")
+                     for n in speeds if isinstance(n, int | float) and not isinstance(n, bool))
+    return METHOD_HEADLINES[str(method)]
 
 
 
@@ -93,7 +118,7 @@ def headline_results(results: Mapping[str, Any] | None) -> dict[str, dict[str, A
     """Each headline result: value, standard uncertainty u, expanded uncertainty U, coverage factor k, unit and the
     rendered text."""
     out: dict[str, dict[str, Any]] = {}
-    for h in HEADLINES:
+    for h in method_headlines(results):
         entry = uncertainty_entry(results, h.key)
         out[h.key] = {
             "label": h.label,
@@ -109,6 +134,8 @@ def headline_results(results: Mapping[str, Any] | None) -> dict[str, dict[str, A
 
 #: the test methods a result can come from: one position, several output positions (GB/T 40731), several rates
 TEST_METHODS: tuple[str, ...] = ("single", "positions", "rates")
+#: … and the turning tests (the request's ``method``; GB/T 35089 §7–8)
+TURNING_METHODS: tuple[str, ...] = ("transmission-error", "starting-torque", "no-load-torque", "efficiency")
 
 
 def test_method(request: Mapping[str, Any], profile: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -117,6 +144,9 @@ def test_method(request: Mapping[str, Any], profile: Mapping[str, Any] | None = 
     A test at N positions reports the worst of N (GB/T 40731), which is a different quantity from one position's
     value, so results of different kinds, or of different N, are not one statistical series: ``series``
     (``"single"``, ``"positions-4"``, ``"rates-3"``) names the series a result belongs to (SPC)."""
+    turning = request.get("method") or (profile or {}).get("method")
+    if turning in TURNING_METHODS:
+        return {"kind": turning, "stages": 1, "series": turning}
     plan = (profile or {}).get("plan")
     kind = plan if plan in TEST_METHODS else (
         "positions" if request.get("positions") is not None else "rates" if request.get("rates") is not None
@@ -137,6 +167,11 @@ def test_method(request: Mapping[str, Any], profile: Mapping[str, Any] | None = 
 def run_parameters(request: Mapping[str, Any], profile: Mapping[str, Any] | None) -> dict[str, Any]:
     """The parameters a result depends on: test torque, loops, profile, torque rate, steps and dwell, and for a
     plan of several stages its output positions (deg) or loading rates (N·m/s) and the speed of the moves."""
+    if test_method(request, profile)["kind"] in TURNING_METHODS:  # what the turning test's procedure ran
+        ran = (profile or {}).get("parameters")
+        return dict(ran) if isinstance(ran, Mapping) else {
+            k: request[k] for k in ("input_speed_rpm", "load_torque_nm", "revolutions", "ramps", "creep_deg_per_s",
+                                    "speeds_rpm", "dwell_s") if request.get(k) is not None}
     keys = ("max_torque_nm", "cycles", "profile", "rate_nm_per_s", "step_nm", "dwell_s")
     params = {k: request[k] for k in keys if request.get(k) is not None}
     for key in ("rate_nm_per_s", "conditioning_loops", "tip_dwell_s", "start", "decision_rule"):
@@ -233,6 +268,13 @@ PARAMETER_LABELS: dict[str, tuple[str, str]] = {
     "positions_deg": ("output positions", "°"),
     "move_velocity_deg_per_s": ("output speed between positions", "°/s"),
     "rates_nm_per_s": ("loading rates", "N·m/s"),
+    "input_speed_rpm": ("input speed", "rpm"),
+    "load_torque_nm": ("load torque", "N·m"),
+    "revolutions": ("output revolutions per direction", ""),
+    "ramps": ("breakaways per direction", ""),
+    "creep_deg_per_s": ("creep velocity", "°/s"),
+    "turn_deg": ("creep stops after", "°"),
+    "speeds_rpm": ("input speeds", "rpm"),
 }
 
 

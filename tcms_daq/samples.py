@@ -19,6 +19,10 @@ import numpy as np
 from tcms_daq.errors import DataFormatError
 
 CANONICAL_COLUMNS: tuple[str, ...] = ("time_s", "torque_nm", "angle_arcsec")
+#: the turning tests' columns beside the canonical ones (docs/transmission.md, the results contract): the input
+#: angle (arcsec of the input shaft) an angle pair source latches with the output angle, and the input torque (N·m)
+INPUT_ANGLE_COLUMN = "input_angle_arcsec"
+INPUT_TORQUE_COLUMN = "input_torque_nm"
 OPTIONAL_COLUMNS: tuple[str, ...] = ("encoder_arcsec", "reference_arcsec", "temperature_c", "run_id")
 
 

@@ -1,19 +1,21 @@
 """The two-axis counter interface simulator (protocol: ``tcms_daq.protocols.counter``): latches the output and the
 input encoder's counts together at RATE on the simulated clock, into a FIFO the host drains with READ.
 
-Counts: axis 1 = the output encoder (``output_angle_arcsec(t)``: the bench's encoder reading plus the rotation the
-drivetrain gives), axis 2 = the input encoder (``input_angle_deg(t)``), each on its counts per revolution. Latching
-is lazy: a READ (or CONF?/STOP) first latches every trigger time up to the simulated clock's now, each at its own
-time (the drivetrain is asked for exact angles at that time), so the pairs are as a real card's timer would give
-them. Faults: the common ones (mute, garbage, partial) and ``signal_fault`` (status bits of both axes set).
+Counts: axis 1 = the output encoder (``output_angle_arcsec(times)``: the bench's encoder reading plus the rotation the
+drivetrain gives), axis 2 = the input encoder (``input_angle_deg(times)``), each on its counts per revolution; both
+readers take an array of times and give an array. Latching is lazy: a READ (or CONF?/STOP) first latches every
+trigger time up to the simulated clock's now, each at its own time (the drivetrain is asked for exact angles at
+those times), so the pairs are as a real card's timer would give them. Faults: the common ones (mute, garbage, partial) and ``signal_fault`` (status bits of both axes set).
 """
 
 from __future__ import annotations
 
 import asyncio
 import collections
+import math
 from collections.abc import Callable
 
+import numpy as np
 from tcms_daq.sim.instruments.tcp import TcpInstrumentServer
 
 from tcms_daq.protocols.counter import (
@@ -36,8 +38,8 @@ class CounterServer(TcpInstrumentServer):
     name = "two-axis counter sim"
     DEVICE_FAULTS = ("signal_fault",)
 
-    def __init__(self, now_s: Callable[[], float], output_angle_arcsec: Callable[[float], float],
-                 input_angle_deg: Callable[[float], float], *, counts_per_rev_1: int = 18_000 * 4096,
+    def __init__(self, now_s: Callable[[], float], output_angle_arcsec: Callable[[np.ndarray], np.ndarray],
+                 input_angle_deg: Callable[[np.ndarray], np.ndarray], *, counts_per_rev_1: int = 18_000 * 4096,
                  counts_per_rev_2: int = 1 << 23, rate_hz: int = 1000, fifo_frames: int = 8192,
                  host: str = "127.0.0.1", port: int = 0, reply_delay_s: float = 0.0):
         super().__init__(host, port, reply_delay_s)
@@ -59,15 +61,21 @@ class CounterServer(TcpInstrumentServer):
         now = self.now_s()
         period = 1.0 / self.rate_hz
         status = (STATUS_AXIS1_FAULT | STATUS_AXIS2_FAULT) if self.fault == "signal_fault" else 0
-        while self._next_latch_s <= now:
-            t = self._next_latch_s
-            count1 = round(self.output_angle_arcsec(t) / ARCSEC_PER_REV * self.cpr1) - self._offset1
-            count2 = round(self.input_angle_deg(t) / 360.0 * self.cpr2) - self._offset2
+        n = int(math.floor((now - self._next_latch_s) / period + 1e-9)) + 1 if self._next_latch_s <= now else 0
+        if n <= 0:
+            return
+        times = self._next_latch_s + period * np.arange(n)
+        # the angles of every trigger time at once (a vectorised reader: the turning unit's drivetrain)
+        out = np.asarray(self.output_angle_arcsec(times), dtype=float)
+        inp = np.asarray(self.input_angle_deg(times), dtype=float)
+        counts1 = np.round(out / ARCSEC_PER_REV * self.cpr1).astype(np.int64) - self._offset1
+        counts2 = np.round(inp / 360.0 * self.cpr2).astype(np.int64) - self._offset2
+        for t, count1, count2 in zip(times.tolist(), counts1.tolist(), counts2.tolist(), strict=True):
             if len(self.fifo) == self.fifo.maxlen:
                 self._lost += 1
             self.fifo.append((self.sequence & 0xFFFFFFFF, round(t * 1e6), count1, count2, status))
             self.sequence += 1
-            self._next_latch_s = t + period
+        self._next_latch_s = float(times[-1]) + period
 
     def command(self, line: str) -> bytes:
         words = line.strip().upper().split()
@@ -101,8 +109,9 @@ class CounterServer(TcpInstrumentServer):
             return b"OK\r\n"
         if cmd == "ZERO":
             now = self.now_s()
-            self._offset1 = round(self.output_angle_arcsec(now) / ARCSEC_PER_REV * self.cpr1)
-            self._offset2 = round(self.input_angle_deg(now) / 360.0 * self.cpr2)
+            at = np.array([now])
+            self._offset1 = round(float(np.asarray(self.output_angle_arcsec(at))[0]) / ARCSEC_PER_REV * self.cpr1)
+            self._offset2 = round(float(np.asarray(self.input_angle_deg(at))[0]) / 360.0 * self.cpr2)
             return b"OK\r\n"
         if cmd == "READ":
             self._latch_until_now()

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from tcms_daq.sim.instruments.aed import AEDServer
 from tcms_daq.sim.instruments.loop import LoopThread
 from tcms_daq.sim.instruments.nd287 import ND287Server
@@ -102,6 +103,77 @@ class SimulatorOptions:
         return opts
 
 
+class SecondAxisReadings:
+    """What the second axis's simulated sensors read (the counter card, the input AED), at many times at once: the
+    output encoder through the bench's measuring chain, the input encoder with its skew and error, the input torque
+    with its noise (``[sim.transmission]``)."""
+
+    def __init__(self, sims: InstrumentSimulators):
+        self.sims = sims
+        config = getattr(sims.physics.bench, "config", None)
+        self._noise = np.random.default_rng(int(getattr(getattr(config, "sim", None), "seed", 0)) + 28)
+
+    @property
+    def physics(self) -> SharedPhysics:
+        return self.sims.physics
+
+    @property
+    def drivetrain(self) -> DriveTrainPhysics | None:
+        return self.sims.drivetrain
+
+    def output_angles_arcsec(self, time_s: np.ndarray) -> np.ndarray:
+        """``InstrumentSimulators.output_angle_arcsec`` at many times. The turning unit's rotation goes through the bench's measuring
+        chain with the twist (the output encoder sees the output's whole angle: the chain's scale acts on the
+        rotation too, as ``sim.station`` records it); the rigid drivetrain's is added as it is."""
+        latest = self.physics.latest()
+        t = np.asarray(time_s, dtype=float)
+        drivetrain = self.drivetrain
+        if drivetrain is None:
+            return np.full(t.shape, latest.angle_arcsec)
+        state_at = getattr(drivetrain, "state_at", None)
+        if state_at is None:
+            return latest.angle_arcsec + np.array([drivetrain.output_angle_arcsec(x) for x in t.tolist()])
+        rotation = state_at(t)["output_rotation_arcsec"]
+        chain = getattr(self.physics.bench, "measuring_chain", None)
+        if chain is None:
+            return latest.angle_arcsec + rotation
+        true = latest.true_angle_arcsec
+        torque = np.full(t.shape, latest.applied_torque_nm)
+        through = np.asarray(chain(true + rotation, torque, t), dtype=float) - float(
+            np.asarray(chain(np.array([true]), torque[:1], t[:1]), dtype=float)[0])
+        return latest.angle_arcsec + through
+
+    def input_angles_deg(self, time_s: np.ndarray) -> np.ndarray:
+        """The input encoder's reading (deg) at many times: the shaft latched ``[sim.transmission] sync_skew_s``
+        after the output (its angle at t − skew, as ``sim.station`` records it) with its once-per-turn error."""
+        t = np.asarray(time_s, dtype=float)
+        drivetrain = self.drivetrain
+        if drivetrain is None:
+            return np.zeros(t.shape)
+        state_at = getattr(drivetrain, "state_at", None)
+        if state_at is None:
+            return np.array([drivetrain.input_angle_deg(x) for x in t.tolist()])
+        tr = self._transmission()
+        skew, error = (tr.sync_skew_s, tr.input_encoder_error_arcsec) if tr is not None else (0.0, 0.0)
+        angle = state_at(t - skew)["input_angle_deg"]
+        return angle + error / 3600.0 * np.sin(np.radians(angle))
+
+    def _transmission(self) -> Any:
+        config = getattr(self.physics.bench, "config", None)
+        return config.sim.transmission if config is not None else None
+
+    def input_torque_reading_nm(self) -> float:
+        """The input torque channel's reading now (N·m): the drivetrain's torque, with ``[sim.transmission]
+        input_torque_noise_nm`` of noise when the turning unit is simulated."""
+        drivetrain = self.drivetrain
+        assert drivetrain is not None
+        value = drivetrain.input_torque_nm(self.physics.now_s())
+        tr = self._transmission()
+        if tr is not None and tr.enabled and tr.input_torque_noise_nm > 0:
+            value += tr.input_torque_noise_nm * float(self._noise.standard_normal())
+        return value
+
+
 class InstrumentSimulators:
     """Start/stop all simulated instruments of one bench; every server shares ``physics``."""
 
@@ -124,6 +196,7 @@ class InstrumentSimulators:
         self.input_aed: AEDServer | None = None
         self.nd287_coupled: ND287Server | None = None
         self.counter: CounterServer | None = None
+        self.readings = SecondAxisReadings(self)
 
     @property
     def running_loop(self) -> LoopThread:
@@ -158,7 +231,7 @@ class InstrumentSimulators:
                 self.ports["nd287"] = loop.run(self.nd287.start())
             if "aed" in want:
                 self.aed = AEDServer(
-                    lambda: self.physics.latest().torque_nm,
+                    lambda: self.physics.latest().torque_nm, filtered_nm=self.physics.mean_torque_nm,
                     nominal_torque_nm=opts.aed_nominal_torque_nm,
                     host=opts.host,
                     port=opts.ports.get("aed", 0),
@@ -174,11 +247,21 @@ class InstrumentSimulators:
         return dict(self.ports)
 
     def _make_drivetrain(self) -> DriveTrainPhysics:
-        """The second axis's physics: a rigid reducer with input friction (the one line to change for a richer
-        model, e.g. the core's transmission-error physics)."""
-        from tcms_daq.sim.instruments.drivetrain import RigidDriveTrain
+        """The second axis's physics: the core's turning unit when the bench config has ``[sim.transmission]
+        enabled`` (``UnitDriveTrain``: its transmission error, mesh loss and friction with breakaway), else a rigid
+        reducer with input friction."""
+        from tcms_daq.sim.instruments.drivetrain import RigidDriveTrain, UnitDriveTrain
 
         opts = self.options
+        bench = self.physics.bench
+        config = getattr(bench, "config", None)
+        if config is not None and config.sim.transmission.enabled:
+            unit = UnitDriveTrain.for_bench(config, reducer=getattr(bench, "reducer", None))
+            assert unit is not None
+            if opts.input_ratio is not None and abs(opts.input_ratio - unit.ratio) > 1e-9 * unit.ratio:
+                raise ValueError(f"[simulators] input_ratio {opts.input_ratio:g} is not the simulated unit's ratio "
+                                 f"{unit.ratio:g} ([sim.transmission] enabled)")
+            return unit
         ratio = opts.input_ratio
         if ratio is None:
             reducer = getattr(self.physics.bench, "reducer", None)
@@ -195,7 +278,7 @@ class InstrumentSimulators:
         latest = self.physics.latest()
         if self.drivetrain is None:
             return latest.angle_arcsec
-        return latest.angle_arcsec + self.drivetrain.output_angle_arcsec(latest.time_s if time_s is None else time_s)
+        return float(self.readings.output_angles_arcsec(np.array([latest.time_s if time_s is None else time_s]))[0])
 
     def input_angle_arcsec(self, time_s: float | None = None) -> float:
         """What the input encoder reads (arcsec of the input shaft)."""
@@ -209,9 +292,9 @@ class InstrumentSimulators:
         if drivetrain is None:
             return
         opts, loop = self.options, self.running_loop
-        now = lambda: self.physics.latest().time_s  # noqa: E731 - the simulated clock
+        now = self.physics.now_s  # the simulated clock's present (between ticks too)
         if "input_aed" in want:
-            self.input_aed = AEDServer(lambda: drivetrain.input_torque_nm(now()),
+            self.input_aed = AEDServer(self.readings.input_torque_reading_nm,
                                        nominal_torque_nm=opts.input_aed_nominal_torque_nm, host=opts.host,
                                        port=opts.ports.get("input_aed", 0), reply_delay_s=opts.aed_reply_delay_s)
             self.ports["input_aed"] = loop.run(self.input_aed.start())
@@ -226,7 +309,7 @@ class InstrumentSimulators:
         if "counter" in want:
             from tcms_daq.sim.instruments.counter import CounterServer
 
-            self.counter = CounterServer(now, self.output_angle_arcsec, lambda t: drivetrain.input_angle_deg(t),
+            self.counter = CounterServer(now, self.readings.output_angles_arcsec, self.readings.input_angles_deg,
                                          counts_per_rev_1=opts.counter_counts_per_rev_output,
                                          counts_per_rev_2=opts.counter_counts_per_rev_input,
                                          rate_hz=opts.counter_rate_hz, host=opts.host,

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from tcms_daq.analysis.gaps import TORQUE_INTERVAL_COLUMN
+from tcms_daq.drivers.base import INPUT_ANGLE_COLUMN as INPUT_ANGLE
 from tcms_daq.drivers.base import concat_common_columns
 
 # torque history kept for interpolation (s); older readings are never needed once angles pass them
@@ -109,3 +110,74 @@ class Aligner:
             self._ang_x = None  # discarded with their angle readings
             return np.empty(0), np.empty(0), np.empty(0)
         return self._release(len(self._ang_t))
+
+
+class StationAligner:
+    """The turning tests' time base: the angle pair source's readings (output and input encoder latched together,
+    :data:`~tcms_daq.drivers.base.INPUT_ANGLE_COLUMN` beside the output angle) keep their stamps; the loader's
+    torque and the input torque (when the bench has it) are interpolated onto them as :class:`Aligner` does the
+    torque onto the angle: a pair is held until every side channel has a reading at or after its stamp, or until
+    ``max_wait_s`` has passed (then the latest reading holds). ``push`` returns the released pairs as columns:
+    ``time_s``, ``output_arcsec`` (raw), ``input_angle_arcsec``, ``torque_nm`` (the loader's), ``input_torque_nm``
+    (when there is an input torque channel) and ``torque_interval_s`` (the loader torque's, as :class:`Aligner`)."""
+
+    def __init__(self, sides: tuple[str, ...] = ("torque_nm",), max_wait_s: float = 0.5):
+        self.sides = sides
+        self.max_wait_s = float(max_wait_s)
+        self._side_t = {name: np.empty(0) for name in sides}
+        self._side_v = {name: np.empty(0) for name in sides}
+        self._t = np.empty(0)
+        self._out = np.empty(0)
+        self._in = np.empty(0)
+        self._last_s = -np.inf  # the last released pair's stamp
+        self.dropped = 0  # pairs dropped for a stamp out of order
+
+    def push(self, pair_t: np.ndarray, output_arcsec: np.ndarray, input_arcsec: np.ndarray,
+             side: dict[str, tuple[np.ndarray, np.ndarray]], now_s: float) -> dict[str, np.ndarray]:
+        for name, (t, v) in side.items():
+            if name in self._side_t and len(t):
+                order = np.argsort(t, kind="stable")
+                self._side_t[name] = np.concatenate([self._side_t[name], np.asarray(t, float)[order]])
+                self._side_v[name] = np.concatenate([self._side_v[name], np.asarray(v, float)[order]])
+        if len(pair_t):
+            t = np.asarray(pair_t, float)
+            # strictly increasing stamps: a pair at or before one already held or released is dropped (a card's
+            # clock mapping stepped back by the link's jitter)
+            last = self._t[-1] if len(self._t) else self._last_s
+            keep = t > np.maximum.accumulate(np.concatenate(([last], t)))[:-1]
+            self.dropped += int(np.count_nonzero(~keep))
+            self._t = np.concatenate([self._t, t[keep]])
+            self._out = np.concatenate([self._out, np.asarray(output_arcsec, float)[keep]])
+            self._in = np.concatenate([self._in, np.asarray(input_arcsec, float)[keep]])
+        if not len(self._t) or any(not len(self._side_t[name]) for name in self.sides):
+            return {}
+        covered = min(float(self._side_t[name][-1]) for name in self.sides)
+        take = (self._t <= covered) | ((now_s - self._t) > self.max_wait_s)
+        if not take.any():
+            return {}
+        return self._release(int(np.flatnonzero(take)[-1]) + 1, now_s)
+
+    def _release(self, n: int, now_s: float = np.inf) -> dict[str, np.ndarray]:
+        t = self._t[:n]
+        self._last_s = float(t[-1])
+        out: dict[str, np.ndarray] = {"time_s": t, "output_arcsec": self._out[:n], INPUT_ANGLE: self._in[:n]}
+        for name in self.sides:
+            st, sv = self._side_t[name], self._side_v[name]
+            out[name] = np.interp(t, st, sv)
+            if name == "torque_nm":
+                after = np.searchsorted(st, t, side="left")
+                before = np.searchsorted(st, t, side="right") - 1
+                later = np.where(after < st.size, st[np.minimum(after, st.size - 1)], max(now_s, float(st[-1])))
+                earlier = np.where(before >= 0, st[np.maximum(before, 0)], -np.inf)
+                out[TORQUE_INTERVAL_COLUMN] = later - earlier
+            keep = max(0, min(int(np.searchsorted(st, t[-1] - _KEEP_S)), st.size - 2))
+            self._side_t[name], self._side_v[name] = st[keep:], sv[keep:]
+        self._t, self._out, self._in = self._t[n:], self._out[n:], self._in[n:]
+        return out
+
+    def flush(self) -> dict[str, np.ndarray]:
+        """Release every held pair (end of run); without a reading of every side channel they are discarded."""
+        if not len(self._t) or any(not len(self._side_t[name]) for name in self.sides):
+            self._t = self._out = self._in = np.empty(0)
+            return {}
+        return self._release(len(self._t))

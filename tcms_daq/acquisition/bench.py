@@ -315,9 +315,6 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
         if instrument is None:
             continue
         driver_name = instrument.driver
-        if kind in SECOND_AXIS_KINDS and driver_name == "virtual":
-            raise ConfigError(f"bench config: [instruments.{kind}]: the in-process virtual bench has no second axis "
-                              "(use the protocol simulators: tcms sim serve --second-axis)")
         cls = registry.driver_class(driver_name)
         options = instrument.options
         if not isinstance(options, registry.options_model(driver_name)):
@@ -335,7 +332,7 @@ def compose_bench(config: BenchConfig, *, config_dir: str | Path | None = None, 
         description[kind] = {"driver": driver_name, **options.model_dump(mode="json", exclude_defaults=True),
                              "url": options.url}
 
-    sources = [getattr(drivers[kind], "time_source", None) for kind in KINDS]
+    sources = [getattr(drv, "time_source", None) for drv in drivers.values()]
     shared = sources[0]
     if shared is not None and all(s is not None for s in sources):
         if any(s is not shared for s in sources):

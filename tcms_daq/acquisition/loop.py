@@ -23,12 +23,14 @@ from typing import Any
 import numpy as np
 
 from tcms_daq.acquisition.align import Aligner
-from tcms_daq.acquisition.bench import POWERED_STATES, Bench
+from tcms_daq.acquisition.bench import POWERED_STATES, SECOND_AXIS_KINDS, Bench
 from tcms_daq.acquisition.fanout import FanOut
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
 from tcms_daq.acquisition.monitor import InterlockMonitor
 from tcms_daq.acquisition.schedulers import SteppedScheduler, ThreadedScheduler
+from tcms_daq.acquisition.station import StationMode
 from tcms_daq.drivers.base import (
+    INPUT_ANGLE_COLUMN,
     Batch,
     DeviceFault,
     Disconnected,
@@ -48,7 +50,8 @@ def _error_trip(kind: str, exc: Exception, time_s: float) -> Trip | None:
     """The trip an instrument error means at once, whatever came before: the device reports its own fault,
     or its link is closed. None for errors that count (timeouts, garbled replies)."""
     if isinstance(exc, DeviceFault):
-        return Trip("drive_fault" if kind == "loader" else "device_fault", f"{kind} instrument fault: {exc}", time_s)
+        return Trip("drive_fault" if kind in ("loader", "input_drive") else "device_fault",
+                    f"{kind} instrument fault: {exc}", time_s)
     if isinstance(exc, Disconnected):
         return Trip("lost_instrument", f"lost {kind} instrument: {exc}", time_s)
     return None
@@ -80,6 +83,7 @@ class _Channel:
         self.last_arrival_s = now_s
         self.last_arrival_real_s: float | None = None  # time.monotonic() of the last reading (None: none yet)
         self.last_value: float | None = None
+        self.last_input_arcsec: float | None = None  # an angle pair source's latest input angle
         self.last_error: str | None = None
         self.busy_since: float | None = None  # clock time the pending request started
 
@@ -132,12 +136,22 @@ class AcquisitionLoop:
         # a run ended without confirming the loader disabled: the status poll disables it when it answers again
         self.disable_pending = False
         self._aligner = Aligner(max_wait_s=max_align_wait_s)
+        self.max_align_wait_s = float(max_align_wait_s)
         now = self.clock.now()
         self._channels = {
             "angle": _Channel("angle", bench.angle.name, now),
             "torque": _Channel("torque", bench.torque.name, now),
             "loader": _Channel("loader", bench.loader.name, now),
         }
+        # the second axis (when the bench has it): read all the time (a counter's FIFO must be drained), judged and
+        # published only while a turning test has the bench (:class:`~.station.StationMode`)
+        for kind in SECOND_AXIS_KINDS:
+            drv = getattr(bench, kind)
+            if drv is not None:
+                self._channels[kind] = _Channel(kind, getattr(drv, "name", kind), now)
+                if kind != "input_drive":
+                    self._io_locks[kind] = threading.RLock()
+        self.station = StationMode(self)
         self.scheduler: SteppedScheduler | ThreadedScheduler = (
             SteppedScheduler() if self.clock.stepped else ThreadedScheduler())
         self._step_lock = threading.Lock()
@@ -161,9 +175,10 @@ class AcquisitionLoop:
             return
         self.scheduler.stop(self)
         self.step()
-        time_s, torque_nm, angle_arcsec = self._aligner.flush()
-        if len(time_s):
-            self._publish(time_s, torque_nm, angle_arcsec, self._aligner.released_extra)
+        if not self.station.flush():
+            time_s, torque_nm, angle_arcsec = self._aligner.flush()
+            if len(time_s):
+                self._publish(time_s, torque_nm, angle_arcsec, self._aligner.released_extra)
         self.running = False
 
     def close(self) -> None:
@@ -194,7 +209,7 @@ class AcquisitionLoop:
 
     # -- reading --------------------------------------------------------------------------------------
     def _source(self, kind: str):
-        return self.bench.angle if kind == "angle" else self.bench.torque
+        return getattr(self.bench, kind)
 
     def read_once(self, kind: str) -> int:
         """One blocking read of the angle or torque source into its channel; returns the readings taken."""
@@ -219,12 +234,17 @@ class AcquisitionLoop:
             ch.last_arrival_s = self.clock.now()
             ch.last_arrival_real_s = time.monotonic()
             ch.last_value = float(batch.value[-1])
+            inputs = (getattr(batch, "extra", None) or {}).get(INPUT_ANGLE_COLUMN)
+            if inputs is not None and len(inputs):
+                ch.last_input_arcsec = float(inputs[-1])
         return len(batch)
 
     def _on_error(self, ch: _Channel, exc: Exception) -> None:
         ch.errors_in_row += 1
         ch.errors_total += 1
         ch.last_error = str(exc)
+        if not self.station.judged(ch):
+            return
         now = self.clock.now()
         at_once = _error_trip(ch.kind, exc, now)
         if at_once is not None:
@@ -283,9 +303,10 @@ class AcquisitionLoop:
             self.scheduler.before_step(self, now)
             ang, extra = self._channels["angle"].take()
             tq, _ = self._channels["torque"].take()
-            t, torque, angle = self._aligner.push(ang.time_s, ang.value, tq.time_s, tq.value, now, extra)
-            if len(t):
-                self._publish(t, torque, angle, self._aligner.released_extra)
+            if not self.station.step(tq, now):  # a turning test's time base: the angle pairs
+                t, torque, angle = self._aligner.push(ang.time_s, ang.value, tq.time_s, tq.value, now, extra)
+                if len(t):
+                    self._publish(t, torque, angle, self._aligner.released_extra)
             if self.running:
                 self._check_stale(now)
         self._wake()
@@ -301,7 +322,7 @@ class AcquisitionLoop:
             self.raise_trip(trip)
 
     def _check_stale(self, now: float) -> None:
-        trip = self.monitor.judge_freshness(self._channels.values(), now)
+        trip = self.monitor.judge_freshness([c for c in self._channels.values() if self.station.judged(c)], now)
         if trip is not None:
             self.raise_trip(trip)
 
@@ -375,7 +396,8 @@ class AcquisitionLoop:
             link = ("down" if c.errors_in_row else
                     "stale" if age_s is None or age_s > stale_s else "up")
             stats[kind] = {"instrument": c.name, "readings": c.readings, "errors": c.errors_total,
-                           "last_value": c.last_value if kind != "loader" else None, "age_s": age_s, "link": link,
+                           "last_value": c.last_value if kind not in ("loader", "input_drive") else None,
+                           "age_s": age_s, "link": link,
                            "last_error": c.last_error if c.errors_in_row else None}
         return stats
 

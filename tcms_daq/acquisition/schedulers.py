@@ -58,9 +58,12 @@ class SteppedScheduler:
     def before_step(self, loop: AcquisitionLoop, now_s: float) -> None:
         loop.read_once("angle")
         loop.read_once("torque")
+        for kind in loop.station.kinds:
+            loop.read_once(kind)
         if now_s - self._last_status_poll_s >= loop.status_period_s - 1e-12:
             self._last_status_poll_s = now_s
             loop.poll_status()
+            loop.station.poll_drive()
 
     def pass_time(self, loop: AcquisitionLoop, now_s: float, dt_s: float) -> None:
         loop.clock.sleep(dt_s)
@@ -77,9 +80,11 @@ class ThreadedScheduler:
 
     def start(self, loop: AcquisitionLoop) -> None:
         self._stop.clear()
-        for kind in ("angle", "torque"):
+        for kind in ("angle", "torque", *loop.station.kinds):
             self._spawn(loop, self._reader, kind)
         self._spawn(loop, self._status_poller)
+        if loop.bench.input_drive is not None:
+            self._spawn(loop, self._input_drive_poller)
         self._spawn(loop, self._coordinator)
 
     def stop(self, loop: AcquisitionLoop) -> None:
@@ -136,6 +141,10 @@ class ThreadedScheduler:
         # attempts) the poll is skipped rather than competing for the driver.
         while not self._stop.wait(loop.status_period_s):
             loop.poll_status(wait_for_lock=False)
+
+    def _input_drive_poller(self, loop: AcquisitionLoop) -> None:
+        while not self._stop.wait(loop.status_period_s):
+            loop.station.poll_drive(wait_for_lock=False)
 
     def _coordinator(self, loop: AcquisitionLoop) -> None:
         while not self._stop.wait(loop.period_s):

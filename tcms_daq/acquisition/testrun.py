@@ -276,6 +276,7 @@ class TestRun:
                 self._acq = acq
             acq.drive_fault_armed = False  # until _prepare has reset a fault an earlier run left
             acq.set_limits(self.limits)
+            self._station(acq, True)
             kept = self.options.kept_columns
             # every batch, copied in by the acquisition thread: the run's samples (with what the gap check needs)
             buffer = SampleBuffer(None if kept is None else (*kept, TORQUE_INTERVAL_COLUMN, ANGLE_DATUM_COLUMN))
@@ -284,19 +285,7 @@ class TestRun:
             self._publish_state()
             acq.start()
             self._prepare(acq)
-            self._transition(LOADING)
-            t_start = acq.clock.now()
-            steps: list[tuple[int, Move | Segment]] = (self.plan.steps() if self.plan is not None
-                                                       else [(0, seg) for seg in self.segments])
-            progress = RunProgress(self.run_id, self.plan, self.segments, t_start, self._start_position_deg)
-            for number, (stage, step) in enumerate(steps):
-                progress.publish(acq.fanout, acq.clock.now(), number, stage, step)
-                if isinstance(step, Move):
-                    self._run_move(acq, step, stage)
-                else:
-                    self._run_segment(acq, step, stage)
-            self.record.loading_window_s = (t_start, acq.clock.now())
-            progress.publish(acq.fanout, acq.clock.now(), len(steps), -1, None)
+            self._load(acq)
             self._safe_stop(acq)
             self._transition(EVALUATING)
             self._collect(buffer)
@@ -322,6 +311,7 @@ class TestRun:
                     self._safe_stop(acq)
                     if own_acq:
                         acq.stop()
+                    self._station(acq, False)
                     if buffer is not None:
                         acq.fanout.remove_sink(buffer.append)
                     self._collect(buffer)
@@ -354,6 +344,26 @@ class TestRun:
         return evaluation
 
     # -- the phases ----------------------------------------------------------------------------------
+    def _station(self, acq: AcquisitionLoop, active: bool) -> None:
+        """Before anything is recorded (True) and after the safe stop and the last samples (False): whether the
+        acquisition serves this run in station mode (a turning test's: ``MethodRun``); the stiffness test's is not."""
+
+    def _load(self, acq: AcquisitionLoop) -> None:
+        """The loading phase: the profile's segments (a plan's moves and stages in order), with progress events."""
+        self._transition(LOADING)
+        t_start = acq.clock.now()
+        steps: list[tuple[int, Move | Segment]] = (self.plan.steps() if self.plan is not None
+                                                   else [(0, seg) for seg in self.segments])
+        progress = RunProgress(self.run_id, self.plan, self.segments, t_start, self._start_position_deg)
+        for number, (stage, step) in enumerate(steps):
+            progress.publish(acq.fanout, acq.clock.now(), number, stage, step)
+            if isinstance(step, Move):
+                self._run_move(acq, step, stage)
+            else:
+                self._run_segment(acq, step, stage)
+        self.record.loading_window_s = (t_start, acq.clock.now())
+        progress.publish(acq.fanout, acq.clock.now(), len(steps), -1, None)
+
     def _prepare(self, acq: AcquisitionLoop) -> None:
         opts = self.options
         acq.drive_fault_armed = False  # a fault left by an earlier run is reset here, not tripped on

@@ -31,9 +31,11 @@ from tcms_daq.cli.options import add_bench_config_options, add_decision_rule_opt
 from tcms_daq.config import BenchConfig, ReducerSpec, load_bench_config, load_reducers_for
 from tcms_daq.errors import TcmsError
 from tcms_daq.procedure import Profile
+from tcms_daq.procedure.methods import METHODS
 from tcms_daq.procedure.plan import (
     MAX_POSITIONS,
     REDUCER_TORQUE_HEADROOM,
+    MethodTestPlan,
     Plan,
     PlanRejected,
     PlanRequest,
@@ -138,8 +140,35 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-compensation", action="store_true",
                    help="evaluate the raw encoder: skip the bench's compensator ([bench] compensation)")
     add_decision_rule_option(p, default=None)
+    turning = p.add_argument_group("turning tests (a bench with its second axis: e.g. --config bench-station.toml)")
+    turning.add_argument("--method", choices=METHODS, default="stiffness",
+                         help="the test: the stiffness test (default) or a turning test of the input (GB/T 35089 §7–8)")
+    turning.add_argument("--input-speed", type=_positive, default=None, metavar="RPM",
+                         help="transmission-error, efficiency: the input's speed (rpm)")
+    turning.add_argument("--load", type=_positive, default=None, metavar="NM",
+                         help="transmission-error: the light braking load (default 2 %% of rated); efficiency: the "
+                         "braking torque (default the rated torque)")
+    turning.add_argument("--revolutions", type=_positive, default=None, metavar="N",
+                         help="transmission-error: output revolutions per direction (default 1.15)")
+    turning.add_argument("--ramps", type=_count, default=None, metavar="N",
+                         help="starting-torque: breakaways per direction (default 3)")
+    turning.add_argument("--creep", type=_positive, default=None, metavar="DEG_PER_S",
+                         help="starting-torque: the input's creep velocity while it sticks (default 0.05 deg/s)")
+    turning.add_argument("--speeds", type=_speeds, default=None, metavar="RPM,RPM,…",
+                         help="no-load-torque: the input speeds (default ¼, ½ and 1 × the rated input speed)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.set_defaults(func=run)
+
+
+def _speeds(text: str) -> list[float]:
+    """``--speeds N1,N2,…``: input speeds in rpm."""
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a list of numbers: {text!r}") from None
+    if not values or any(not v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"speeds must be numbers > 0 rpm, got {text!r}")
+    return values
 
 
 @dataclass
@@ -284,27 +313,44 @@ def evaluate_plan_run(result: SimulatedRun, rule: str | None = None) -> dict[str
     return out
 
 
-def _plan_from_args(cfg: BenchConfig, catalogue: dict[str, ReducerSpec], args: argparse.Namespace) -> TestPlan:
+def _plan_from_args(cfg: BenchConfig, catalogue: dict[str, ReducerSpec], args: argparse.Namespace
+                    ) -> TestPlan | MethodTestPlan:
     """The test the options ask for (``plan_from_request``: the one limit policy), over the config's
     ``[procedure]`` and ``[sim] reducer``."""
     if args.dwell is not None and args.dwell < 0:
         raise TcmsError(f"--dwell must be >= 0 s, got {args.dwell}")
     if args.rates is not None and args.rate is not None:
         raise TcmsError("--rate and --rates exclude each other")
+    method = getattr(args, "method", "stiffness")
+    turning = {"input_speed_rpm": getattr(args, "input_speed", None), "load_torque_nm": getattr(args, "load", None),
+               "revolutions": getattr(args, "revolutions", None), "ramps": getattr(args, "ramps", None),
+               "creep_deg_per_s": getattr(args, "creep", None), "speeds_rpm": getattr(args, "speeds", None)}
     try:
         request = PlanRequest(
             reducer=args.reducer or cfg.sim.reducer, max_torque_nm=args.max_torque, profile=args.profile,
             cycles=args.cycles, conditioning_loops=args.conditioning, rate_nm_per_s=args.rate, step_nm=args.step,
             dwell_s=args.dwell, positions=args.positions, rates=args.rates,
-            move_velocity_deg_per_s=args.move_velocity, decision_rule=args.decision_rule)
+            move_velocity_deg_per_s=args.move_velocity, decision_rule=args.decision_rule, method=method,
+            **{k: v for k, v in turning.items() if v is not None})
     except ValidationError as exc:
-        raise TcmsError(str(exc.errors()[0]["msg"]).removeprefix("Value error, ")) from None
+        message = str(exc.errors()[0]["msg"]).removeprefix("Value error, ")
+        for field, option in OPTION_OF_FIELD.items():
+            message = message.replace(field, option)
+        raise TcmsError(message) from None
     try:
         return plan_from_request(request, cfg, catalogue)
     except PlanRejected as exc:
         where = cfg.source_path or "the config"
         source = cfg.resolve(cfg.bench.reducers) if str(exc).startswith("unknown reducer") else f"[bench] in {where}"
         raise TcmsError(f"{exc} ({source})") from None
+
+
+#: the option of each request field, for the messages of the CLI
+OPTION_OF_FIELD = {"input_speed_rpm": "--input-speed", "load_torque_nm": "--load", "revolutions": "--revolutions",
+                   "creep_deg_per_s": "--creep", "speeds_rpm": "--speeds", "max_torque_nm": "--max-torque",
+                   "conditioning_loops": "--conditioning", "rate_nm_per_s": "--rate", "step_nm": "--step",
+                   "dwell_s": "--dwell", "move_velocity_deg_per_s": "--move-velocity",
+                   "decision_rule": "--decision-rule", "ramps": "--ramps"}
 
 
 def _analyze_hint(path: Path, result: SimulatedRun) -> str:
@@ -351,7 +397,12 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.parent.is_dir():  # fail before the test, not after it
         raise TcmsError(f"{args.out}: cannot write (no directory {args.out.parent})")
     cfg = load_bench_config(args.config, args.overrides)
-    test = _plan_from_args(cfg, load_reducers_for(cfg), args)
+    planned = _plan_from_args(cfg, load_reducers_for(cfg), args)
+    if isinstance(planned, MethodTestPlan):
+        from tcms_daq.cli.run_method import run_method_test
+
+        return run_method_test(args, cfg, planned)
+    test = planned
     reducer, plan = test.reducer, test.plan
 
     bar = None

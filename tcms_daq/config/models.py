@@ -719,7 +719,11 @@ class SimTransmission(BaseModel):
     once-per-input-revolution error (input arcsec); sync_skew_s: how much later the input angle is latched than the
     output angle; speed_ripple_pct, speed_ripple_per_input_rev: the input drive's speed ripple (amplitude in % of
     the speed, its order per input revolution); input_torque_noise_nm: the input torque reading's noise;
-    temperature_c: the unit's (oil) temperature.
+    temperature_c: the unit's (oil) temperature. The input drive in profile velocity against the input's breakaway
+    (sim.instruments.drivetrain.UnitDriveTrain): while the input sticks, its velocity loop winds up like a spring of
+    holding_stiffness_nm_per_deg (N·m per degree of the commanded angle the shaft lags; a creep command ramps the
+    torque at stiffness × velocity), and the shaft catches the commanded angle up in catch_up_time_constant_s
+    (critically damped) once it breaks away.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -733,6 +737,8 @@ class SimTransmission(BaseModel):
     speed_ripple_per_input_rev: float = Field(1.0, gt=0.0)
     input_torque_noise_nm: float = Field(0.002, ge=0.0)
     temperature_c: float = Field(25.0, ge=-40.0, le=150.0)
+    holding_stiffness_nm_per_deg: float = Field(5.0, gt=0.0)
+    catch_up_time_constant_s: float = Field(0.02, gt=0.0, le=10.0)
 
 
 class SimConfig(BaseModel):

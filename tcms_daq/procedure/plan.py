@@ -9,7 +9,8 @@ starts with a :class:`Move` of the output, made at zero torque by the loader's p
 - positions: ``positions`` = N (N equally spaced over 360°, from 0°) or a list of degrees in [0, 360);
 - rates: ``rates`` = a list of loading rates (N·m/s), the same test at each, where the output is.
 
-A request becomes a plan in one place, :func:`plan_from_request` (the CLI, the service and saved plans call it).
+A request becomes a plan in one place, :func:`plan_from_request` (the CLI, the service and saved plans call it);
+a turning test's (``method`` other than ``stiffness``) is made there too, by ``tcms_daq.procedure.methods``.
 Its limit policy, checked there once:
 
 - the test torque T (the request's, else ``[procedure] max_torque_nm``, else the reducer's rated torque) must lie
@@ -33,6 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, m
 
 from tcms_daq.config.models import BenchConfig, BenchSection, DecisionRule, ReducerSpec, TestProfile
 from tcms_daq.errors import TcmsError
+from tcms_daq.procedure.methods import METHOD_FIELDS, Method, MethodPlan, MethodRejected, build_method_plan
 from tcms_daq.procedure.profiles import Profile, Segment, build_profile, check_test_bounds
 
 MAX_POSITIONS = 36
@@ -224,6 +226,27 @@ def check_plan_fields(positions: int | list[float] | None, rates: list[float] | 
         raise ValueError("move_velocity_deg_per_s applies to a test with positions only")
 
 
+#: the stiffness test's request fields (refused with a turning method)
+STIFFNESS_FIELDS = ("max_torque_nm", "profile", "cycles", "conditioning_loops", "rate_nm_per_s", "step_nm", "positions",
+                    "rates", "move_velocity_deg_per_s", "decision_rule")
+
+
+def check_method_fields(method: str, given: Mapping[str, Any]) -> None:
+    """Raise ValueError when a request's fields do not belong to its method: a turning method's parameters with
+    another method (the stiffness test's included), the stiffness test's fields with a turning method
+    (``dwell_s`` is the stepped profile's and the no-load and efficiency tests')."""
+    own = set(METHOD_FIELDS.get(method, ()))
+    turning = {f for fields in METHOD_FIELDS.values() for f in fields} - {"dwell_s"}
+    foreign = sorted(f for f in given if f in turning and f not in own)
+    if method != "stiffness":
+        foreign += sorted(f for f in given if f in STIFFNESS_FIELDS)
+        if "dwell_s" in given and "dwell_s" not in own:
+            foreign.append("dwell_s")
+    if foreign:
+        takes = ", ".join(METHOD_FIELDS.get(method, ())) or "the stiffness test's fields"
+        raise ValueError(f"{', '.join(foreign)} do(es) not apply to method {method!r} (it takes {takes})")
+
+
 class PlanRequest(BaseModel):
     """What a test request asks for (the CLI's options, the service's ``POST /api/tests``, a saved plan). A field
     left None takes the bench config's ``[procedure]`` value (the test torque: the reducer's rated torque)."""
@@ -243,10 +266,19 @@ class PlanRequest(BaseModel):
     rates: list[float] | None = None
     move_velocity_deg_per_s: float | None = Field(None, gt=0.0)
     decision_rule: DecisionRule | None = None
+    # the turning tests (tcms_daq.procedure.methods): the method and its parameters
+    method: Method = "stiffness"
+    input_speed_rpm: float | None = Field(None, gt=0.0)
+    load_torque_nm: float | None = Field(None, gt=0.0)
+    revolutions: float | None = Field(None, ge=1.0, le=100.0)
+    ramps: int | None = Field(None, ge=1, le=20)
+    creep_deg_per_s: float | None = Field(None, gt=0.0, le=10.0)
+    speeds_rpm: list[float] | None = Field(None, min_length=1, max_length=10)
 
     @model_validator(mode="after")
     def _plan_fields(self) -> PlanRequest:
         check_plan_fields(self.positions, self.rates, self.rate_nm_per_s, self.move_velocity_deg_per_s)
+        check_method_fields(self.method, self.model_dump(exclude_none=True, exclude={"method"}))
         return self
 
 
@@ -295,11 +327,47 @@ def _one_line(exc: ValidationError) -> str:
     return f"{where}: {err['msg']}" if where else str(err["msg"])
 
 
-def plan_from_request(request: PlanRequest, bench: BenchConfig, catalogue: Mapping[str, ReducerSpec]) -> TestPlan:
+@dataclass(frozen=True)
+class MethodTestPlan:
+    """A turning test the bench can run (``tcms_daq.procedure.methods``): the request, the unit and its plan."""
+
+    __test__ = False  # not a pytest test class
+
+    request: PlanRequest
+    reducer: ReducerSpec
+    method_plan: MethodPlan
+
+    @property
+    def method(self) -> str:
+        return self.method_plan.method
+
+    @property
+    def reducer_torque_limit_nm(self) -> float:
+        """The torque interlock's limit for the unit under test (measured loader torque, N·m)."""
+        return REDUCER_TORQUE_HEADROOM * self.reducer.rated_torque_nm
+
+    def summary(self) -> dict[str, Any]:
+        """What a run records of its plan: the method, the unit and the plan's steps and parameters."""
+        return {"method": self.method, "reducer": self.reducer.name, "ratio": self.reducer.ratio,
+                "rated_torque_nm": self.reducer.rated_torque_nm, **self.method_plan.to_dict()}
+
+
+def plan_from_request(request: PlanRequest, bench: BenchConfig, catalogue: Mapping[str, ReducerSpec]
+                      ) -> TestPlan | MethodTestPlan:
     """The plan of ``request`` on the bench ``bench`` configures, for a reducer of ``catalogue``: the request's
-    fields over the config's ``[procedure]``, checked against the limit policy of this module (once).
-    PlanRejected (one line naming the field and the limit) when the bench cannot run it."""
+    fields over the config's ``[procedure]``, checked against the limit policy of this module (once); a turning
+    method's (``request.method``) by ``tcms_daq.procedure.methods.build_method_plan``. PlanRejected (one line naming
+    the field and the limit, or what the bench lacks) when the bench cannot run it."""
     reducer = _find_reducer(catalogue, request.reducer)
+    if request.method != "stiffness":
+        try:
+            method_plan = build_method_plan(
+                request.method, reducer, bench, input_speed_rpm=request.input_speed_rpm,
+                load_torque_nm=request.load_torque_nm, revolutions=request.revolutions, ramps=request.ramps,
+                creep_deg_per_s=request.creep_deg_per_s, speeds_rpm=request.speeds_rpm, dwell_s=request.dwell_s)
+        except MethodRejected as exc:
+            raise PlanRejected(str(exc)) from None
+        return MethodTestPlan(request, reducer, method_plan)
     defaults = bench.procedure
     torque_nm = request.max_torque_nm or defaults.max_torque_nm or reducer.rated_torque_nm
     smallest = bench.bench.min_test_torque_nm

@@ -19,7 +19,10 @@ import numpy as np
 
 from tcms_daq.config.models import BenchConfig, CompensationChecks, ReducerSpec
 from tcms_daq.errors import TcmsError
-from tcms_daq.procedure.plan import PlanRequest, TestPlan
+from tcms_daq.procedure.methods import METHODS, missing_for
+from tcms_daq.procedure.plan import MethodTestPlan, PlanRequest, TestPlan
+from tcms_daq.protocols.cia402 import POWERED_STATES as POWERED
+from tcms_daq.samples import INPUT_ANGLE_COLUMN, INPUT_TORQUE_COLUMN
 from tcms_daq.service.schemas import TestRequest
 
 if TYPE_CHECKING:  # the acquisition is imported when the bench is composed, not when the service starts
@@ -31,6 +34,8 @@ BatchSink = Callable[[Columns], None]
 
 # Channels recorded for every run (the canonical columns plus the raw encoder angle).
 RUN_CHANNELS: tuple[str, ...] = ("time_s", "torque_nm", "angle_arcsec", "encoder_arcsec")
+# … and for a turning test: the input angle and (when the bench has its channel) the input torque
+METHOD_CHANNELS: tuple[str, ...] = (*RUN_CHANNELS, INPUT_ANGLE_COLUMN, INPUT_TORQUE_COLUMN)
 
 
 class RequestRejected(TcmsError):
@@ -40,11 +45,13 @@ class RequestRejected(TcmsError):
 @dataclass
 class AcceptedTest:
     """A validated request: the profile summary stored with the run, and the runner's own plan object (the
-    bench runner's: a :class:`tcms_daq.procedure.plan.TestPlan`)."""
+    bench runner's: a :class:`tcms_daq.procedure.plan.TestPlan` or ``MethodTestPlan``); ``channels`` the run's
+    recorded channels when they are not the runner's."""
 
     request: TestRequest
     profile_summary: dict[str, Any]
     payload: Any = None
+    channels: tuple[str, ...] | None = None
 
 
 @dataclass
@@ -84,16 +91,85 @@ class Runner(Protocol):
     ) -> RunOutcome: ...
 
 
-def _columns(samples: Any) -> dict[str, np.ndarray]:
-    return {
+def _columns(samples: Any, extra: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    out = {
         "time_s": samples.time_s,
         "torque_nm": samples.torque_nm,
         "angle_arcsec": samples.angle_arcsec,
         "encoder_arcsec": samples.extra.get("encoder_arcsec", samples.angle_arcsec),
     }
+    for name in extra:
+        column = samples.extra.get(name)
+        out[name] = column if column is not None else np.full(len(samples.time_s), np.nan)
+    return out
 
 
 IDLE_STEP_PERIODS = 2  # the idle pump's step in loop steps: 2 × 20 ms of real time = one live frame (25 /s)
+SECOND_AXIS = ("input_drive", "input_torque", "input_angle")
+TE_LIVE_PERIOD_S = 0.5  # clock seconds between two te_live events
+TE_LIVE_POINTS = 200  # at most this many points per te_live event
+
+
+class TeLiveFeed:
+    """The transmission-error test's live messages (``te_live`` on ``WS /ws/events``, the results contract of
+    docs/transmission.md): the raw TE θ_out − θ_in/i (compensated output angle) against the output angle, both from
+    their values where the present direction began, about every TE_LIVE_PERIOD_S of the clock, decimated."""
+
+    def __init__(self, ratio: float, emit: Callable[..., None]):
+        self.ratio = float(ratio)
+        self.emit = emit
+        self._origin: tuple[float, float] | None = None  # (output angle ″, TE ″) where the direction began
+        self._direction: str | None = None
+        self._t: list[np.ndarray] = []
+        self._a: list[np.ndarray] = []
+        self._te: list[np.ndarray] = []
+        self._last_s: float | None = None
+
+    def add(self, samples: Any) -> None:
+        inputs = samples.extra.get(INPUT_ANGLE_COLUMN)
+        if inputs is None or len(inputs) < 2:
+            return
+        out = np.asarray(samples.angle_arcsec, dtype=float)
+        te = out - np.asarray(inputs, dtype=float) / self.ratio
+        step = float(inputs[-1] - inputs[0])
+        direction = None if step == 0 else ("forward" if step > 0 else "reverse")
+        if direction is None:
+            return
+        if direction != self._direction:
+            self._flush()
+            self._direction, self._origin = direction, (float(out[0]), float(te[0]))
+        assert self._origin is not None
+        self._t.append(np.asarray(samples.time_s, dtype=float))
+        self._a.append((out - self._origin[0]) / 3600.0)
+        self._te.append(te - self._origin[1])
+        now = float(samples.time_s[-1])
+        if self._last_s is None:
+            self._last_s = now
+        if now - self._last_s >= TE_LIVE_PERIOD_S:
+            self._flush()
+            self._last_s = now
+
+    def _flush(self) -> None:
+        if not self._a or self._direction is None:
+            return
+        angle, te = np.concatenate(self._a), np.concatenate(self._te)
+        idx = np.unique(np.linspace(0, angle.size - 1, min(angle.size, TE_LIVE_POINTS)).astype(int))
+        self.emit("te_live", direction=self._direction, output_angle_deg=[round(float(v), 5) for v in angle[idx]],
+                  te_arcsec=[round(float(v), 3) for v in te[idx]])
+        self._t, self._a, self._te = [], [], []
+
+
+def method_evaluator(config: BenchConfig, config_path: Path, plan: MethodTestPlan) -> Callable[[Any], dict[str, Any]]:
+    """The evaluation of a turning test's samples with the config's ``[uncertainty.station]``."""
+    from tcms_daq.procedure.method_evaluation import evaluate_method
+
+    chain, source = config.uncertainty.station, config_path.name
+
+    def run(samples: Any) -> dict[str, Any]:
+        return evaluate_method(samples, plan.method, plan.reducer, plan.method_plan.parameters, chain=chain,
+                               source=source)
+
+    return run
 
 
 class BenchRunner:
@@ -222,10 +298,19 @@ class BenchRunner:
                           "error_code": st.error_code, "position_deg": st.position_deg, "moving": st.moving,
                           "age_s": link.get("age_s"), "live": link.get("link") == "up"}
             trip = self.acq.trip.to_dict() if self.acq.trip is not None else None
+        input_drive = None
+        if self.acq is not None and self.acq.station.last_status is not None:
+            st2 = self.acq.station.last_status
+            link = stats.get("input_drive", {})
+            input_drive = {"state": st2.state, "velocity_deg_per_s": st2.velocity_deg_per_s, "fault": st2.fault,
+                           "error_code": st2.error_code, "position_deg": st2.position_deg,
+                           "age_s": link.get("age_s"), "live": link.get("link") == "up"}
+        kinds = ("angle", "torque", "loader", *(k for k in SECOND_AXIS if getattr(self.bench, k, None) is not None))
         instruments = {
             kind: {**dict(self.bench.description.get(kind, {})),
-                   **stats.get(kind, {}), **({"status": loader} if kind == "loader" else {})}
-            for kind in ("angle", "torque", "loader")
+                   **stats.get(kind, {}), **({"status": loader} if kind == "loader" else {}),
+                   **({"status": input_drive} if kind == "input_drive" else {})}
+            for kind in kinds
         }
         return {
             "name": self.bench.name,
@@ -246,6 +331,10 @@ class BenchRunner:
             "acquisition_step": ({"clock_s": self.acq.period_s, "real_s": self.acq.step_real_s}
                                  if self.acq is not None else None),
             "safe_start": self.safe_start(),
+            "input_safe_start": (None if (second := getattr(self.bench, "input_safe_start", None)) is None
+                                 else second.to_dict()),
+            "methods": {m: (None if not (missing := missing_for(m, self.config)) else f"needs {' and '.join(missing)}")
+                        for m in METHODS},  # each method, and why this bench cannot run it (None: it can)
             "not_ready": self.not_ready_reason(),
         }
 
@@ -259,6 +348,14 @@ class BenchRunner:
         shown it safe since (the status poll disables a loader left enabled as soon as it answers)."""
         from tcms_daq.acquisition.bench import is_safe
 
+        second = getattr(self.bench, "input_safe_start", None)
+        if second is not None and not second.safe:
+            status = self.acq.station.last_status if self.acq is not None else None
+            if status is not None and status.state not in POWERED and not status.fault:
+                second.safe = True
+                second.message += f"; safe since ({status.state})"
+            else:
+                return f"the bench is not safe yet: {second.message}"
         report = getattr(self.bench, "safe_start", None)
         if report is None or report.safe:
             return None
@@ -333,10 +430,15 @@ class BenchRunner:
         from tcms_daq.procedure.plan import PlanRejected, PlanRequest, plan_from_request
 
         try:
-            planned = plan_from_request(PlanRequest.model_validate(request.model_dump(include=_PLAN_FIELDS)),
-                                        self.config, self.reducers)
+            planned = plan_from_request(PlanRequest.model_validate(
+                request.model_dump(include=_PLAN_FIELDS, exclude_none=request.method != "stiffness")),
+                self.config, self.reducers)
         except PlanRejected as exc:
             raise RequestRejected(str(exc)) from None
+        if isinstance(planned, MethodTestPlan):
+            channels = tuple(c for c in METHOD_CHANNELS
+                             if c != INPUT_TORQUE_COLUMN or self.bench.input_torque is not None)
+            return AcceptedTest(request, planned.summary(), planned, channels)
         if planned.plan.kind == "positions" and not callable(getattr(self.bench.loader, "move_to", None)):
             raise RequestRejected(f"positions: the loader {self.bench.loader.name} cannot turn the output")
         return AcceptedTest(request, planned.summary(), planned)
@@ -359,15 +461,28 @@ class BenchRunner:
 
     def execute(self, plan: AcceptedTest, *, run_id: str, record: BatchSink, on_phase: Callable[..., None],
                 abort: threading.Event) -> RunOutcome:
-        from tcms_daq.acquisition import DataMessage, EventMessage, ProcedureOptions, ProfileRejected, TestRun
+        from tcms_daq.acquisition import (
+            DataMessage,
+            EventMessage,
+            ProcedureError,
+            ProcedureOptions,
+            ProfileRejected,
+            TestRun,
+        )
 
-        payload: TestPlan = plan.payload
+        payload: TestPlan | MethodTestPlan = plan.payload
         if self.acq is None:
             raise TcmsError("the bench is not open")
+        extra = tuple(c for c in (plan.channels or ()) if c not in RUN_CHANNELS)
+        ratio = payload.reducer.ratio
+        live_te = (TeLiveFeed(ratio, on_phase) if isinstance(payload, MethodTestPlan)
+                   and payload.method == "transmission-error" and ratio else None)
 
         def handle(msg: Any) -> None:
             if isinstance(msg, DataMessage):
-                record(_columns(msg.samples))
+                record(_columns(msg.samples, extra))
+                if live_te is not None:
+                    live_te.add(msg.samples)
             elif isinstance(msg, EventMessage):
                 if msg.event == "state":
                     on_phase(msg.details.get("state", "?"), reason=msg.details.get("reason"))
@@ -390,16 +505,26 @@ class BenchRunner:
             if self.bench.set_specimen(payload.reducer):
                 on_phase("specimen", reducer=payload.reducer.name)
             try:
-                run = TestRun(
-                    self.bench, payload.plan if payload.plan.kind != "single" else payload.profile,
-                    reducer_torque_limit_nm=payload.reducer_torque_limit_nm,
-                    evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
-                    run_id=run_id, profile_info={"reducer": payload.reducer.name},
-                    # the store records every channel as it arrives: the run keeps in memory what it evaluates
-                    options=ProcedureOptions(kept_columns=(), gaps=self.config.gaps.limits()),
-                )
+                run: TestRun
+                if isinstance(payload, MethodTestPlan):
+                    from tcms_daq.acquisition.methodrun import MethodRun
+
+                    run = MethodRun(
+                        self.bench, payload.method_plan, reducer_torque_limit_nm=payload.reducer_torque_limit_nm,
+                        evaluate=method_evaluator(self.config, self.config_path, payload), acquisition=self.acq, abort_event=abort,
+                        run_id=run_id, profile_info={"reducer": payload.reducer.name},
+                        options=ProcedureOptions(kept_columns=(INPUT_ANGLE_COLUMN, INPUT_TORQUE_COLUMN)))
+                else:
+                    run = TestRun(
+                        self.bench, payload.plan if payload.plan.kind != "single" else payload.profile,
+                        reducer_torque_limit_nm=payload.reducer_torque_limit_nm,
+                        evaluate=self._evaluator(payload), acquisition=self.acq, abort_event=abort,
+                        run_id=run_id, profile_info={"reducer": payload.reducer.name},
+                        # the store records every channel as it arrives: the run keeps in memory what it evaluates
+                        options=ProcedureOptions(kept_columns=(), gaps=self.config.gaps.limits()),
+                    )
                 result = run.run()
-            except ProfileRejected as exc:
+            except (ProfileRejected, ProcedureError) as exc:
                 return RunOutcome("failed", error=str(exc))
             finally:
                 # before the idle clock resumes: nothing after the run reaches the store

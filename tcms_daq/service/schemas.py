@@ -6,7 +6,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
-from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, check_plan_fields
+from tcms_daq.procedure.methods import Method
+from tcms_daq.procedure.plan import MAX_POSITIONS, MAX_RATES, check_method_fields, check_plan_fields
 from tcms_daq.runstate import RunState
 
 
@@ -67,9 +68,13 @@ class TestRequest(TestDocumentation):
     """
 
     reducer: str = Field(min_length=1, max_length=64, description="reducer model from the catalogue, e.g. RV-110E")
-    max_torque_nm: float = Field(gt=0, description="test torque T (the profile runs between −T and +T), N·m")
-    cycles: int = Field(default=3, ge=1, le=50, description="evaluated hysteresis loops")
-    profile: Literal["continuous", "stepped"] = "continuous"
+    method: Method = Field(default="stiffness", description="the test: the stiffness test (default) or a turning test "
+                           "of the input (GB/T 35089 §7–8: transmission-error, starting-torque, no-load-torque, "
+                           "efficiency; a bench with its second axis)")
+    max_torque_nm: float | None = Field(default=None, gt=0, description="test torque T (the profile runs between −T "
+                                        "and +T), N·m; required by the stiffness test")
+    cycles: int | None = Field(default=3, ge=1, le=50, description="evaluated hysteresis loops (stiffness)")
+    profile: Literal["continuous", "stepped"] | None = "continuous"
     rate_nm_per_s: float | None = Field(default=None, gt=0, le=1e5, description="torque rate, N·m/s")
     step_nm: float | None = Field(default=None, gt=0, description="torque step of a stepped profile, N·m")
     dwell_s: float | None = Field(default=None, ge=0, le=600, description="dwell at each step, s")
@@ -85,6 +90,31 @@ class TestRequest(TestDocumentation):
                                       f"(1…{MAX_RATES} rates)")
     move_velocity_deg_per_s: float | None = Field(default=None, gt=0, le=360,
                                                   description="output speed of the moves between positions, °/s")
+    # the turning tests' parameters (each optional; defaults in tcms_daq.procedure.methods)
+    input_speed_rpm: float | None = Field(default=None, gt=0, le=20000, description="transmission-error, efficiency: "
+                                          "the input's speed, rpm")
+    load_torque_nm: float | None = Field(default=None, gt=0, description="transmission-error: the light braking "
+                                         "load; efficiency: the braking torque (default the rated torque), N·m")
+    revolutions: float | None = Field(default=None, ge=1, le=100, description="transmission-error: output "
+                                      "revolutions per direction")
+    ramps: int | None = Field(default=None, ge=1, le=20, description="starting-torque: breakaways per direction")
+    creep_deg_per_s: float | None = Field(default=None, gt=0, le=10, description="starting-torque: the input's creep "
+                                          "velocity while it sticks, deg/s")
+    speeds_rpm: list[float] | None = Field(default=None, min_length=1, max_length=10,
+                                           description="no-load-torque: the input speeds, rpm")
+
+    @model_validator(mode="after")
+    def _method_fields(self) -> TestRequest:
+        if self.method != "stiffness":
+            for name in ("cycles", "profile"):  # the stiffness test's defaults do not apply to a turning test
+                if name in self.model_fields_set and getattr(self, name) is not None:
+                    raise ValueError(f"{name} does not apply to method {self.method!r}")
+                setattr(self, name, None)
+        elif self.max_torque_nm is None:
+            raise ValueError("max_torque_nm is required by the stiffness test")
+        given = {k: v for k, v in self.model_dump(exclude_none=True).items() if k not in ("method", "reducer")}
+        check_method_fields(self.method, given)
+        return self
 
     @model_validator(mode="after")
     def _plan_fields(self) -> TestRequest:
@@ -93,9 +123,11 @@ class TestRequest(TestDocumentation):
 
     @model_validator(mode="after")
     def _stepped_fields(self) -> TestRequest:
+        if self.method != "stiffness":
+            return self
         if self.profile == "continuous" and (self.step_nm is not None or self.dwell_s is not None):
             raise ValueError("step_nm and dwell_s apply only to profile 'stepped'")
-        if self.step_nm is not None and self.step_nm > self.max_torque_nm:
+        if self.step_nm is not None and self.max_torque_nm is not None and self.step_nm > self.max_torque_nm:
             raise ValueError(f"step_nm {self.step_nm} exceeds max_torque_nm {self.max_torque_nm}")
         return self
 
@@ -221,11 +253,15 @@ class MeasuredValue(BaseModel):
 
 
 class HeadlineResults(BaseModel):
-    """The three results a test is judged on, each with its unit and U."""
+    """The results a test is judged on, each with its unit and U: the stiffness test's three; a turning test's
+    headline results (``tcms_daq.identity.METHOD_HEADLINES``, e.g. ``transmission_error_arcsec``) instead, under
+    their names."""
 
-    rigidity_nm_per_arcmin: MeasuredValue
-    lost_motion_arcsec: MeasuredValue
-    backlash_arcsec: MeasuredValue
+    model_config = ConfigDict(extra="allow")
+
+    rigidity_nm_per_arcmin: MeasuredValue | None = None
+    lost_motion_arcsec: MeasuredValue | None = None
+    backlash_arcsec: MeasuredValue | None = None
 
 
 class TestSummary(BaseModel):
@@ -350,6 +386,18 @@ class LoaderStatusView(BaseModel):
     live: bool = Field(default=True, description="false: the loader's link is down or stale, this status is old")
 
 
+class InputDriveStatusView(BaseModel):
+    """The input drive's last status (the second axis: CiA 402 profile velocity)."""
+
+    state: str = Field(description="CiA 402 state, e.g. SWITCH ON DISABLED, OPERATION ENABLED, FAULT")
+    velocity_deg_per_s: float = Field(description="velocity actual 0x606C at the input shaft, deg/s")
+    fault: bool
+    error_code: int = Field(description="0x603F error code (0: none)")
+    position_deg: float | None = Field(default=None, description="the input shaft's position (0x6064), deg")
+    age_s: float | None = Field(default=None, description="real seconds since this status was read")
+    live: bool = Field(default=True, description="false: the input drive's link is down or stale, this status is old")
+
+
 class InstrumentView(BaseModel):
     """One instrument as configured (driver, url …) with its counters; the loader with its last status."""
 
@@ -358,7 +406,7 @@ class InstrumentView(BaseModel):
     instrument: str | None = None
     readings: int | None = None
     errors: int | None = None
-    status: LoaderStatusView | None = None
+    status: LoaderStatusView | InputDriveStatusView | None = None
     last_value: float | None = Field(default=None, description="the last reading (the channel's unit)")
     age_s: float | None = Field(default=None, description="real seconds since the last reading (None: none yet)")
     link: Literal["up", "stale", "down"] | None = Field(
@@ -439,6 +487,10 @@ class BenchStatus(BaseModel):
     test_bounds: TestBounds | None = None
     acquisition_step: AcquisitionStep | None = None
     safe_start: SafeStartView | None = None
+    input_safe_start: SafeStartView | None = Field(default=None, description="what the safe start found on the input "
+                                                   "drive and did (the second axis; null: none)")
+    methods: dict[str, str | None] = Field(default_factory=dict, description="each test method and why this bench "
+                                           "cannot run it (null: it can)")
     not_ready: str | None = Field(default=None, description="why no test is accepted now (409), None: ready")
     active_test: str | None
     live: LiveRates
@@ -716,3 +768,42 @@ class PlanStart(TestDocumentation):
     plan_id: int = Field(ge=1, le=2**31 - 1, description="the id of a plan version (GET /api/plans)")
     serial_number: str | None = Field(default=None, max_length=64)
     operator: str | None = Field(default=None, max_length=64)
+
+
+class TeDiscrepancyRequest(StrictBody):
+    """``POST /api/te-discrepancy``: a stored transmission-error run against its unit's TE model."""
+
+    run_id: str = Field(min_length=1, max_length=64, description="id of a completed transmission-error run")
+
+
+class TeDiscrepancyAnalysis(BaseModel):
+    """A TE discrepancy analysis (``tcms_daq.transmission.te_model.TeComparison`` with its run and model)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    id: str
+    run_id: str
+    reducer: str
+    against_version: int = Field(description="the TE model version it was compared with (0: the catalogue's)")
+    verdict: Literal["consistent", "explained", "partially_explained", "unexplained"]
+    verdict_words: str
+    findings: list[dict[str, Any]] = Field(description="each line of TE − model: order, amplitude_arcsec, phase_deg, "
+                                           "component (null: no component), allowance_arcsec, significant, kind")
+    named_orders: list[float]
+    unexplained_orders: list[float]
+    rms_residual_arcsec: float
+    noise_amplitude_arcsec: float
+    proposed_toml: str | None = Field(description="the model's next version if applied (null: nothing named)")
+
+
+class TeModelView(BaseModel):
+    """A reducer type's TE model in use and the store's TE model history."""
+
+    model_config = ConfigDict(extra="allow")
+
+    reducer: str
+    version: int
+    ratio: float
+    harmonics: list[dict[str, Any]]
+    toml: str
+    history: list[dict[str, Any]]

@@ -65,7 +65,7 @@ class TestManager:
             record = self.store.create_run(
                 run_id,
                 stored_request,
-                self.runner.channels,
+                getattr(plan, "channels", None) or self.runner.channels,
                 profile=plan.profile_summary,
                 config_snapshot={**self.runner.config_snapshot(),
                                  "bench_model_version": (m[0].version if (m := self.store.bench_model()) else 0)},
@@ -119,6 +119,9 @@ class TestManager:
             if phase == "progress":  # loop, loops, position, positions, elapsed_s, eta_s (see TestRun)
                 detail.pop("run_id", None)
                 self.events.publish("test_progress", id=run_id, **detail)
+            elif phase in ("method_progress", "te_live"):  # a turning test's (docs/transmission.md, the contract)
+                detail.pop("run_id", None)
+                self.events.publish(phase, id=run_id, **detail)
             else:
                 self.events.publish("test_phase", id=run_id, phase=phase, **detail)
 

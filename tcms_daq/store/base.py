@@ -28,7 +28,14 @@ import numpy as np
 
 from tcms_daq.analysis.evaluation import DECISIONS
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import HEADLINES, decision, headline_results, run_identity, test_method
+from tcms_daq.identity import (
+    HEADLINES,
+    decision,
+    headline_results,
+    method_headlines,
+    run_identity,
+    test_method,
+)
 from tcms_daq.runstate import STORED, STORED_ACTIVE, STORED_FINAL
 from tcms_daq.samples import Samples, samples_from_columns
 
@@ -133,10 +140,11 @@ def brief_results(results: Mapping[str, Any] | None) -> dict[str, Any] | None:
     the verdict and ``passed``; None for none."""
     if results is None:
         return None
-    out = {k: results[k] for k in (*BRIEF_KEYS, "verdict", "passed") if k in results}
+    keys = (*BRIEF_KEYS, *(h.key for h in method_headlines(results) if h.key not in BRIEF_KEYS))
+    out = {k: results[k] for k in (*keys, "verdict", "passed", "method") if k in results}
     table = results.get("uncertainty")
     if isinstance(table, Mapping):
-        out["uncertainty"] = {k: table[k] for k in BRIEF_KEYS if k in table}
+        out["uncertainty"] = {k: table[k] for k in keys if k in table}
     return out
 
 
@@ -177,7 +185,8 @@ class BenchModelVersion:
 
 
 #: the versioned TOML documents: table -> its provenance columns (besides version, created_at, note, sha256, toml)
-VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",), "bench_models": ("analysis_id", "run_id")}
+VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",), "bench_models": ("analysis_id", "run_id"),
+                                         "te_models": ("analysis_id", "run_id")}
 
 
 def iso(t: float | None) -> str | None:
@@ -511,6 +520,33 @@ class VersionedDocuments:
         """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
         row = self._version("bench_models", version)
         return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
+
+    # the units' transmission-error models (tcms_daq.transmission.te_model: one TOML per version, the TE workflow's)
+    def add_te_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                     run_id: str | None = None) -> BenchModelVersion:
+        """Keep the next version of a unit's TE model (its whole ``tcms-te-model/1`` TOML); returns it."""
+        version, created = self._add_version("te_models", toml, note, (analysis_id, run_id))
+        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
+
+    def te_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
+        """TE model versions (of every unit this bench tested), newest first."""
+        return [BenchModelVersion(*row) for row in self._history("te_models", limit)]
+
+    def te_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
+        """(version, TOML) of ``version`` (default: the latest); None when there is none."""
+        row = self._version("te_models", version)
+        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
+
+
+class TeModels(Protocol):
+    """The versioned TE models a store keeps (both backends, through :class:`VersionedDocuments`)."""
+
+    def add_te_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                     run_id: str | None = None) -> BenchModelVersion: ...
+
+    def te_model_history(self, limit: int = 100) -> list[BenchModelVersion]: ...
+
+    def te_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None: ...
 
 
 class PeopleStore(Protocol):

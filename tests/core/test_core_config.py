@@ -208,7 +208,7 @@ def test_instrument_options_unknown_key_names_instrument_key_and_allowed(write, 
         load_bench_config(path, ["instruments.angle.urll=x"])
     text = str(err.value)
     assert "instruments.angle:" in text and "'urll'" in text
-    assert "its options: max_torque_nm, rated_torque_nm, url)" in text
+    assert "its options: acceleration_deg_per_s2, max_torque_nm, max_velocity_deg_per_s, rated_torque_nm, url)" in text
     with pytest.raises(ConfigError, match=r"instruments\.torque: unknown driver 'nope' \(known: .*nd287"):
         load_bench_config(path, ["instruments.torque.driver=nope"])
     with pytest.raises(ConfigError, match=r"instruments\.loader: driver 'cia402-canopen' option 'node_id': .*"
