@@ -24,6 +24,8 @@ import numpy as np
 
 from tcms_daq.acquisition.align import Aligner
 from tcms_daq.acquisition.bench import POWERED_STATES, SECOND_AXIS_KINDS, Bench
+from tcms_daq.acquisition.channel import Channel as _Channel
+from tcms_daq.acquisition.channel import guarded_status
 from tcms_daq.acquisition.fanout import FanOut
 from tcms_daq.acquisition.interlocks import InterlockLimits, Trip, check_loader_status
 from tcms_daq.acquisition.monitor import InterlockMonitor
@@ -31,13 +33,11 @@ from tcms_daq.acquisition.schedulers import SteppedScheduler, ThreadedScheduler
 from tcms_daq.acquisition.station import StationMode
 from tcms_daq.drivers.base import (
     INPUT_ANGLE_COLUMN,
-    Batch,
     DeviceFault,
     Disconnected,
     InstrumentError,
     InstrumentTimeout,
     LoaderStatus,
-    concat_common_columns,
 )
 from tcms_daq.errors import TcmsError
 from tcms_daq.samples import Samples
@@ -56,7 +56,6 @@ def _error_trip(kind: str, exc: Exception, time_s: float) -> Trip | None:
         return Trip("lost_instrument", f"lost {kind} instrument: {exc}", time_s)
     return None
 
-
 class InterlockTripped(TcmsError):
     def __init__(self, trip: Trip):
         super().__init__(trip.reason)
@@ -67,36 +66,6 @@ class AbortRequested(TcmsError):
     def __init__(self, reason: str = "aborted by operator"):
         super().__init__(reason)
         self.reason = reason
-
-
-class _Channel:
-    """Book-keeping for one instrument: pending batches, errors in a row, last arrival (clock time)."""
-
-    def __init__(self, kind: str, name: str, now_s: float):
-        self.kind = kind
-        self.name = name
-        self.pending: list[Batch] = []
-        self.lock = threading.Lock()
-        self.errors_in_row = 0
-        self.errors_total = 0
-        self.readings = 0
-        self.last_arrival_s = now_s
-        self.last_arrival_real_s: float | None = None  # time.monotonic() of the last reading (None: none yet)
-        self.last_value: float | None = None
-        self.last_input_arcsec: float | None = None  # an angle pair source's latest input angle
-        self.last_error: str | None = None
-        self.busy_since: float | None = None  # clock time the pending request started
-
-    def take(self) -> tuple[Batch, dict[str, np.ndarray]]:
-        """The pending readings as one batch, and the extra columns all of them carry."""
-        with self.lock:
-            parts, self.pending = self.pending, []
-        if not parts:
-            return Batch.empty(), {}
-        extra = concat_common_columns([getattr(p, "extra", None) or {} for p in parts])
-        if len(parts) == 1:
-            return parts[0], extra
-        return Batch(np.concatenate([p.time_s for p in parts]), np.concatenate([p.value for p in parts])), extra
 
 
 class AcquisitionLoop:
@@ -257,27 +226,15 @@ class AcquisitionLoop:
     def poll_status(self, *, wait_for_lock: bool = True) -> LoaderStatus | None:
         """Read the loader's status (under the loader lock); None when it failed, or when the lock is held and
         ``wait_for_lock`` is False (a command is in progress: the poll is skipped, not queued)."""
-        ch = self._channels["loader"]
-        if not self.loader_lock.acquire(blocking=wait_for_lock):
-            return None
-        ch.busy_since = self.clock.now()  # waiting for the lock counts: the loader is busy with a command
-        try:
+
+        def read() -> LoaderStatus:
             status = self.bench.loader.status()
-            if self.disable_pending:
-                status = self._disable_left_enabled(status)
-        except InstrumentError as exc:
-            self._on_error(ch, exc)
+            return self._disable_left_enabled(status) if self.disable_pending else status
+
+        status = guarded_status(self._channels["loader"], self.loader_lock, read, now=self.clock.now,
+                                on_error=self._on_error, wait_for_lock=wait_for_lock)
+        if status is None:
             return None
-        except Exception as exc:
-            self._on_error(ch, Disconnected(ch.name, f"{type(exc).__name__}: {exc}"))
-            return None
-        finally:
-            ch.busy_since = None
-            self.loader_lock.release()
-        ch.errors_in_row = 0
-        ch.readings += 1
-        ch.last_arrival_s = self.clock.now()
-        ch.last_arrival_real_s = time.monotonic()
         self.last_status = status
         trip = check_loader_status(status) if self.drive_fault_armed else None
         if trip is not None:

@@ -16,15 +16,15 @@ turning test has the bench (:meth:`StationMode.set_active`):
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tcms_daq.acquisition.align import Aligner, StationAligner
+from tcms_daq.acquisition.channel import guarded_status
 from tcms_daq.acquisition.interlocks import Trip
-from tcms_daq.drivers.base import INPUT_ANGLE_COLUMN, Batch, Disconnected, InputDriveStatus, InstrumentError
+from tcms_daq.drivers.base import INPUT_ANGLE_COLUMN, Batch, InputDriveStatus, InstrumentError
 from tcms_daq.errors import TcmsError
 
 if TYPE_CHECKING:
@@ -123,24 +123,10 @@ class StationMode:
         drive = loop.bench.input_drive
         if ch is None or drive is None:
             return None
-        if not self.drive_lock.acquire(blocking=wait_for_lock):
+        status = guarded_status(ch, self.drive_lock, drive.status, now=loop.clock.now, on_error=loop._on_error,
+                                wait_for_lock=wait_for_lock)
+        if status is None:
             return None
-        ch.busy_since = loop.clock.now()
-        try:
-            status = drive.status()
-        except InstrumentError as exc:
-            loop._on_error(ch, exc)
-            return None
-        except Exception as exc:
-            loop._on_error(ch, Disconnected(ch.name, f"{type(exc).__name__}: {exc}"))
-            return None
-        finally:
-            ch.busy_since = None
-            self.drive_lock.release()
-        ch.errors_in_row = 0
-        ch.readings += 1
-        ch.last_arrival_s = loop.clock.now()
-        ch.last_arrival_real_s = time.monotonic()
         self.last_status = status
         if self.armed and self.active and (status.fault or status.state.upper() == "FAULT"):
             code = f" 0x{status.error_code:04X}" if status.error_code else ""
