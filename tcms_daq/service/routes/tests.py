@@ -189,6 +189,19 @@ def get_report(run: RunWithSamplesDep, store: Store, request: Request, lang: Lan
                                                    stored_settings(store).default_language)))
 
 
+@router.get("/{run_id}/curves", response_model=dict[str, Any], responses=errors(404, 410))
+def get_curves(run: RunWithSamplesDep, store: Store) -> JSONResponse:
+    """What a turning test's figure draws (``tcms_daq.service.method_views.method_curves``): the transmission
+    error against the output angle per direction with its order spectrum and lines (order, component, amplitude ±
+    U, phase); each starting-torque ramp around its breakaway (input torque and angle against the time from the
+    onset); the no-load torque per speed; the efficiency per direction with its blocks. ``{"method":
+    "stiffness"}`` for a stiffness test (its loop: ``/loop``)."""
+    from tcms_daq.service.method_views import method_curves, method_of
+
+    columns = store.read_columns(run.id) if method_of(run.results) == "starting-torque" else None
+    return JSONResponse(jsonable(method_curves(run.results, columns)))
+
+
 @router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 410, 422))
 def get_loop(run: RunWithSamplesDep, store: Store,
              max_points: Annotated[int, Query(ge=100, le=100_000)] = 4000) -> dict[str, Any]:
