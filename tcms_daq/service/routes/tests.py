@@ -155,7 +155,7 @@ def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
     """The sample CSV's sidecar (``tcms-<id>.json``): the test's identity (reducer, serial number, bench,
     operator, parameters, compensation version, results ± U, verdict), its start time and full results; the
     same as the Parquet schema metadata and the MDF4 header carry."""
-    doc = exports.sidecar(exports.ExportMeta.of(run), store.iter_columns(run.id, chunk_samples=1))
+    doc = exports.sidecar(exports.ExportMeta.of(run), store.iter_columns(run.id, chunk_samples=1), run.channels)
     return JSONResponse(jsonable(doc), headers={"Content-Disposition": f'inline; filename="tcms-{run.id}.json"'})
 
 
