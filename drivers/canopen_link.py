@@ -360,8 +360,10 @@ class CanopenLink:
             raise ConfigError(f"{self.name}: node {self.node_id} device type 0x{device_type:08X} is not CiA 402")
         self._configure_scaling(self.sdo_read(0x6076))
         self.sdo_write(0x1017, self.heartbeat_ms)
-        if self.drive_consumer_timeout_ms > 0:
-            self.sdo_write(0x1016, (self.master_node_id << 16) | self.drive_consumer_timeout_ms, subindex=1)
+        # the consumer of this master's heartbeat: armed, or (0) cleared: a consumer an earlier master left armed
+        # would stop the drive when this one, which asked for none, goes silent
+        self.sdo_write(0x1016, (self.master_node_id << 16) | self.drive_consumer_timeout_ms
+                       if self.drive_consumer_timeout_ms > 0 else 0, subindex=1)
         self._read_pdo_mapping()
         self.target_permille = 0
         network = self.network

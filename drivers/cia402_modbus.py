@@ -102,6 +102,8 @@ class ModbusWire(CiA402Drive):
         if not self.comm_timeout_ms:
             log.warning("%s: communication watchdog off (comm_timeout_ms = 0): the drive keeps its torque if this "
                         "software or its link dies", self.name)
+            if "comm_timeout" in self.link.map.registers:  # cleared: an earlier master may have left it armed
+                self.link.write_register("comm_timeout", 0)
             return
         if "abort_connection_option" in self.link.map.registers:
             self.link.write_register("abort_connection_option", self.abort_connection_option)

@@ -8,9 +8,9 @@ with the output angle (axis 1, arcsec) in ``value`` and the input angle (axis 2,
 lost) and a signal fault of either axis raise DeviceFault; a broken block MalformedReply.
 
 Time stamps: each frame carries the latch time on the card's clock (µs). The driver maps it onto its own clock by
-the line through the first and the latest (request time, newest latch time) pair of the reads: a constant offset
-(the newest latch is at most one period before the request) plus the drift of the card's clock against the host's
-— and a simulator's speed.
+the offset of its quickest recent read when the two clocks run at one rate (the newest latch taken between request
+and reply: their middle, as NTP), slewed so that the times never step, else (a simulator at another speed than the driver's clock) by the line through the
+first and the latest (request time, newest latch time) pair.
 """
 
 from __future__ import annotations
@@ -47,6 +47,9 @@ from tcms_daq.protocols.counter import (
 
 LATCH_SEQ_COLUMN = "latch_seq"
 MIN_DRIFT_SPAN_S = 1.0  # the clock line's slope is estimated once the card's times span this much
+SAME_RATE = 0.05  # clocks whose rates differ less than this share run at one rate (offset only)
+OFFSET_WINDOW_S = 10.0  # the offset's target: the quickest read of this long (a drifting card is followed)
+OFFSET_SLEW = 0.01  # the offset in use moves toward its target at most this many s per s
 
 
 def _read_line(port: serial.SerialBase) -> bytes:
@@ -76,6 +79,10 @@ class Counter2Axis(SerialInstrument):
                          parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE)
         self._first: tuple[float, float] | None = None  # (host s, card s) of the first read with frames
         self._latest: tuple[float, float] | None = None
+        self._offset: float | None = None  # host − card in use (s)
+        self._target: float | None = None  # host − card of the quickest recent read (s)
+        self._round_trip = float("inf")  # that read's round trip (s)
+        self._target_at = self._updated_at = 0.0
 
     def _command(self, line: str) -> str:
         reply = require_terminated(self.name, self.link.exchange(line.encode("ascii") + b"\n", _read_line))
@@ -102,6 +109,8 @@ class Counter2Axis(SerialInstrument):
         self._command(f"RATE {options.rate_hz}")
         self._command("START")
         self._first = self._latest = None
+        self._offset = self._target = None
+        self._round_trip = float("inf")
 
     def close(self) -> None:
         try:
@@ -111,13 +120,37 @@ class Counter2Axis(SerialInstrument):
             pass
         super().close()
 
+    def _track_offset(self, request_s: float, reply_s: float, newest_card_s: float) -> None:
+        """The newest latch was taken while the READ was on the way: host − card ≈ the middle of request and reply
+        − the newest latch (error at most half the round trip, as NTP's). The target is the quickest read's of the
+        last ``OFFSET_WINDOW_S`` (a drifting card is followed); the offset in use slews toward it at most
+        ``OFFSET_SLEW`` s per s, so the mapped times never step (a step would be a gap, or a jump back, in the record)."""
+        estimate, round_trip = 0.5 * (request_s + reply_s) - newest_card_s, reply_s - request_s
+        if (self._target is None or round_trip <= self._round_trip
+                or request_s - self._target_at > OFFSET_WINDOW_S):
+            self._target, self._round_trip, self._target_at = estimate, round_trip, request_s
+        if self._offset is None:
+            self._offset = self._target
+        else:
+            limit = OFFSET_SLEW * max(0.0, request_s - self._updated_at)
+            self._offset += max(-limit, min(limit, self._target - self._offset))
+        self._updated_at = request_s
+
     def _card_to_clock(self, card_s: np.ndarray) -> np.ndarray:
+        """The card's latch times on the driver's clock. When the two clocks run at one rate (within
+        ``SAME_RATE``: a crystal's drift is tens of ppm, a few ms over a minute's test; the bench's clock runs at a
+        simulator's speed), by the offset :meth:`_track_offset` keeps (no step: the record stays continuous).
+        Otherwise (another rate, once the card's times span ``MIN_DRIFT_SPAN_S``) by the line through the first and
+        the latest (request time, newest latch) pair."""
         first, latest = self._first, self._latest
         if first is None or latest is None:
             return card_s
         span = latest[1] - first[1]
         scale = (latest[0] - first[0]) / span if span >= MIN_DRIFT_SPAN_S else 1.0
-        return first[0] + (card_s - first[1]) * scale
+        if abs(scale - 1.0) > SAME_RATE:
+            return first[0] + (card_s - first[1]) * scale
+        assert self._offset is not None
+        return card_s + self._offset
 
     def read(self) -> Batch:
         frames: list[tuple[int, int, int, int, int]] = []
@@ -132,10 +165,12 @@ class Counter2Axis(SerialInstrument):
                 raise DeviceFault(self.name, f"FIFO overflow: {lost} latched pairs lost (read more often)")
             frames += part
             if part:
+                reply_s = self.clock()
                 pair = (request_s, part[-1][1] / 1e6)
                 if self._first is None:
                     self._first = pair
                 self._latest = pair
+                self._track_offset(request_s, reply_s, pair[1])
             if len(part) < MAX_FRAMES_PER_READ:
                 break
         if not frames:

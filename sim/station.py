@@ -286,8 +286,15 @@ def method_truth(unit: UnitPhysics, method: str, results: dict, temperature_c: f
                 unit, math.radians(d["phi_start_deg"]), math.radians(d["phi_end_deg"]))
         if out:
             out["transmission_error_arcsec"] = max(out.values())
+        # each order of the unit under the name of the line found at it (within half a bin: a line's order is
+        # refined off its bin), else under its own order's name (a line the evaluation did not find)
+        revolutions = min((int(d["revolutions"]) for d in (results.get("per_direction") or {}).values()), default=1)
+        found = [float(line["order"]) for line in results.get("te_orders") or []]
         for h in unit.harmonics:
-            out[f"te_order_{h.order_per_output_rev:.4g}_amplitude_arcsec"] = h.amplitude_arcsec
+            k = h.order_per_output_rev
+            near = min(found, key=lambda f: abs(f - k), default=None)
+            order = near if near is not None and abs(near - k) <= 0.5 / revolutions else k
+            out[f"te_order_{order:.4g}_amplitude_arcsec"] = h.amplitude_arcsec
     elif method == "starting-torque":
         forward, reverse = starting_torque_truth(unit, 1.0), starting_torque_truth(unit, -1.0)
         out = {"forward_starting_torque_nm": forward, "reverse_starting_torque_nm": reverse,

@@ -20,6 +20,9 @@ from tcms_daq.protocols.aed import FACTORY_NOMINAL_OUTPUT, OVERFLOW_VALUE, forma
 GARBAGE_REPLY = b"+00x1?3#\r\n"  # 10 bytes, CR LF-terminated, not a measured value
 
 
+TARE_READINGS = 16  # TAR takes the mean of this many readings of the sensor (the amplifier's filter)
+
+
 class AEDServer(TcpInstrumentServer):
     name = "AED sim"
     DEVICE_FAULTS = ("sensor_fault",)
@@ -32,8 +35,12 @@ class AEDServer(TcpInstrumentServer):
         host: str = "127.0.0.1",
         port: int = 0,
         reply_delay_s: float = 0.0,
+        filtered_nm: Callable[[], float] | None = None,
     ):
+        """``filtered_nm``: the amplifier's filtered measured value, which ``TAR`` takes (default: the mean of
+        TARE_READINGS readings of ``torque_nm``)."""
         super().__init__(host, port, reply_delay_s)
+        self.filtered_nm = filtered_nm
         if not nominal_torque_nm > 0:
             raise ValueError(f"AED sim: nominal_torque_nm must be > 0, got {nominal_torque_nm}")
         self.torque_nm = torque_nm
@@ -74,8 +81,9 @@ class AEDServer(TcpInstrumentServer):
             return f"{round(self.tare_nm * self.counts_per_nm):+08d}\r\n".encode("ascii")
         if cmd == "IDN?":
             return b"HBM,AED-SIM,TCMS,1.0\r\n"
-        if cmd == "TAR":
-            self.tare_nm = self.torque_nm()
+        if cmd == "TAR":  # at the present reading, filtered as the amplifier's measured value is (its ICR)
+            self.tare_nm = (self.filtered_nm() if self.filtered_nm is not None
+                            else sum(self.torque_nm() for _ in range(TARE_READINGS)) / TARE_READINGS)
             return b"0\r\n"
         if cmd.startswith("TAV") and cmd[3:].lstrip("+-").isdigit() and len(cmd) > 3:
             counts = int(cmd[3:])

@@ -66,6 +66,10 @@ class ControlServer(TcpServer):
                     "state": drive.state.label, "statusword": drive.statusword(), "error_code": drive.error_code,
                     "comm_timeout_ms": drive.comm_timeout_ms, "abort_connection_option": drive.abort_connection_option,
                 },
+                "input_drive": None if sims.input_drive is None else {
+                    "state": sims.input_drive.state.label, "error_code": sims.input_drive.error_code,
+                    "velocity_deg_per_s": sims.input_drive.velocity_deg_per_s(),
+                },
                 "watchdog_reactions": sims.watchdog_reactions(),
             }
         raise ValueError(f"unknown command {cmd!r} (inject, restart, status)")

@@ -9,6 +9,7 @@ time × speed; tests may instead call ``advance`` themselves.
 
 from __future__ import annotations
 
+import collections
 import threading
 import time
 from collections.abc import Callable
@@ -16,6 +17,10 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from tcms_daq.sim.instruments.loop import PeriodicThread
+
+FILTER_WINDOW_S = 0.1  # an amplifier's filtered value averages this long (simulated s)
+RECENT_SAMPLES = 2048  # torque readings kept for it
+MAX_TICK_REAL_S = 0.1  # the longest real time one tick makes up
 
 
 class BenchLike(Protocol):
@@ -63,6 +68,7 @@ class SharedPhysics:
         self._lock = threading.RLock()
         self._hooks: list[TickHook] = []
         self._latest = PhysicsReading(time_s=float(getattr(bench, "now_s", 0.0)))
+        self._recent: collections.deque[tuple[float, float]] = collections.deque(maxlen=RECENT_SAMPLES)
         self._ticker = PeriodicThread(self._tick, self.tick_s, "sim-physics")
         self._last_tick_s = 0.0  # time.monotonic() of the previous real-time tick
         self.speed = 1.0
@@ -111,12 +117,34 @@ class SharedPhysics:
         with self._lock:
             return bool(getattr(self.bench, "output_moving", False))
 
+    def now_s(self) -> float:
+        """The simulated clock's present: the last tick's time and, while the ticker runs, the real time since it
+        × speed (at most one tick's cap): what an instrument asked between two ticks reads at (a drivetrain's angles
+        and torque are exact at any time of its present command)."""
+        with self._lock:
+            now = self._latest.time_s
+            if self._ticker.running:
+                now += min(max(0.0, time.monotonic() - self._last_tick_s), MAX_TICK_REAL_S) * self.speed
+            return now
+
+    def mean_torque_nm(self, window_s: float = FILTER_WINDOW_S) -> float:
+        """The mean torque reading over the last ``window_s`` of simulated time (an amplifier's filtered value)."""
+        with self._lock:
+            if not self._recent:
+                return self._latest.torque_nm
+            end = self._recent[-1][0]
+            values = [v for t, v in self._recent if t >= end - window_s]
+            return sum(values) / len(values)
+
     def advance(self, duration_s: float) -> PhysicsReading:
         """Advance the physics by ``duration_s`` simulated seconds and run the tick hooks."""
         with self._lock:
             samples = self.bench.advance(duration_s)
             prev = self._latest
             if samples is not None and len(samples):
+                for t, v in zip(samples.time_s[-RECENT_SAMPLES:].tolist(), samples.torque_nm[-RECENT_SAMPLES:].tolist(),
+                                strict=True):
+                    self._recent.append((t, v))
                 applied = _last(samples, "applied_torque_nm", _last(samples, "torque_nm", 0.0))
                 self._latest = PhysicsReading(
                     time_s=_last(samples, "time_s", prev.time_s),
@@ -147,6 +175,7 @@ class SharedPhysics:
 
     def _tick(self) -> None:
         now = time.monotonic()
-        # cap one step so a stalled process does not produce a huge jump of the simulated clock
-        self.advance(min(now - self._last_tick_s, 0.1) * self.speed)
+        # cap one step so a stalled process does not produce a huge jump of the simulated clock (a jump shows its
+        # clients the physics of a whole stall between two readings; the clock falls behind instead)
+        self.advance(min(now - self._last_tick_s, MAX_TICK_REAL_S) * self.speed)
         self._last_tick_s = now

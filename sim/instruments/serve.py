@@ -167,7 +167,7 @@ class SecondAxisReadings:
         input_torque_noise_nm`` of noise when the turning unit is simulated."""
         drivetrain = self.drivetrain
         assert drivetrain is not None
-        value = drivetrain.input_torque_nm(self.physics.latest().time_s)
+        value = drivetrain.input_torque_nm(self.physics.now_s())
         tr = self._transmission()
         if tr is not None and tr.enabled and tr.input_torque_noise_nm > 0:
             value += tr.input_torque_noise_nm * float(self._noise.standard_normal())
@@ -231,7 +231,7 @@ class InstrumentSimulators:
                 self.ports["nd287"] = loop.run(self.nd287.start())
             if "aed" in want:
                 self.aed = AEDServer(
-                    lambda: self.physics.latest().torque_nm,
+                    lambda: self.physics.latest().torque_nm, filtered_nm=self.physics.mean_torque_nm,
                     nominal_torque_nm=opts.aed_nominal_torque_nm,
                     host=opts.host,
                     port=opts.ports.get("aed", 0),
@@ -292,7 +292,7 @@ class InstrumentSimulators:
         if drivetrain is None:
             return
         opts, loop = self.options, self.running_loop
-        now = lambda: self.physics.latest().time_s  # noqa: E731 - the simulated clock
+        now = self.physics.now_s  # the simulated clock's present (between ticks too)
         if "input_aed" in want:
             self.input_aed = AEDServer(self.readings.input_torque_reading_nm,
                                        nominal_torque_nm=opts.input_aed_nominal_torque_nm, host=opts.host,

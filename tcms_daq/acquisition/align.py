@@ -129,6 +129,8 @@ class StationAligner:
         self._t = np.empty(0)
         self._out = np.empty(0)
         self._in = np.empty(0)
+        self._last_s = -np.inf  # the last released pair's stamp
+        self.dropped = 0  # pairs dropped for a stamp out of order
 
     def push(self, pair_t: np.ndarray, output_arcsec: np.ndarray, input_arcsec: np.ndarray,
              side: dict[str, tuple[np.ndarray, np.ndarray]], now_s: float) -> dict[str, np.ndarray]:
@@ -138,9 +140,15 @@ class StationAligner:
                 self._side_t[name] = np.concatenate([self._side_t[name], np.asarray(t, float)[order]])
                 self._side_v[name] = np.concatenate([self._side_v[name], np.asarray(v, float)[order]])
         if len(pair_t):
-            self._t = np.concatenate([self._t, np.asarray(pair_t, float)])
-            self._out = np.concatenate([self._out, np.asarray(output_arcsec, float)])
-            self._in = np.concatenate([self._in, np.asarray(input_arcsec, float)])
+            t = np.asarray(pair_t, float)
+            # strictly increasing stamps: a pair at or before one already held or released is dropped (a card's
+            # clock mapping stepped back by the link's jitter)
+            last = self._t[-1] if len(self._t) else self._last_s
+            keep = t > np.maximum.accumulate(np.concatenate(([last], t)))[:-1]
+            self.dropped += int(np.count_nonzero(~keep))
+            self._t = np.concatenate([self._t, t[keep]])
+            self._out = np.concatenate([self._out, np.asarray(output_arcsec, float)[keep]])
+            self._in = np.concatenate([self._in, np.asarray(input_arcsec, float)[keep]])
         if not len(self._t) or any(not len(self._side_t[name]) for name in self.sides):
             return {}
         covered = min(float(self._side_t[name][-1]) for name in self.sides)
@@ -151,6 +159,7 @@ class StationAligner:
 
     def _release(self, n: int, now_s: float = np.inf) -> dict[str, np.ndarray]:
         t = self._t[:n]
+        self._last_s = float(t[-1])
         out: dict[str, np.ndarray] = {"time_s": t, "output_arcsec": self._out[:n], INPUT_ANGLE: self._in[:n]}
         for name in self.sides:
             st, sv = self._side_t[name], self._side_v[name]

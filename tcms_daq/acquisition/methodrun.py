@@ -30,6 +30,7 @@ from tcms_daq.protocols.cia402 import POWERED_STATES
 
 SPEED_TOLERANCE = 0.05  # the input's measured speed within this share of its target at the end of a step
 STOP_WAIT_S = 3.0  # beyond the deceleration time, how long the input may take to come to rest on exit
+TURN_TIMEOUT_S = 2.0  # beyond twice a step's duration, how long the input may take to turn the step's angle
 STEP_COLUMN = "step_index"
 
 
@@ -128,12 +129,27 @@ class MethodRun(TestRun):
         return ramp_s
 
     def _speed(self, acq: AcquisitionLoop, step: SpeedStep) -> None:
+        """The step's load, then its speed held for its duration: at speed, until the input has turned as far as
+        the duration at the speed takes (the angle pairs say; a real-time simulator that stalled has run less than
+        the clock), at most twice the duration + TURN_TIMEOUT_S."""
         if step.load_torque_nm != self._setpoint_nm:
             self._run_segment(acq, Segment(step.load_torque_nm, self.method_plan.load_slope_nm_per_s, 0.0, -1))
         ramp_s = self._set_velocity(acq, step.velocity_deg_per_s)
-        acq.wait(ramp_s + step.duration_s, abort_event=self.abort_event)
-        if step.velocity_deg_per_s != 0.0:
-            self._check_following(acq, step.velocity_deg_per_s)
+        acq.wait(ramp_s, abort_event=self.abort_event)
+        if step.velocity_deg_per_s == 0.0:
+            acq.wait(step.duration_s, abort_event=self.abort_event)
+            return
+        start = acq.station.latest_input_angle_arcsec()
+        turn = abs(step.velocity_deg_per_s) * step.duration_s * 3600.0
+
+        def turned() -> bool:
+            now = acq.station.latest_input_angle_arcsec()
+            return start is not None and now is not None and abs(now - start) >= turn
+
+        acq.wait(step.duration_s, abort_event=self.abort_event)
+        if not turned():
+            acq.wait(step.duration_s + TURN_TIMEOUT_S, abort_event=self.abort_event, until=turned)
+        self._check_following(acq, step.velocity_deg_per_s)
 
     def _check_following(self, acq: AcquisitionLoop, target_deg_per_s: float) -> None:
         """At the end of a step at speed: the input's measured speed within SPEED_TOLERANCE of its target (a drive
@@ -179,8 +195,10 @@ class MethodRun(TestRun):
             return
         self._input_stopped = True
         trip = acq.trip
-        if trip is not None and trip.interlock == "lost_instrument" and "input_drive" in trip.reason:
-            self.record.notes.append("input drive lost: no stop commanded (its own watchdog stops it)")
+        failing = acq.station.link_failing()
+        if (trip is not None and trip.interlock == "lost_instrument" and "input_drive" in trip.reason) or failing:
+            self.record.notes.append(f"input drive lost{f' ({failing})' if failing else ''}: no stop commanded "
+                                     "(its own watchdog stops it)")
             return
         with acq.station.drive_lock:
             self.bench.stop_input_drive()

@@ -164,6 +164,13 @@ class StationMode:
             finally:
                 ch.busy_since = None
 
+    def link_failing(self) -> str | None:
+        """Why the input drive's link looks lost (its last requests failed), None when it answers."""
+        ch = self.loop._channels.get("input_drive")
+        if ch is None or not ch.errors_in_row:
+            return None
+        return f"{ch.errors_in_row} failed request(s): {ch.last_error}"
+
     def latest_input_angle_arcsec(self) -> float | None:
         """The angle pair source's latest input angle (input arcsec); None without one or before a reading."""
         ch = self.loop._channels.get("input_angle")

@@ -139,10 +139,8 @@ def within_u(results: dict[str, Any], truth: dict[str, float] | None) -> dict[st
     table = results.get("uncertainty") or {}
     out = {}
     for name, expected in truth.items():
-        entry = table.get(name)
-        if entry is None:
-            continue
-        out[name] = bool(abs(float(entry["value"]) - expected) <= float(entry["U"]))
+        entry = table.get(name)  # a result not found is not within U
+        out[name] = entry is not None and bool(abs(float(entry["value"]) - expected) <= float(entry["U"]))
     return out
 
 
@@ -178,6 +176,9 @@ def format_method_results(results: dict[str, Any], truth: dict[str, float] | Non
         shown = "" if expected is None else f"{expected:.4g}"
         lines.append(f"{label:<40} {value + ' ' + (unit if unit != '1' else ''):>30}   {shown:>10}  {ok:^8}   "
                      f"{entry.get('dominant') or ''}")
+    for name, expected in (truth or {}).items():
+        if name not in table:  # a result the simulated unit has that the evaluation did not give (an order missed)
+            lines.append(f"{name:<40} {'not found':>30}   {expected:>10.4g}  {'NO':^8}")
     if results.get("method") == "transmission-error":
         lines.append(f"hysteresis (forward − reverse mean TE): {results.get('hysteresis_arcsec', math.nan):.2f}″")
     for w in results.get("warnings") or []:

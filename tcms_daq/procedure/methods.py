@@ -64,6 +64,7 @@ DEFAULT_EFFICIENCY_DWELL_S = 2.0
 PAUSE_S = 0.5
 SETTLE_S = 0.3  # after a change of speed or load, before the stretch a step is for
 SPEED_LIMIT_SHARE = 0.95  # of the input drive's limit: the highest speed a plan commands
+LOAD_RAMP_S = 1.0  # the loader ramps its torque at the rated torque per this many seconds
 
 
 @dataclass(frozen=True)
@@ -142,10 +143,21 @@ class MethodRejected(ValueError):
     """A turning test the bench cannot run: one line naming what is missing or out of bounds."""
 
 
+#: angle sources that carry no input angle beside the output's (not an angle pair for the methods)
+NOT_A_PAIR = ("nd287-coupled",)
+
+
 def missing_for(method: str, bench: BenchConfig) -> list[str]:
     """What ``method`` needs that the bench config has not, in words (empty: nothing)."""
-    return [f"[instruments.{kind}] ({words})" for kind, words in NEEDS.get(method, ())
-            if getattr(bench.instruments, kind) is None]
+    out = []
+    for kind, words in NEEDS.get(method, ()):
+        instrument = getattr(bench.instruments, kind)
+        if instrument is None:
+            out.append(f"[instruments.{kind}] ({words})")
+        elif kind == "input_angle" and instrument.driver in NOT_A_PAIR:
+            out.append(f"[instruments.{kind}] as an angle pair source such as counter-2axis (the {instrument.driver} "
+                       "driver reads the coupled display, no input angle)")
+    return out
 
 
 def input_speed_limit_rpm(bench: BenchConfig) -> float | None:
@@ -194,7 +206,7 @@ def build_method_plan(method: str, reducer: ReducerSpec, bench: BenchConfig, *,
                                  f"N·m of {reducer.name} or the bench limit {bench.bench.max_torque_nm:g} N·m")
         return value
 
-    slope = max(reducer.rated_torque_nm / 2.0, bench.bench.min_rate_nm_per_s)
+    slope = max(reducer.rated_torque_nm / LOAD_RAMP_S, bench.bench.min_rate_nm_per_s)
     params: dict[str, Any] = {}
     steps: list[MethodStep] = []
     if method == "transmission-error":

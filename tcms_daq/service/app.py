@@ -36,6 +36,8 @@ from tcms_daq.service.routes.service import STATIC_DIR
 from tcms_daq.service.runner import BenchRunner, RequestRejected, Runner
 from tcms_daq.service.settings import ServiceSettings
 from tcms_daq.service.signin_limit import SignInLimiter
+from tcms_daq.service.te_discrepancy import DIRNAME as TE_ANALYSES_DIRNAME
+from tcms_daq.service.te_discrepancy import TeAnalyses
 from tcms_daq.service.testruns import Conflict, TestManager, UnknownRun
 from tcms_daq.store import Store, open_store
 from tcms_daq.store.base import SamplesRetired
@@ -70,6 +72,16 @@ def _encodable(value: Any) -> Any:
 
 def _operation_id(route: APIRoute) -> str:
     return route.name
+
+
+def _catalogue(runner: Runner) -> dict[str, Any]:
+    """The reducer catalogue the bench runs with (its config's; the packaged one for a runner without)."""
+    reducers = getattr(runner, "reducers", None)
+    if isinstance(reducers, dict) and reducers:
+        return reducers
+    from tcms_daq.config import load_reducer_catalogue
+
+    return dict(load_reducer_catalogue())
 
 
 def bench_identity(runner: Runner) -> tuple[str, str]:
@@ -139,6 +151,8 @@ def create_app(settings: ServiceSettings, runner: Runner | None = None, store: S
         app.state.store, app.state.runner, app.state.live = store, bench, live
         app.state.events, app.state.manager = events, manager
         app.state.discrepancy = DiscrepancyRuns(store, settings.data_dir / ANALYSES_DIRNAME, events)
+        app.state.te_discrepancy = TeAnalyses(store, settings.data_dir / TE_ANALYSES_DIRNAME, _catalogue(bench),
+                                              getattr(bench, "config", None), events)
         app.state.metrics = make_registry(ServiceCollector(live, events, store, lambda: manager.active_id))
         app.state.framer = asyncio.create_task(live.run(), name="live-framer")
         app.state.opcua = None

@@ -20,6 +20,7 @@ from tcms_daq.service.live import LiveHub
 from tcms_daq.service.runner import Runner
 from tcms_daq.service.schemas import ErrorBody, ValidationErrorBody
 from tcms_daq.service.settings import ServiceSettings
+from tcms_daq.service.te_discrepancy import TeAnalyses
 from tcms_daq.service.testruns import TestManager, UnknownRun
 from tcms_daq.store import Store as RunStoreType
 from tcms_daq.store import StoredRun
@@ -41,6 +42,7 @@ Manager = Annotated[TestManager, Depends(_state("manager"))]
 Live = Annotated[LiveHub, Depends(_state("live"))]
 Events = Annotated[EventHub, Depends(_state("events"))]
 Analyses = Annotated[DiscrepancyRuns, Depends(_state("discrepancy"))]
+TeAnalysesDep = Annotated[TeAnalyses, Depends(_state("te_discrepancy"))]
 Settings = Annotated[ServiceSettings, Depends(_state("settings"))]
 
 

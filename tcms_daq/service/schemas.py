@@ -775,3 +775,42 @@ class PlanStart(TestDocumentation):
     plan_id: int = Field(ge=1, le=2**31 - 1, description="the id of a plan version (GET /api/plans)")
     serial_number: str | None = Field(default=None, max_length=64)
     operator: str | None = Field(default=None, max_length=64)
+
+
+class TeDiscrepancyRequest(StrictBody):
+    """``POST /api/te-discrepancy``: a stored transmission-error run against its unit's TE model."""
+
+    run_id: str = Field(min_length=1, max_length=64, description="id of a completed transmission-error run")
+
+
+class TeDiscrepancyAnalysis(BaseModel):
+    """A TE discrepancy analysis (``tcms_daq.transmission.te_model.TeComparison`` with its run and model)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    id: str
+    run_id: str
+    reducer: str
+    against_version: int = Field(description="the TE model version it was compared with (0: the catalogue's)")
+    verdict: Literal["consistent", "explained", "partially_explained", "unexplained"]
+    verdict_words: str
+    findings: list[dict[str, Any]] = Field(description="each line of TE − model: order, amplitude_arcsec, phase_deg, "
+                                           "component (null: no component), allowance_arcsec, significant, kind")
+    named_orders: list[float]
+    unexplained_orders: list[float]
+    rms_residual_arcsec: float
+    noise_amplitude_arcsec: float
+    proposed_toml: str | None = Field(description="the model's next version if applied (null: nothing named)")
+
+
+class TeModelView(BaseModel):
+    """A reducer type's TE model in use and the store's TE model history."""
+
+    model_config = ConfigDict(extra="allow")
+
+    reducer: str
+    version: int
+    ratio: float
+    harmonics: list[dict[str, Any]]
+    toml: str
+    history: list[dict[str, Any]]

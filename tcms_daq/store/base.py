@@ -185,7 +185,8 @@ class BenchModelVersion:
 
 
 #: the versioned TOML documents: table -> its provenance columns (besides version, created_at, note, sha256, toml)
-VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",), "bench_models": ("analysis_id", "run_id")}
+VERSIONED: dict[str, tuple[str, ...]] = {"compensations": ("rollback_of",), "bench_models": ("analysis_id", "run_id"),
+                                         "te_models": ("analysis_id", "run_id")}
 
 
 def iso(t: float | None) -> str | None:
@@ -519,6 +520,33 @@ class VersionedDocuments:
         """(version, TOML) of ``version`` (default: the latest, the one in use); None when there is none."""
         row = self._version("bench_models", version)
         return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
+
+    # the units' transmission-error models (tcms_daq.transmission.te_model: one TOML per version, the TE workflow's)
+    def add_te_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                     run_id: str | None = None) -> BenchModelVersion:
+        """Keep the next version of a unit's TE model (its whole ``tcms-te-model/1`` TOML); returns it."""
+        version, created = self._add_version("te_models", toml, note, (analysis_id, run_id))
+        return BenchModelVersion(version, created, note, text_sha256(toml), analysis_id, run_id)
+
+    def te_model_history(self, limit: int = 100) -> list[BenchModelVersion]:
+        """TE model versions (of every unit this bench tested), newest first."""
+        return [BenchModelVersion(*row) for row in self._history("te_models", limit)]
+
+    def te_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None:
+        """(version, TOML) of ``version`` (default: the latest); None when there is none."""
+        row = self._version("te_models", version)
+        return None if row is None else (BenchModelVersion(*row[:-1]), row[-1])
+
+
+class TeModels(Protocol):
+    """The versioned TE models a store keeps (both backends, through :class:`VersionedDocuments`)."""
+
+    def add_te_model(self, toml: str, note: str = "", analysis_id: str | None = None,
+                     run_id: str | None = None) -> BenchModelVersion: ...
+
+    def te_model_history(self, limit: int = 100) -> list[BenchModelVersion]: ...
+
+    def te_model(self, version: int | None = None) -> tuple[BenchModelVersion, str] | None: ...
 
 
 class PeopleStore(Protocol):

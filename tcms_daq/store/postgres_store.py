@@ -200,6 +200,19 @@ MIGRATIONS: tuple[str, ...] = (
     # runs written before keep NULL and are reduced when listed
     "ALTER TABLE runs ADD COLUMN results_brief jsonb",
     _SETTINGS_MIGRATION,  # 6: the admin's run-time settings of each bench
+    # 7: the units' transmission-error models (the TE workflow's versions, as the bench models')
+    """
+    CREATE TABLE te_models (
+        version integer GENERATED ALWAYS AS IDENTITY PRIMARY KEY,
+        created_at double precision NOT NULL,
+        note text NOT NULL,
+        sha256 text NOT NULL,
+        toml text NOT NULL,
+        bench_id text,
+        analysis_id text,
+        run_id text
+    );
+    """,
 )
 #: the text search (``RunQuery.text``, ``ILIKE '%…%'`` on these columns) by trigrams: its own migration step
 _TEXT_SEARCH_INDEX = (

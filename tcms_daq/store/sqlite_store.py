@@ -90,6 +90,16 @@ CREATE TABLE IF NOT EXISTS bench_models (
     analysis_id TEXT,
     run_id TEXT
 );
+CREATE TABLE IF NOT EXISTS te_models (
+    version INTEGER PRIMARY KEY AUTOINCREMENT,
+    created_at REAL NOT NULL,
+    note TEXT NOT NULL,
+    sha256 TEXT NOT NULL,
+    toml TEXT NOT NULL,
+    bench_id TEXT,
+    analysis_id TEXT,
+    run_id TEXT
+);
 CREATE TABLE IF NOT EXISTS sample_batches (
     run_id TEXT NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
     batch_index INTEGER NOT NULL,

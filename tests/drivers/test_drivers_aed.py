@@ -118,7 +118,7 @@ def test_reconnect_after_restart_reconfigures(serial_sims):
 def test_a_restart_restores_the_zero_before_the_next_reading(serial_sims):
     """A power-cycled amplifier comes up untared: the driver writes its last tare value back (TAV) before the
     next MSV?, so the readings after the restart count from the same zero."""
-    serial_sims.aed.torque_nm = lambda: 123.4
+    serial_sims.aed.torque_nm = serial_sims.aed.filtered_nm = lambda: 123.4  # TAR takes the filtered value
     with _driver(serial_sims) as aed:
         aed.tare()
         tared = serial_sims.aed.tare_nm

@@ -15,9 +15,10 @@ from tcms_daq.service.routes import (
     service,
     settings,
     spc,
+    te_model,
     tests,
 )
 
 ROUTERS = (service.router, bench.router, plans.start_router, tests.router, plans.router, compensation.router,
-           discrepancy.router, discrepancy.model_router, spc.router, live.router, people.router,
+           discrepancy.router, discrepancy.model_router, te_model.router, te_model.model_router, spc.router, live.router, people.router,
            settings.router)
