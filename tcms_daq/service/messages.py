@@ -665,6 +665,9 @@ ZH: dict[str, str] = {
     "source.interpolation at the local sample spacing": "局部采样间隔下的插值误差",
     "source.noise_redraws": "记录内噪声（{draws} 次以新噪声重新评定）",
     "source.basis_declared": "声明的测量链：{where}",
+    "source.basis_declared_config": "声明的测量链：试验台配置 {config}",
+    "source.basis_declared_station": "声明的测量链：{config} 的 [uncertainty.station]",
+    "source.basis_type_a_station": "仅 A 类（未声明 [uncertainty.station]）",
     "source.basis_type_a_config": "仅 A 类（{config} 中未声明不确定度）",
     "source.basis_type_a_cli": "仅 A 类（未给出 --uncertainty 文件）",
     # the turning tests' budgets (tcms_daq/uncertainty/station.py)
@@ -836,7 +839,10 @@ def catalogue(lang: str = "en") -> dict[str, str]:
 #: the budget's source names and the uncertainty basis that carry a number or a name, as (regular expression of the
 #: core's English, catalogue key)
 SOURCE_PATTERNS: tuple[tuple[str, str], ...] = (
+    (r"^declared chain: bench config (?P<config>.+)$", "source.basis_declared_config"),
+    (r"^declared chain: \[uncertainty\.station\] of (?P<config>.+)$", "source.basis_declared_station"),
     (r"^declared chain: (?P<where>.+)$", "source.basis_declared"),
+    (r"^type A only \(no \[uncertainty\.station\] declared\)$", "source.basis_type_a_station"),
     (r"^type A only \(no uncertainty declared in (?P<config>.+)\)$", "source.basis_type_a_config"),
     (r"^type A only \(no --uncertainty file\)$", "source.basis_type_a_cli"),
     (r"^interpolation error \((?P<period>[^″]+)″ period\)$", "source.interpolation"),

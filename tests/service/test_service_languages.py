@@ -207,6 +207,12 @@ def test_uncertainty_sources_in_chinese_by_the_cores_own_names():
     assert messages.source_text("torque scale", "en") == "torque scale"
     assert messages.source_text("a source of a later version", "zh") == "a source of a later version"
     assert messages.source_text("declared chain: bench config bench-sim.toml", "zh") == \
-        "声明的测量链：bench config bench-sim.toml"
+        "声明的测量链：试验台配置 bench-sim.toml"
+    # a turning test's basis (tcms_daq.procedure.method_evaluation), with or without the station's chain
+    assert messages.source_text("declared chain: [uncertainty.station] of bench-station.toml", "zh") == \
+        "声明的测量链：bench-station.toml 的 [uncertainty.station]"
+    assert messages.source_text("declared chain: a declared chain", "zh") == "声明的测量链：a declared chain"
+    from tcms_daq.procedure.method_evaluation import NO_STATION_CHAIN
+    assert messages.source_text(NO_STATION_CHAIN, "zh") == "仅 A 类（未声明 [uncertainty.station]）"
     assert messages.source_text("type A only (no uncertainty declared in bench.toml)", "zh") == \
         "仅 A 类（bench.toml 中未声明不确定度）"
