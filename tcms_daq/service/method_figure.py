@@ -61,6 +61,8 @@ def _te(fig: Any, curves: Mapping[str, Any], label: Label) -> None:
     top.set_xlim(0, 360)
     top.set_xticks(np.arange(0, 361, 45))
     top.grid(alpha=0.3)
+    low, high = top.get_ylim()
+    top.set_ylim(low, high + 0.3 * (high - low))  # a band above the curves for the legend: it hid their peaks
     top.legend(loc="upper left", fontsize=6.5, ncol=2, framealpha=0.9)
     for d in ("forward", "reverse"):
         s = spectrum.get(d)
