@@ -80,7 +80,10 @@ def test_the_transmission_error_view_live_and_evaluated(settings_factory, tmp_pa
             page.wait_for_function("document.querySelector('#mv-title-b').textContent.includes('live: forward')",
                                    timeout=20_000)
             assert "live, not yet evaluated" in page.text_content("#mv-state")
-            page.wait_for_function("TcmsMethodView.state.live.reverse.x.length > 100", timeout=30_000)
+            # the reverse pass a third of the way through (its curve visible beside the forward one)
+            page.wait_for_function("(x => x.length > 100 && x.reduce((a, v) => Math.max(a, v), -Infinity)"
+                                   " - x.reduce((a, v) => Math.min(a, v), Infinity) > 120)"
+                                   "(TcmsMethodView.state.live.reverse.x)", timeout=30_000)
             _shot(page, tmp_path, "screenshot-te-live.png")
 
             page.wait_for_function(

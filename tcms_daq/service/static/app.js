@@ -51,7 +51,7 @@
   const torquePlot = new uPlot({
     width: width($("plot-torque")), height: 200,
     scales: { x: { time: false }, y: { range: spanAtLeast(MIN_SPAN.torque) } },
-    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_torque"), size: 60 }],
+    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_torque"), size: TcmsMethodView.axisSize }],
     series: [{ label: "t / s" }, { label: t("dash.axis_torque"), stroke: "#1f5fa8", width: 1 }],
     legend: { live: false },
   }, [[], []], $("plot-torque"));
@@ -59,7 +59,7 @@
   const anglePlot = new uPlot({
     width: width($("plot-angle")), height: 200,
     scales: { x: { time: false }, y: { range: spanAtLeast(MIN_SPAN.angle) } },
-    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_angle"), size: 70 }],
+    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_angle"), size: TcmsMethodView.axisSize }],
     series: [
       { label: "t / s" },
       { label: t("dash.raw_encoder"), stroke: "#b8c0cc", width: 1 },
@@ -72,7 +72,7 @@
     mode: 2,
     width: width($("plot-loop")), height: 330,
     scales: { x: { time: false, auto: true }, y: { auto: true } },
-    axes: [{ label: t("dash.axis_torque") }, { label: t("dash.axis_loop_angle"), size: 70 }],
+    axes: [{ label: t("dash.axis_torque") }, { label: t("dash.axis_loop_angle"), size: TcmsMethodView.axisSize }],
     series: [
       {},
       { label: "hysteresis loop", stroke: "#157a2e", width: 1.5, paths: uPlot.paths.linear(), points: { show: false },

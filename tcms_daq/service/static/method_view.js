@@ -102,6 +102,20 @@ const TcmsMethodView = (() => {
     };
   }
 
+  /** A y axis's size (px) that holds its widest tick label (a turned output's angle in arcsec has seven digits and
+   * more: a fixed size drew them over the axis label). uPlot calls it with the axis's formatted tick values. */
+  function axisSize(self, values, axisIdx, cycleNum) {
+    const axis = self.axes[axisIdx];
+    if (cycleNum > 1) return axis._size;
+    let size = axis.ticks.size + axis.gap;
+    const longest = (values || []).reduce((acc, v) => (String(v).length > acc.length ? String(v) : acc), "");
+    if (longest !== "") {
+      self.ctx.font = axis.font[0];
+      size += self.ctx.measureText(longest).width / devicePixelRatio;
+    }
+    return Math.max(50, Math.ceil(size) + 4);
+  }
+
   function plot(el, axes, series, data, options) {
     const o = options || {};
     el.innerHTML = "";
@@ -111,7 +125,7 @@ const TcmsMethodView = (() => {
       mode: 2, width: width(el), height: HEIGHT,
       scales: Object.assign({ x: Object.assign({ time: false, auto: true }, o.xRange ? { range: o.xRange } : {}),
                               y: Object.assign({ auto: true }, o.yRange ? { range: o.yRange } : {}) }, o.scales || {}),
-      axes: [{ label: axes[0] }, { label: axes[1], size: 60 }],
+      axes: [{ label: axes[0] }, { label: axes[1], size: axisSize }],
       series: [{}, ...series],
       legend: { show: true, live: false },
       cursor: { show: false },
@@ -344,5 +358,5 @@ const TcmsMethodView = (() => {
     for (const u of view.plots) u.setSize({ width: width(u.root.parentElement), height: HEIGHT });
   });
 
-  return { show, startLive, onTeLive, showStored, component, liveSpectrum, state: view };
+  return { show, startLive, onTeLive, showStored, component, liveSpectrum, axisSize, state: view };
 })();
