@@ -306,7 +306,7 @@ def identity_lines(identity: Mapping[str, Any]) -> list[str]:
         f"bench {bench}, operator {identity.get('operator') or '—'}",
         f"customer {identity.get('customer') or '—'}, order {identity.get('order_number') or '—'}",
         f"method: {method.get('kind') or 'single'}" + (f", {method.get('stages')} stages"
-                                                        if method.get("kind") not in (None, "single") else ""),
+                                                        if method.get("kind") in ("positions", "rates") else ""),
         "parameters: " + (", ".join(parameter_text(identity.get("parameters") or {})) or "—"),
         f"compensation: {compensation}; bench model version {model if model is not None else '—'}",
     ]

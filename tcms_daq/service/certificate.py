@@ -31,11 +31,13 @@ from tcms_daq.analysis.evaluation import decision_of
 from tcms_daq.analysis.rounding import round_to_uncertainty, unit_suffix, with_uncertainty
 from tcms_daq.config.models import CertificateSection
 from tcms_daq.errors import TcmsError
-from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, decision
+from tcms_daq.identity import HEADLINES, PARAMETER_LABELS, TURNING_METHODS, decision
 from tcms_daq.service import fonts
 from tcms_daq.service.certificate_text import catalogue
 from tcms_daq.service.loop_figure import loop_figure_svg
 from tcms_daq.service.messages import check_label, source_text, warnings_text
+from tcms_daq.service.method_figure import component_words, method_figure_svg
+from tcms_daq.service.method_views import method_of, quantities, te_lines
 from tcms_daq.store import StoredRun
 
 TEMPLATE = "certificate.typ"
@@ -118,8 +120,55 @@ def with_u(d: _Doc, value: Any, entry: Mapping[str, Any] | None, unit: str) -> s
     return with_uncertainty(number, entry, unit)
 
 
+def _scaled(entry: Mapping[str, Any] | None, factor: float) -> Mapping[str, Any] | None:
+    """An uncertainty entry with U in another unit (an efficiency's ratio as %)."""
+    if entry is None or factor == 1.0 or _number(entry.get("U")) is None:
+        return entry
+    return {**entry, "U": factor * float(entry["U"])}
+
+
+def _method_rows(d: _Doc) -> list[dict[str, str]]:
+    """A turning test's results (``method_views.quantities``): the headline, then each direction (per speed for the
+    no-load torque), each as value ± U; the efficiency in %."""
+    rows = []
+    for q in quantities(d.results):
+        entry = _uncertainty(d.results, q.key)
+        factor, unit = (100.0, "%") if q.unit == "1" else (1.0, q.unit)
+        value = _number(d.results.get(q.key))
+        label = d.say(f"q_{q.label}", speed=f"{q.speed_rpm:g}") if q.speed_rpm is not None else d.t[f"q_{q.label}"]
+        dominant = entry.get("dominant") if entry else None
+        rows.append({"label": label, "text": with_u(d, None if value is None else factor * value, _scaled(entry, factor),
+                                                    unit),
+                     "dominant": source_text(dominant, d.lang) if dominant else ("—" if entry else d.t["u_not_stated"])})
+    return rows
+
+
+def _te_lines(d: _Doc) -> dict[str, Any] | None:
+    """The transmission error's lines: order, component, amplitude ± U, phase (to the place of its standard
+    uncertainty)."""
+    lines = te_lines(d.results)
+    if method_of(d.results) != "transmission-error" or not lines:
+        return None
+
+    def label(key: str, **fields: Any) -> str:
+        return d.say(key, **fields)
+
+    rows = []
+    for ln in lines:
+        u_phase, phase = ln["u_phase_deg"], ln["phase_deg"]
+        rows.append([f"{ln['order']:.5g}",  # a line's name: its bin (u_order is a small part of one)
+                     component_words(ln["component"], label),
+                     with_u(d, ln["amplitude_arcsec"], ln["uncertainty"], ""),
+                     "—" if phase is None else rounded(phase, u_phase)])
+    return {"title": d.t["section_te_lines"], "header": [d.t["col_order"], d.t["col_component"], d.t["col_amplitude"],
+                                                         d.t["col_phase"]],
+            "rows": rows, "note": d.t["te_lines_note"]}
+
+
 def _result_rows(d: _Doc) -> list[dict[str, str]]:
     """Headline results first, then the further results the evaluation gives with their U, each as value ± U."""
+    if method_of(d.results) is not None:
+        return _method_rows(d)
     rows = []
     further = [(k, u) for k, u in FURTHER_RESULTS
                if _number(d.results.get(k)) is not None and _uncertainty(d.results, k) is not None]
@@ -217,6 +266,7 @@ def _instruments(d: _Doc) -> list[dict[str, str]]:
 
 def _parameters(d: _Doc) -> list[list[str]]:
     params = d.ident.get("parameters") or {}
+    turning = (d.ident.get("method") or {}).get("kind") in TURNING_METHODS
     out = []
     for key, (_, unit) in PARAMETER_LABELS.items():
         if key not in params or params[key] is None:
@@ -224,8 +274,9 @@ def _parameters(d: _Doc) -> list[list[str]]:
         value = params[key]
         shown = ", ".join(f"{float(v):g}" for v in value) if isinstance(value, list) else \
             f"{value:g}" if isinstance(value, float) else d.value_word(value)
-        out.append([d.t.get(f"param_{key}", key), shown + (unit_suffix(unit) if unit not in ("", "°") else
-                                                            "°" if unit == "°" else "")])
+        name = "param_hold_s" if turning and key == "dwell_s" else f"param_{key}"  # a turning test holds a speed
+        out.append([d.t.get(name, key), shown + (unit_suffix(unit) if unit not in ("", "°") else
+                                                 "°" if unit == "°" else "")])
     return out or [["—", "—"]]
 
 
@@ -256,10 +307,13 @@ def certificate_document(record: StoredRun, issued_at: datetime | None = None, l
         bench += f", {model}"
     started = ident.get("started_at")
     version, model_version = ident.get("compensation_version"), ident.get("bench_model_version")
+    turning = kind in TURNING_METHODS
     if kind in stage_word:
         one, many = (t[k] for k in stage_word[kind])
         summary = d.say("summary_stages", n=method.get("stages"), stages=many, stage=one)
         caption = d.say("loop_caption_stages", stage=one)
+    elif turning:
+        summary, caption = t[f"summary_{kind}"], t[f"caption_{kind}"]
     else:
         summary, caption = t["summary_single"], t["loop_caption"]
     verdict = decision(d.results) or "none"
@@ -277,7 +331,10 @@ def certificate_document(record: StoredRun, issued_at: datetime | None = None, l
                  [t["order_number"], ident.get("order_number") or t["not_stated"]],
                  [t["reducer"], ident.get("reducer") or "—"],
                  [t["serial_number"], ident.get("serial_number") or t["not_stated"]]],
-        "test": [[t["method"], d.config.method(kind) or t.get(f"method_{kind}", t["method_single"])],
+        "subtitle": t[f"subtitle_{kind}"] if turning else t["subtitle"],
+        "figure_title": t[f"figure_{kind}"] if turning else t["section_loop"],
+        "test": [[t["method"], t[f"method_{kind}"] if turning  # (the config's method_* name the stiffness tests')
+                  else d.config.method(kind) or t.get(f"method_{kind}", t["method_single"])],
                  [t["bench"], bench],
                  [t["started"], (str(started).replace("T", " ").replace("+00:00", "")[:19] + " " + t["utc"])
                   if started else t["never_started"]],
@@ -289,6 +346,8 @@ def certificate_document(record: StoredRun, issued_at: datetime | None = None, l
         "summary": summary,
         "u_note": d.say("u_note", basis=without_paths(source_text(basis, d.lang)) if basis else t["basis_none"]),
         "stages": _stages(d),
+        "te_lines": _te_lines(d),
+        "has_limits": not turning or decision(d.results) is not None,
         "decision_rule": _rule(d),
         "checks": _checks(d),
         "verdict": verdict,
@@ -326,8 +385,15 @@ def render_certificate(record: StoredRun, columns: Mapping[str, np.ndarray],
     t = doc["t"]
     import matplotlib
 
+    def label(key: str, **f: Any) -> str:
+        return t[key].format(**f) if f else t[key]
+
+    def shown(value: float, expanded: float | None) -> str:
+        return with_uncertainty(value, None if expanded is None else {"U": expanded}, "%")
+
     with matplotlib.rc_context({"font.family": families}):
-        figure = loop_figure_svg(columns, record.results, lambda key, **f: t[key].format(**f) if f else t[key])
+        figure = method_figure_svg(record.results, columns, label, shown) if method_of(record.results) else \
+            loop_figure_svg(columns, record.results, label)
     if figure is not None:
         inputs["loop"] = figure
     template = resources.files("tcms_daq.service").joinpath(TEMPLATE).read_bytes()

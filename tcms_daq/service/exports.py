@@ -1,7 +1,10 @@
 """Sample exports of a stored run: canonical CSV, JSON, Parquet and ASAM MDF4 (DESIGN §7, §9).
 
 Every format carries the canonical columns ``time_s, torque_nm, angle_arcsec`` (compensated angle) plus the raw
-``encoder_arcsec`` when the run recorded it, and the test's identity (:class:`ExportMeta`: reducer, serial
+``encoder_arcsec`` when the run recorded it — and a turning test's two-axis record (docs/transmission.md, the results
+contract: ``torque_nm`` the output torque, ``angle_arcsec`` the output angle, ``input_angle_arcsec``,
+``input_torque_nm``), each channel with its unit and what it is (:func:`channel_description`) —, and the test's
+identity (:class:`ExportMeta`: reducer, serial
 number, bench, operator, parameters, compensation version, results ± U, verdict, start time): the MDF4 header
 (author = operator, department = bench, project, subject = reducer and serial number, comment with every line of
 the identity, the whole identity as common properties; start time = the test's start) and channel comments;
@@ -30,7 +33,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from tcms_daq.identity import identity_lines
+from tcms_daq.identity import TURNING_METHODS, identity_lines
 from tcms_daq.samples import CANONICAL_COLUMNS, csv_bytes
 from tcms_daq.store import StoredRun
 
@@ -41,11 +44,14 @@ UNITS: dict[str, str] = {
     "encoder_arcsec": "arcsec",
     "reference_arcsec": "arcsec",
     "temperature_c": "°C",
+    "input_angle_arcsec": "arcsec",
+    "input_torque_nm": "N·m",
 }
 FILE_BLOCK_BYTES = 1 << 20
 
 Chunks = Iterable[Mapping[str, np.ndarray]]
 PROJECT = "TCMS-DAQ torsional characteristic test"
+PROJECT_TURNING = "TCMS-DAQ reducer station test (GB/T 35089-2018 §7–8)"
 
 
 @dataclass(frozen=True)
@@ -68,12 +74,20 @@ class ExportMeta:
         return None if self.start_unix_s is None else datetime.fromtimestamp(self.start_unix_s, UTC).isoformat(
             timespec="milliseconds")
 
-    def document(self, time_s_at_start: float | None) -> dict[str, Any]:
-        """The JSON metadata (Parquet's, the sidecar's): identity, units, start, full results."""
+    @property
+    def turning(self) -> bool:
+        """A turning test's record (two axes), not a stiffness test's."""
+        return (self.identity.get("method") or {}).get("kind") in TURNING_METHODS
+
+    def document(self, time_s_at_start: float | None, channels: Iterable[str] = ()) -> dict[str, Any]:
+        """The JSON metadata (Parquet's, the sidecar's): identity, units, start, full results, and what each of
+        ``channels`` is."""
         return {"run_id": self.run_id, "start_time": self.start_iso, "time_s_at_start": time_s_at_start,
                 "time_note": "time_s is the bench clock; the test started at start_time, when time_s was "
                              "time_s_at_start (the first sample)",
-                "identity": self.identity, "results": self.results, "units": UNITS}
+                "identity": self.identity, "results": self.results, "units": UNITS,
+                "channels": {n: {"unit": UNITS.get(n, ""), "description": channel_description(n, self.turning)}
+                             for n in ordered_names(channels)}}
 
     def lines(self) -> list[str]:
         return identity_lines(self.identity) if self.identity else [f"run {self.run_id}"]
@@ -89,10 +103,10 @@ def _peek(chunks: Chunks) -> tuple[float | None, Iterator[Mapping[str, np.ndarra
     return None, iter(())
 
 
-def sidecar(meta: ExportMeta, chunks: Chunks) -> dict[str, Any]:
-    """The CSV's sidecar JSON (``tcms-<id>.json``): :meth:`ExportMeta.document` and the CSV's columns."""
+def sidecar(meta: ExportMeta, chunks: Chunks, channels: Iterable[str] = ()) -> dict[str, Any]:
+    """The CSV's sidecar JSON (``tcms-<id>.json``): :meth:`ExportMeta.document` with the CSV's columns."""
     first, _ = _peek(chunks)
-    return meta.document(first)
+    return meta.document(first, channels)
 
 
 def ordered_names(channels: Iterable[str]) -> list[str]:
@@ -121,7 +135,7 @@ def to_json(chunks: Chunks, channels: list[str], meta: ExportMeta) -> Iterator[b
     names = ordered_names(channels)
     first, _ = _peek(chunks)
     head = {"id": meta.run_id, "columns": names, "units": {n: UNITS.get(n, "") for n in names},
-            "metadata": meta.document(first)}
+            "metadata": meta.document(first, names)}
     yield json.dumps(head)[:-1].encode() + b', "data": {'
     for i, name in enumerate(names):
         yield (", " if i else "").encode() + json.dumps(name).encode() + b": ["
@@ -151,7 +165,8 @@ IDENTITY_KEYS = ("reducer", "serial_number", "customer", "order_number", "operat
                  "bench_model_version")
 
 
-def parquet_metadata(meta: ExportMeta, time_s_at_start: float | None) -> dict[str, str]:
+def parquet_metadata(meta: ExportMeta, time_s_at_start: float | None, channels: Iterable[str] = ()
+                     ) -> dict[str, str]:
     """Parquet schema metadata: ``tcms`` (the whole document as JSON) and the identity's scalars as keys."""
     ident = meta.identity
     flat = {"run_id": meta.run_id, "start_time": meta.start_iso or "",
@@ -162,7 +177,7 @@ def parquet_metadata(meta: ExportMeta, time_s_at_start: float | None) -> dict[st
     flat["method"] = str((ident.get("method") or {}).get("series") or "")
     flat["parameters"] = json.dumps(ident.get("parameters") or {})
     flat["results"] = json.dumps(ident.get("results") or {})
-    flat["tcms"] = json.dumps(meta.document(time_s_at_start), allow_nan=False, default=str)
+    flat["tcms"] = json.dumps(meta.document(time_s_at_start, channels), allow_nan=False, default=str)
     return flat
 
 
@@ -173,8 +188,9 @@ def to_parquet(chunks: Chunks, channels: list[str], meta: ExportMeta) -> Iterato
     names = ordered_names(channels)
     first, pieces = _peek(chunks)
     schema = pa.schema(
-        [pa.field(n, pa.float64(), metadata={"unit": UNITS.get(n, "")}) for n in names],
-        metadata=parquet_metadata(meta, first),
+        [pa.field(n, pa.float64(), metadata={"unit": UNITS.get(n, ""),
+                                             "description": channel_description(n, meta.turning)}) for n in names],
+        metadata=parquet_metadata(meta, first, names),
     )
     with tempfile.TemporaryDirectory(prefix="tcms-parquet-") as tmp:
         path = Path(tmp) / f"{meta.run_id}.parquet"
@@ -186,12 +202,28 @@ def to_parquet(chunks: Chunks, channels: list[str], meta: ExportMeta) -> Iterato
 
 
 CHANNEL_DESCRIPTIONS = {
+    "time_s": "bench clock",
     "torque_nm": "measured torque",
     "angle_arcsec": "compensated twist angle",
     "encoder_arcsec": "raw encoder angle (before compensation)",
     "reference_arcsec": "reference angle (autocollimator)",
     "temperature_c": "temperature",
 }
+#: … of a turning test's two-axis record (one row per latched angle pair)
+TURNING_CHANNEL_DESCRIPTIONS = {
+    **CHANNEL_DESCRIPTIONS,
+    "time_s": "bench clock (one row per latched pair of the input and output angles)",
+    "torque_nm": "output torque (the loader's; a braking load on a forward rotation reads negative)",
+    "angle_arcsec": "output angle, compensated",
+    "encoder_arcsec": "output encoder angle, raw (before compensation)",
+    "input_angle_arcsec": "input angle (input encoder, arcsec of the input shaft)",
+    "input_torque_nm": "input torque (turning the input forward is positive)",
+}
+
+
+def channel_description(name: str, turning: bool = False) -> str:
+    """What a recorded channel is (a turning test's record: its two axes)."""
+    return (TURNING_CHANNEL_DESCRIPTIONS if turning else CHANNEL_DESCRIPTIONS).get(name, name)
 
 
 def mdf_header_comment(meta: ExportMeta, time_s_at_start: float | None) -> str:
@@ -204,7 +236,7 @@ def mdf_header_comment(meta: ExportMeta, time_s_at_start: float | None) -> str:
 
     subject = f"{ident.get('reducer') or 'reducer'} serial number {ident.get('serial_number') or '—'}"
     common = [element("author", ident.get("operator") or ""), element("department", ident.get("bench_name") or ""),
-              element("project", PROJECT), element("subject", subject)]
+              element("project", PROJECT_TURNING if meta.turning else PROJECT), element("subject", subject)]
     tree = {k: v for k, v in parquet_metadata(meta, time_s_at_start).items() if k != "tcms"}
     common.append('<tree name="tcms">' + "".join(element(k, v) for k, v in tree.items()) + "</tree>")
     text = "\n".join(meta.lines())
@@ -231,7 +263,7 @@ def to_mdf4(chunks: Chunks, channels: list[str], meta: ExportMeta) -> Iterator[b
     summary = "; ".join(meta.lines())
     signals = [
         Signal(samples=v, timestamps=time_s, name=n, unit=UNITS.get(n, ""),
-               comment=f"{CHANNEL_DESCRIPTIONS.get(n, n)} — {summary}")
+               comment=f"{channel_description(n, meta.turning)} — {summary}")
         for n, v in cols.items()
     ]
     mdf.append(signals, comment=f"TCMS-DAQ run {meta.run_id}: time from the first sample (bench clock time_s "

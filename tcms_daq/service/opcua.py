@@ -21,7 +21,16 @@ Address space (``Machinery:`` ``http://opcfoundation.org/UA/Machinery/``, ``DI:`
                                                        the identity and full results as JSON), and as variables:
                 TorsionalRigidity, LostMotion, Backlash   Doubles with EngineeringUnits, each with ExpandedUncertainty
                                                           (same unit, NaN: U not stated), CoverageFactor and Text
-                SerialNumber, Reducer, Verdict            Verdict: a ResultEvaluationEnum
+                                                          (a turning test's: NaN, "—")
+                Quantities                                the result's typed quantities, made anew for each result
+                                                          (opcua_model.result_quantities: a turning test's results
+                                                          per direction and speed, its TE lines' amplitudes), each
+                                                          as those three: EngineeringUnits, ExpandedUncertainty,
+                                                          CoverageFactor, Text
+                SerialNumber, Reducer, Method, Verdict    Method: the test method; Verdict: a ResultEvaluationEnum
+                                                       ResultContent: the identity and full results as JSON, then
+                                                       each quantity as a ResultQuantityDataType (Name, Value,
+                                                       ExpandedUncertainty, CoverageFactor, EngineeringUnits, Text)
 
 A run that ends with results raises a ``TorsionTestResultReadyEventType`` (a Result:ResultReadyEventType with
 Result, SerialNumber, Reducer, Verdict) with the Server object as notifier (and the bench and ResultManagement
@@ -66,9 +75,8 @@ ACTIVE = ("queued", "running")
 CERT_DIRNAME = "opcua"
 CERT_FILE, KEY_FILE = "server-cert.der", "server-key.pem"
 CERT_DAYS = 5 * 365
-#: the result variables under LatestResult: (results key, browse name)
-QUANTITIES = (("rigidity_nm_per_arcmin", "TorsionalRigidity"), ("lost_motion_arcsec", "LostMotion"),
-              ("backlash_arcsec", "Backlash"))
+#: the stiffness test's result variables under LatestResult: (results key, browse name)
+QUANTITIES = model.STIFFNESS_QUANTITIES
 MISSING_ASYNCUA = missing_extra_message("plant", "the OPC UA server")
 
 
@@ -314,6 +322,27 @@ class OpcUaBridge:
         await parent.delete_reference(child.nodeid, old, forward=True, bidirectional=True)
         await parent.add_reference(child.nodeid, new)
 
+    async def _quantity(self, parent: Any, path: str, name: str, unit: model.Unit) -> Any:
+        """An AnalogUnitType result with its ExpandedUncertainty (same unit), CoverageFactor and Text."""
+        ua = _ua()
+
+        quantity = await self._analog(parent, path, name, unit)
+        await self._analog(quantity, f"{path}.ExpandedUncertainty", "ExpandedUncertainty", unit)
+        for child, kind, value in (("CoverageFactor", ua.ObjectIds.Double, math.nan), ("Text", ua.ObjectIds.String, "")):
+            variant = ua.Variant(value, ua.VariantType.Double if kind == ua.ObjectIds.Double else ua.VariantType.String)
+            self._nodes[f"{path}.{child}"] = await model.add_variable(
+                quantity, self._id(f"{path}.{child}"), ua.QualifiedName(child, self.ns.bench), variant, ua.NodeId(kind))
+        return quantity
+
+    async def _write_quantity(self, path: str, q: model.ResultQuantity | None) -> None:
+        ua = _ua()
+
+        double = ua.VariantType.Double
+        await self._write(self._nodes[path], math.nan if q is None else q.value, double)
+        await self._write(self._nodes[f"{path}.ExpandedUncertainty"], math.nan if q is None else q.expanded, double)
+        await self._write(self._nodes[f"{path}.CoverageFactor"], math.nan if q is None else q.k, double)
+        await self._write(self._nodes[f"{path}.Text"], "—" if q is None else q.text, ua.VariantType.String)
+
     async def _analog(self, parent: Any, path: str, name: str, unit: model.Unit) -> Any:
         """An AnalogUnitType Double (NaN until written) with its EngineeringUnits."""
         ua = _ua()
@@ -402,17 +431,13 @@ class OpcUaBridge:
         self._nodes["LatestResult.ResultMetaData.ResultId"] = server.get_node(
             self._id("LatestResult.ResultMetaData.ResultId"))
         for key, name in QUANTITIES:
-            unit = model.UNITS_OF[next(h.unit for h in HEADLINES if h.key == key)]
-            quantity = await self._analog(latest, f"LatestResult.{name}", name, unit)
-            await self._analog(quantity, f"LatestResult.{name}.ExpandedUncertainty", "ExpandedUncertainty", unit)
-            for child, kind, value in (("CoverageFactor", ua.ObjectIds.Double, math.nan),
-                                       ("Text", ua.ObjectIds.String, "")):
-                variant = ua.Variant(value, ua.VariantType.Double if kind == ua.ObjectIds.Double
-                                     else ua.VariantType.String)
-                self._nodes[f"LatestResult.{name}.{child}"] = await model.add_variable(
-                    quantity, self._id(f"LatestResult.{name}.{child}"), ua.QualifiedName(child, ns.bench), variant,
-                    ua.NodeId(kind))
-        for name in ("SerialNumber", "Reducer"):
+            await self._quantity(latest, f"LatestResult.{name}", name,
+                                 model.UNITS_OF[next(h.unit for h in HEADLINES if h.key == key)])
+        self._nodes["LatestResult.Quantities"] = await latest.add_object(
+            self._id("LatestResult.Quantities"), ua.QualifiedName("Quantities", ns.bench),
+            objecttype=ua.NodeId(ua.ObjectIds.FolderType))
+        self._quantity_nodes: list[Any] = []
+        for name in ("SerialNumber", "Reducer", "Method"):
             self._nodes[f"LatestResult.{name}"] = await model.add_variable(
                 latest, self._id(f"LatestResult.{name}"), ua.QualifiedName(name, ns.bench),
                 ua.Variant("", ua.VariantType.String), ua.NodeId(ua.ObjectIds.String))
@@ -552,24 +577,34 @@ class OpcUaBridge:
 
     def _result(self, record: StoredRun) -> Any:
         return model.result_value(record.identity(), record.summary()["finished_at"], result_json(record),
-                                  _simulated(record))
+                                  _simulated(record), model.result_quantities(record.results))
+
+    async def _set_quantities(self, typed: list[model.ResultQuantity]) -> None:
+        """LatestResult/Quantities: the previous result's quantities deleted, this one's made (a turning test's
+        differ in number and name from one result to the next)."""
+        if self._quantity_nodes:
+            await self.server.delete_nodes(self._quantity_nodes, recursive=True)
+        self._quantity_nodes = []
+        folder = self._nodes["LatestResult.Quantities"]
+        for q in typed:
+            path = f"LatestResult.Quantities.{q.name}"
+            self._quantity_nodes.append(await self._quantity(folder, path, q.name, q.unit))
+            await self._write_quantity(path, q)
 
     async def _set_latest(self, record: StoredRun) -> None:
         ua = _ua()
 
         ident = record.identity()
         value = self._result(record)
-        double, string = ua.VariantType.Double, ua.VariantType.String
-        for key, name in QUANTITIES:
-            entry = ident["results"][key]
-            await self._write(self._nodes[f"LatestResult.{name}"], model.number_or_nan(entry["value"]), double)
-            await self._write(self._nodes[f"LatestResult.{name}.ExpandedUncertainty"],
-                              model.number_or_nan(entry["U"]), double)
-            await self._write(self._nodes[f"LatestResult.{name}.CoverageFactor"], model.number_or_nan(entry["k"]),
-                              double)
-            await self._write(self._nodes[f"LatestResult.{name}.Text"], entry["text"], string)
+        string = ua.VariantType.String
+        typed = {q.name: q for q in model.result_quantities(record.results)}
+        for _, name in QUANTITIES:  # a turning test's result has none of them: NaN, "—"
+            await self._write_quantity(f"LatestResult.{name}", typed.get(name))
+        await self._set_quantities(list(typed.values()))
         await self._write(self._nodes["LatestResult.SerialNumber"], str(ident.get("serial_number") or ""), string)
         await self._write(self._nodes["LatestResult.Reducer"], str(ident.get("reducer") or ""), string)
+        await self._write(self._nodes["LatestResult.Method"], str((ident.get("method") or {}).get("kind") or ""),
+                          string)
         await self._write(self._nodes["LatestResult.Verdict"],
                           model.EVALUATION.get(str(ident.get("verdict")), 0), ua.VariantType.Int32)
         await self._write(self._nodes["LatestResult.ResultMetaData"], value.ResultMetaData,

@@ -16,8 +16,12 @@ No nodeset file is read: each type is created with its specification's namespace
   ``ResultDataType`` (i=3008) with their binary encodings (i=5003, 5005, 5008) and the specification's fields in
   its order (so their binary encoding is the specification's), ``ResultType`` (i=2001), ``ResultManagementType``
   (i=1004) and the abstract ``ResultReadyEventType`` (i=1002).
-* This program's types (``urn:tcms-daq:types``): ``TorsionTestBenchType`` and the concrete
-  ``TorsionTestResultReadyEventType`` (a ResultReadyEventType with the serial number, reducer and verdict).
+* This program's types (``urn:tcms-daq:types``): ``TorsionTestBenchType``, the concrete
+  ``TorsionTestResultReadyEventType`` (a ResultReadyEventType with the serial number, reducer and verdict) and
+  ``ResultQuantityDataType`` (a result's typed value: Name, Value, ExpandedUncertainty, CoverageFactor,
+  EngineeringUnits, Text): a result's ResultContent holds its identity and full results as JSON, then each of its
+  quantities as one of these (:func:`result_quantities`: the stiffness test's headlines, a turning test's results
+  per direction and speed and its transmission-error lines).
 
 Quantities carry ``EngineeringUnits`` (EUInformation, UNECE Recommendation 20 codes; the unit id is the code's
 ASCII bytes as an integer, -1 where Rec. 20 has no code, as for N·m/arcmin).
@@ -109,7 +113,50 @@ class Unit:
 NEWTON_METRE = Unit("NU", "N·m", "newton metre")
 ARCSEC = Unit("D62", "″", "second [unit of angle]")
 RIGIDITY = Unit("", "N·m/arcmin", "newton metre per minute of arc (no UNECE Rec. 20 code)")
-UNITS_OF = {"N·m/arcmin": RIGIDITY, "arcsec": ARCSEC, "N·m": NEWTON_METRE}
+ONE = Unit("C62", "1", "one (a ratio: 1 = 100 %)")
+UNITS_OF = {"N·m/arcmin": RIGIDITY, "arcsec": ARCSEC, "N·m": NEWTON_METRE, "1": ONE}
+#: the stiffness test's headline results under LatestResult: (results key, browse name)
+STIFFNESS_QUANTITIES = (("rigidity_nm_per_arcmin", "TorsionalRigidity"), ("lost_motion_arcsec", "LostMotion"),
+                        ("backlash_arcsec", "Backlash"))
+
+
+@dataclass(frozen=True)
+class ResultQuantity:
+    """One typed result: its browse name, its value and expanded uncertainty U (in ``unit``; NaN: not evaluated or
+    U not stated), its coverage factor k, its unit and its text ("21.8 ± 3.8″ (k = 1.96)")."""
+
+    name: str
+    value: float
+    expanded: float
+    k: float
+    unit: Unit
+    text: str
+
+
+def result_quantities(results: Mapping[str, Any] | None) -> list[ResultQuantity]:
+    """A run's results as typed quantities: the stiffness test's rigidity, lost motion and backlash; a turning
+    test's results (``method_views.quantities``: the headline, each direction, each speed) and, for the
+    transmission error, each line's amplitude (``TeOrder_<order>_Amplitude``, its text naming the component)."""
+    from tcms_daq.analysis.rounding import with_uncertainty
+    from tcms_daq.identity import HEADLINES, uncertainty_entry
+    from tcms_daq.service.method_views import method_of, quantities, te_lines
+
+    res = results or {}
+
+    def one(name: str, value: Any, entry: Mapping[str, Any] | None, unit: str, prefix: str = "") -> ResultQuantity:
+        number = number_or_nan(value)
+        text = with_uncertainty(number, entry, "" if unit == "1" else unit) if math.isfinite(number) else "—"
+        return ResultQuantity(name, number, number_or_nan((entry or {}).get("U")),
+                              number_or_nan((entry or {}).get("k")), UNITS_OF[unit], prefix + text)
+
+    if method_of(res) is None:
+        units = {h.key: h.unit for h in HEADLINES}
+        return [one(name, res.get(key), uncertainty_entry(res, key), units[key]) for key, name in STIFFNESS_QUANTITIES]
+    out = [one(q.browse_name, res.get(q.key), uncertainty_entry(res, q.key), q.unit) for q in quantities(res)]
+    for line in te_lines(res):
+        out.append(one(f"TeOrder_{line['order']:g}_Amplitude", line["amplitude_arcsec"], line["uncertainty"], "arcsec",
+                       f"order {line['order']:g} ({line['component'] or 'no component'}): "))
+    return out
 
 
 @dataclass
@@ -177,7 +224,8 @@ async def _state_machine_type(server: Any, ns: int, numeric: int, name: str,
     return nodes
 
 
-async def _structure(server: Any, ns: int, numeric: int, encoding: int, name: str, fields: list[Any]) -> Any:
+async def _structure(server: Any, ns: int, numeric: int | str, encoding: int | str, name: str, fields: list[Any]
+                     ) -> Any:
     """A structured DataType with its Default Binary encoding at the specification's NodeIds (asyncua's
     ``new_struct`` would number the encoding itself)."""
     ua = _ua()
@@ -249,6 +297,14 @@ async def build_types(server: Any, bench_uri: str) -> tuple[Namespaces, dict[str
     data = await _structure(server, ns.result, RESULT_DATA_TYPE, RESULT_DATA_ENCODING, "ResultDataType", [
         new_struct_field("ResultMetaData", meta),
         new_struct_field("ResultContent", ua.NodeId(ua.ObjectIds.BaseDataType), array=True)])
+    ns_types = ns.types
+    types["ResultQuantityDataType"] = await _structure(
+        server, ns_types, "ResultQuantityDataType", "ResultQuantityDataType.DefaultBinary", "ResultQuantityDataType", [
+            new_struct_field("Name", ua.VariantType.String), new_struct_field("Value", ua.VariantType.Double),
+            new_struct_field("ExpandedUncertainty", ua.VariantType.Double),
+            new_struct_field("CoverageFactor", ua.VariantType.Double),
+            new_struct_field("EngineeringUnits", ua.NodeId(ua.ObjectIds.EUInformation)),
+            new_struct_field("Text", ua.VariantType.String)])
     await server.load_data_type_definitions()  # the Python classes of the structures (ua.ResultDataType …)
     types.update(ResultMetaDataType=meta, ResultDataType=data)
 
@@ -332,11 +388,20 @@ def _utc(iso: str | None) -> datetime | None:
     return parsed if parsed.tzinfo is not None else parsed.replace(tzinfo=UTC)
 
 
+def quantity_value(q: ResultQuantity) -> Any:
+    """A typed result as a ResultQuantityDataType (the server's class, made by load_data_type_definitions)."""
+    ua = _ua()
+
+    return ua.ResultQuantityDataType(Name=q.name, Value=q.value, ExpandedUncertainty=q.expanded,
+                                     CoverageFactor=q.k, EngineeringUnits=eu_information(q.unit), Text=q.text)
+
+
 def result_value(identity: Mapping[str, Any], finished_at_iso: str | None, content_json: str,
-                 simulated: bool | None) -> Any:
+                 simulated: bool | None, typed: list[ResultQuantity] | None = None) -> Any:
     """A run as a ResultDataType: its metadata (id, state, times, the reducer as ProductId, the serial number as
-    PartId, compensation and bench model versions as InternalConfigurationId, the verdict as ResultEvaluation)
-    and its whole identity with the full results as one JSON string in ResultContent."""
+    PartId, the test method as InternalRecipeId, compensation and bench model versions as InternalConfigurationId,
+    the verdict as ResultEvaluation); in ResultContent its whole identity with the full results as one JSON string,
+    then each of ``typed`` as a ResultQuantityDataType."""
     ua = _ua()
 
     started, finished = _utc(identity.get("started_at")), _utc(finished_at_iso)
@@ -350,13 +415,16 @@ def result_value(identity: Mapping[str, Any], finished_at_iso: str | None, conte
         InternalConfigurationId=(f"compensation {identity.get('compensation_version')}, bench model "
                                  f"{identity.get('bench_model_version')}"),
         ExternalRecipeId=identity.get("plan") or None,
+        InternalRecipeId=str((identity.get("method") or {}).get("kind") or "") or None,
         CreationTime=finished or started,
         ProcessingTimes=ua.ProcessingTimesDataType(StartTime=started, EndTime=finished or started)
         if started is not None else None,
         ResultEvaluation=ua.ResultEvaluationEnum(EVALUATION.get(str(verdict), 0)),
         ResultEvaluationDetails=ua.LocalizedText(str(verdict) if verdict else "no verdict", "en"),
     )
-    return ua.ResultDataType(ResultMetaData=meta, ResultContent=[ua.Variant(content_json, ua.VariantType.String)])
+    content = [ua.Variant(content_json, ua.VariantType.String)] + [
+        ua.Variant(quantity_value(q), ua.VariantType.ExtensionObject) for q in typed or []]
+    return ua.ResultDataType(ResultMetaData=meta, ResultContent=content)
 
 
 def number_or_nan(value: Any) -> float:

@@ -289,3 +289,28 @@ def loopback_config_with_loader(path: Path, loader: str, urls: dict[str, str], *
     cfg["instruments"]["loader"].update(loader_options)
     path.write_text(tomli_w.dumps(cfg), encoding="utf-8")
     return path
+
+
+STATION_METHODS = ("transmission-error", "starting-torque", "no-load-torque", "efficiency")
+
+
+def station_runs(data_dir: Path, methods: tuple[str, ...] = STATION_METHODS, reducer: str = "RV-110E",
+                 sim_speed: float = 20.0, **request: Any) -> dict[str, str]:
+    """Run each turning method once on the simulated station (config/bench-station.toml, in-process, through the
+    service as a client would) into the store in ``data_dir``; {method: run id} once every run has completed."""
+    from tcms_daq.config.loader import resolve_config_path
+
+    settings = ServiceSettings(data_dir=data_dir, api_token=TOKEN, config_path=resolve_config_path("bench-station.toml"),
+                               sim_speed=sim_speed)
+    ids = {}
+    with serve(settings) as server:
+        c = server.client()
+        for method in methods:
+            answer = c.post("/api/tests", json={"reducer": reducer, "method": method, **request})
+            assert answer.status_code == 202, answer.text
+            run_id = answer.json()["id"]
+            run = wait_for(lambda: (r := c.get(f"/api/tests/{run_id}").json())["status"]  # noqa: B023
+                           in ("completed", "failed", "aborted") and r, timeout_s=120)
+            assert run["status"] == "completed", (method, run["error"])
+            ids[method] = run_id
+    return ids

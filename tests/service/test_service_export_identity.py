@@ -94,7 +94,7 @@ def test_parquet_schema_metadata_carries_identity_results_and_start(finished):
     assert doc["results"]["uncertainty"]["lost_motion_arcsec"]["U"] == pytest.approx(0.82)
     assert datetime.fromisoformat(md["start_time"]) == _started(c, run_id)
     assert float(md["time_s_at_start"]) == table.column("time_s").to_numpy()[0]
-    assert table.schema.field("torque_nm").metadata == {b"unit": "N·m".encode()}
+    assert table.schema.field("torque_nm").metadata == {b"unit": "N·m".encode(), b"description": b"measured torque"}
 
 
 def test_csv_stays_canonical_with_a_sidecar_and_old_results_say_u_not_stated(finished):

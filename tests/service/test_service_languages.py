@@ -76,6 +76,43 @@ def test_every_coded_warning_of_the_core_has_its_chinese_with_its_params():
         assert key in core or any(c.endswith("*") and key.startswith(c[:-1]) for c in core), f"{key}: no such code"
 
 
+def _page_keys() -> set[str]:
+    """Every catalogue key the pages name: data-i18n* attributes of the HTML, literal t("…") in the scripts, and the
+    turning tests' keys the dashboard makes from a prefix and a name (methods, directions, components, procedure
+    steps, result labels)."""
+    import re
+    from pathlib import Path
+
+    from tcms_daq.procedure.methods import METHODS, TURNING_METHODS
+    from tcms_daq.service.method_views import Quantity, quantities
+    from tcms_daq.transmission.kinematics import COMPONENTS
+
+    static = Path(messages.__file__).parent / "static"
+    keys = {m.group(2) for path in static.glob("*.html")
+            for m in re.finditer(r'data-i18n(-placeholder|-title)?="([^"]+)"', path.read_text(encoding="utf-8"))}
+    keys |= {m.group(1) for path in static.glob("*.js")
+             for m in re.finditer(r'\bt\("([^"]+)"[,)]', path.read_text(encoding="utf-8"))}
+    keys |= {f"certificate.method_name_{m}" for m in METHODS} | {f"certificate.figure_{m}" for m in TURNING_METHODS}
+    keys |= {f"certificate.direction_{d}" for d in ("forward", "reverse")}
+    keys |= {f"certificate.component_{c}" for names in COMPONENTS.values() for c in names}
+    keys |= {f"step.{s}" for s in ("pause", "load", "stop", "unload", "done")}
+    results = ({"method": "transmission-error"}, {"method": "starting-torque"}, {"method": "efficiency"},
+               {"method": "no-load-torque", "speeds_rpm": [500.0]})
+    labels: list[Quantity] = [q for r in results for q in quantities(r)]
+    return keys | {f"certificate.q_{q.label}" for q in labels} | {"certificate.q_hysteresis_arcsec"}
+
+
+def test_every_word_the_pages_name_is_in_each_language():
+    keys = _page_keys()
+    assert {"dash.method", "certificate.method_name_efficiency", "certificate.component_pin_ring", "step.creep",
+            "certificate.q_no_load_torque_nm", "dash.te_spectrum_live_over"} <= keys
+    for lang, words in messages.CATALOGUES.items():
+        certificate_words = certificate_text.CATALOGUES[lang]
+        missing = sorted(k for k in keys if k not in words and not (
+            k.startswith("certificate.") and k.removeprefix("certificate.") in certificate_words))
+        assert not missing, (lang, missing)
+
+
 def test_the_chinese_terms_of_the_standards():
     zh = messages.catalogue("zh")
     assert zh["res.rigidity"].startswith("扭转刚度") and zh["res.lost_motion"].startswith("空程")
@@ -172,6 +209,12 @@ def test_uncertainty_sources_in_chinese_by_the_cores_own_names():
     assert messages.source_text("torque scale", "en") == "torque scale"
     assert messages.source_text("a source of a later version", "zh") == "a source of a later version"
     assert messages.source_text("declared chain: bench config bench-sim.toml", "zh") == \
-        "声明的测量链：bench config bench-sim.toml"
+        "声明的测量链：试验台配置 bench-sim.toml"
+    # a turning test's basis (tcms_daq.procedure.method_evaluation), with or without the station's chain
+    assert messages.source_text("declared chain: [uncertainty.station] of bench-station.toml", "zh") == \
+        "声明的测量链：bench-station.toml 的 [uncertainty.station]"
+    assert messages.source_text("declared chain: a declared chain", "zh") == "声明的测量链：a declared chain"
+    from tcms_daq.procedure.method_evaluation import NO_STATION_CHAIN
+    assert messages.source_text(NO_STATION_CHAIN, "zh") == "仅 A 类（未声明 [uncertainty.station]）"
     assert messages.source_text("type A only (no uncertainty declared in bench.toml)", "zh") == \
         "仅 A 类（bench.toml 中未声明不确定度）"

@@ -155,7 +155,7 @@ def get_metadata(run: RunWithSamplesDep, store: Store) -> JSONResponse:
     """The sample CSV's sidecar (``tcms-<id>.json``): the test's identity (reducer, serial number, bench,
     operator, parameters, compensation version, results ± U, verdict), its start time and full results; the
     same as the Parquet schema metadata and the MDF4 header carry."""
-    doc = exports.sidecar(exports.ExportMeta.of(run), store.iter_columns(run.id, chunk_samples=1))
+    doc = exports.sidecar(exports.ExportMeta.of(run), store.iter_columns(run.id, chunk_samples=1), run.channels)
     return JSONResponse(jsonable(doc), headers={"Content-Disposition": f'inline; filename="tcms-{run.id}.json"'})
 
 
@@ -187,6 +187,19 @@ def get_report(run: RunWithSamplesDep, store: Store, request: Request, lang: Lan
     return HTMLResponse(render_report(run, store.read_columns(run.id),
                                       lang=language(lang, request.headers.get("accept-language"),
                                                    stored_settings(store).default_language)))
+
+
+@router.get("/{run_id}/curves", response_model=dict[str, Any], responses=errors(404, 410))
+def get_curves(run: RunWithSamplesDep, store: Store) -> JSONResponse:
+    """What a turning test's figure draws (``tcms_daq.service.method_views.method_curves``): the transmission
+    error against the output angle per direction with its order spectrum and lines (order, component, amplitude ±
+    U, phase); each starting-torque ramp around its breakaway (input torque and angle against the time from the
+    onset); the no-load torque per speed; the efficiency per direction with its blocks. ``{"method":
+    "stiffness"}`` for a stiffness test (its loop: ``/loop``)."""
+    from tcms_daq.service.method_views import method_curves, method_of
+
+    columns = store.read_columns(run.id) if method_of(run.results) == "starting-torque" else None
+    return JSONResponse(jsonable(method_curves(run.results, columns)))
 
 
 @router.get("/{run_id}/loop", response_model=LoopView, responses=errors(404, 410, 422))

@@ -15,6 +15,8 @@
     chunks: [],                 // {t: Float64Array, torque, encoder, angle: Float32Array}
     loop: { x: [], y: [], stride: 1, counter: 0 },
     activeId: null, testState: "idle", eventSeq: 0, dirty: false, schema: null, resultId: null,
+    method: "stiffness",        // the active (or shown) test's method
+    clockSpeed: 1,              // simulated clock seconds per real second (GET /api/bench sim_speed)
   };
 
   // ---- words (i18n.js), the API token and requests (session.js) ----
@@ -22,6 +24,7 @@
   TcmsI18n.apply(document);
   TcmsI18n.bindSwitch($("lang"));
   const { withToken, escapeHtml } = TcmsSession;
+  const { roundToU, fmt3 } = TcmsRounding;
   const link = (path) => withToken(TcmsI18n.withLang(path));
   TcmsSession.bindTokenField($("f-token"), () => whoAmI());
 
@@ -48,7 +51,7 @@
   const torquePlot = new uPlot({
     width: width($("plot-torque")), height: 200,
     scales: { x: { time: false }, y: { range: spanAtLeast(MIN_SPAN.torque) } },
-    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_torque"), size: 60 }],
+    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_torque"), size: TcmsMethodView.axisSize }],
     series: [{ label: "t / s" }, { label: t("dash.axis_torque"), stroke: "#1f5fa8", width: 1 }],
     legend: { live: false },
   }, [[], []], $("plot-torque"));
@@ -56,7 +59,7 @@
   const anglePlot = new uPlot({
     width: width($("plot-angle")), height: 200,
     scales: { x: { time: false }, y: { range: spanAtLeast(MIN_SPAN.angle) } },
-    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_angle"), size: 70 }],
+    axes: [{ label: t("dash.axis_time") }, { label: t("dash.axis_angle"), size: TcmsMethodView.axisSize }],
     series: [
       { label: "t / s" },
       { label: t("dash.raw_encoder"), stroke: "#b8c0cc", width: 1 },
@@ -69,7 +72,7 @@
     mode: 2,
     width: width($("plot-loop")), height: 330,
     scales: { x: { time: false, auto: true }, y: { auto: true } },
-    axes: [{ label: t("dash.axis_torque") }, { label: t("dash.axis_loop_angle"), size: 70 }],
+    axes: [{ label: t("dash.axis_torque") }, { label: t("dash.axis_loop_angle"), size: TcmsMethodView.axisSize }],
     series: [
       {},
       { label: "hysteresis loop", stroke: "#157a2e", width: 1.5, paths: uPlot.paths.linear(), points: { show: false },
@@ -102,6 +105,7 @@
 
   function addToLoop(torque, angle) {
     if (state.outputMoving) return;  // the output turning to the next position is no part of a loop
+    if (state.method !== "stiffness") return;  // a turning test draws its own view (method_view.js)
     const loop = state.loop;
     for (let i = 0; i < torque.length; i++) {
       if (loop.counter++ % loop.stride !== 0) continue;
@@ -215,7 +219,7 @@
       if (e.type === "hello") { if (!state.eventSeq) syncBench(); return; }
       state.eventSeq = e.seq;
       if (e.type === "test_state") {
-        if (e.status === "queued" && e.id !== state.activeId) resetLoop();
+        if (e.status === "queued" && e.id !== state.activeId) { resetLoop(); startMethod((e.request || {}).method); }
         setTestState(e.id, e.status);
         if (["completed", "aborted", "failed", "interrupted"].includes(e.status)) {
           $("test-phase").textContent = "–";
@@ -233,6 +237,10 @@
         $("ro-phase").textContent = e.phase;
       } else if (e.type === "test_progress") {
         showProgress(e);
+      } else if (e.type === "method_progress") {
+        showMethodProgress(e);
+      } else if (e.type === "te_live") {
+        if (e.id === state.activeId) TcmsMethodView.onTeLive(e);
       }
     };
     ws.onclose = () => { $("events-state").textContent = t("dash.reconnecting"); setTimeout(connectEvents, 1000); };
@@ -263,6 +271,38 @@
     parts.push(t("prog.elapsed", { time: duration(done) }), t("prog.eta", { time: duration(left) }));
     $("progress-text").textContent = parts.join(" · ");
     // the readout: real seconds left (the clock's seconds divided by a simulated clock's speed)
+    const secondsLeft = Math.max(0, Math.round(left));
+    $("ro-eta").textContent = secondsLeft >= 60 ? Math.floor(secondsLeft / 60) + ":" + String(secondsLeft % 60).padStart(2, "0") : String(secondsLeft);
+    $("ro-eta-unit").textContent = secondsLeft >= 60 ? t("dash.minutes") + ":" + t("dash.seconds") : t("dash.seconds");
+  }
+
+  // a turning test's method or the stiffness test: what the view shows while it runs
+  function startMethod(method) {
+    state.method = method || "stiffness";
+    TcmsMethodView.show(state.method);
+    if (state.method === "transmission-error") TcmsMethodView.startLive();
+  }
+
+  // a step of a turning test's procedure in words ("1208 rpm forward", "forward 2/3", "load" …)
+  function stepName(name) {
+    const dir = (d) => t("certificate.direction_" + d);
+    let m = /^(\S+) rpm (forward|reverse)$/.exec(name || "");
+    if (m) return t("step.speed", { speed: m[1], direction: dir(m[2]) });
+    m = /^(forward|reverse) (\d+)\/(\d+)$/.exec(name || "");
+    if (m) return t("step.creep", { direction: dir(m[1]), n: m[2], of: m[3] });
+    return ["forward", "reverse"].includes(name) ? dir(name) : t("step." + name) === "step." + name ? String(name) : t("step." + name);
+  }
+  // progress of a turning test (method_progress events: clock seconds, turned into real ones by the clock's speed)
+  function showMethodProgress(e) {
+    const speed = state.clockSpeed > 0 ? state.clockSpeed : 1;
+    const done = e.elapsed_s / speed, left = e.eta_s / speed;
+    $("progress").hidden = false;
+    $("progress-bar").style.width = (100 * (done + left > 0 ? done / (done + left) : 0)).toFixed(1) + "%";
+    const step = Math.min(e.step + 1, e.steps);
+    $("progress-text").textContent = [t("prog.step", { n: step, of: e.steps }) + ": " + stepName(e.step_name),
+      t("prog.elapsed", { time: duration(done) }), t("prog.eta", { time: duration(left) })].join(" · ");
+    $("test-phase").textContent = stepName(e.step_name);
+    $("ro-phase").textContent = stepName(e.step_name);
     const secondsLeft = Math.max(0, Math.round(left));
     $("ro-eta").textContent = secondsLeft >= 60 ? Math.floor(secondsLeft / 60) + ":" + String(secondsLeft % 60).padStart(2, "0") : String(secondsLeft);
     $("ro-eta-unit").textContent = secondsLeft >= 60 ? t("dash.minutes") + ":" + t("dash.seconds") : t("dash.seconds");
@@ -305,8 +345,6 @@
 
   function resetLoop() { state.loop = { x: [], y: [], stride: 1, counter: 0 }; state.dirty = true; }
 
-  // three significant digits for a value without a stated U (never six)
-  function fmt3(v) { return typeof v === "number" ? String(+v.toPrecision(3)) : "–"; }
   function fmt(v) { return typeof v === "number" ? (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(4) : +v.toPrecision(6)) : String(v); }
   function verdictClass(v) {
     if (v === true || v === "pass" || v === "passed") return "pass";
@@ -314,22 +352,8 @@
     return "";
   }
 
-  // A result as "value ± U (k = …)": U to two significant digits, the value to the same decimal place (as
-  // tcms_daq/analysis/rounding.py does for the table and the report); "U not stated" without an uncertainty entry.
-  function roundToU(value, U) {
-    let exp = Math.floor(Math.log10(U)) - 1;
-    let r = Math.round(U / Math.pow(10, exp)) * Math.pow(10, exp);
-    if (r >= Math.pow(10, exp + 2)) { exp += 1; r = Math.round(U / Math.pow(10, exp)) * Math.pow(10, exp); }
-    const decimals = Math.max(0, -exp);
-    const v = Math.round(value / Math.pow(10, exp)) * Math.pow(10, exp);
-    return [v.toFixed(decimals), r.toFixed(decimals)];
-  }
-  function fmtU(value, entry) {
-    if (typeof value !== "number") return "–";
-    if (!entry || typeof entry.U !== "number" || !(entry.U > 0)) return fmt3(value) + " (" + t("res.u_not_stated") + ")";
-    const [v, u] = roundToU(value, entry.U);
-    return `${v} ± ${u}` + (typeof entry.k === "number" ? ` (k = ${entry.k.toFixed(2)})` : "");
-  }
+  // A result as "value ± U (k = …)" (rounding.js: the one rounding of the pages)
+  function fmtU(value, entry) { return TcmsRounding.withU(value, entry && entry.U, entry && entry.k); }
   // a spread shown with two significant digits, not "0.0708006"
   function fmt2(v) { return typeof v === "number" ? (v === 0 ? "0" : +v.toPrecision(2) + "") : "–"; }
 
@@ -398,12 +422,41 @@
     return rows;
   }
 
+  // a turning test's results (docs/transmission.md): each quantity of GET /api/tests/{id}/curves as value ± U (k)
+  // with its dominant contributor; the efficiency in %; the transmission error's lost motion under the light load
+  const UNIT_SHOWN = { arcsec: "″", "N·m": "N·m", "1": "%" };
+  function methodRows(res, curves) {
+    const rows = [];
+    const unc = res.uncertainty || {};
+    for (const q of curves.quantities || []) {
+      const entry = unc[q.key];
+      const scale = q.unit === "1" ? 100 : 1;
+      const label = t("certificate.q_" + q.label, { speed: q.speed_rpm === null ? "" : fmt(q.speed_rpm) }) + " / " + (UNIT_SHOWN[q.unit] || q.unit);
+      const value = typeof res[q.key] === "number" ? scale * res[q.key] : null;
+      const shown = TcmsRounding.withU(value, entry && scale * entry.U, entry && entry.k);
+      rows.push([label, shown, "", entry && entry.dominant ? t("res.dominant", { name: TcmsI18n.source(entry.dominant) }) : ""]);
+    }
+    if (typeof res.hysteresis_arcsec === "number") rows.push([t("certificate.q_hysteresis_arcsec") + " / ″", fmt3(res.hysteresis_arcsec), ""]);
+    if (res.uncertainty_basis) rows.push([t("res.u_basis"), TcmsI18n.source(res.uncertainty_basis), "muted"]);
+    for (const w of TcmsI18n.warnings(res)) rows.push([t("res.warning"), w, "warning"]);
+    return rows;
+  }
+
   async function showResults(id) {
     let run;
     try { run = await api("GET", "/api/tests/" + encodeURIComponent(id)); } catch (e) { return; }
+    const method = (run.results && run.results.method) || run.request.method || "stiffness";
+    let curves = null;
+    if (method !== "stiffness" && run.results) {
+      try { curves = await api("GET", "/api/tests/" + encodeURIComponent(id) + "/curves"); } catch (e) { curves = null; }
+    }
     const body = $("results").tBodies[0];
     body.innerHTML = "";
-    const rows = run.results ? resultRows(run.results) : [];
+    const rows = !run.results ? [] : curves ? methodRows(run.results, curves) : resultRows(run.results);
+    if (!["queued", "running"].includes(run.status) || id !== state.activeId) {
+      state.method = method;
+      if (curves) TcmsMethodView.showStored(curves); else TcmsMethodView.show(method);
+    }
     showStages(run.results || {});
     if (!rows.length) {
       body.innerHTML = `<tr><td class="muted">${escapeHtml(t("state." + run.status))}${run.error ? ": " + escapeHtml(run.error) : ""}</td></tr>`;
@@ -419,13 +472,14 @@
     report.hidden = false;
     state.resultId = id;
     // a page opened after the test draws the test's loop from the store
-    if (!state.loop.x.length && run.sample_count > 0 && !["queued", "running"].includes(run.status)) {
+    if (method === "stiffness" && !state.loop.x.length && run.sample_count > 0 && !["queued", "running"].includes(run.status)) {
       try {
         const loop = await api("GET", "/api/tests/" + encodeURIComponent(id) + "/loop?max_points=" + LOOP_MAX_POINTS);
         if (!state.loop.x.length) { state.loop = { x: loop.torque_nm, y: loop.angle_arcsec, stride: 1, counter: 0 }; state.dirty = true; }
       } catch (e) { /* the live loop stays empty */ }
     }
-    $("discrepancy").disabled = !(run.sample_count > 0) || ["queued", "running"].includes(run.status);
+    // the stiffness test's model discrepancy (a turning test's transmission error has its own workflow)
+    $("discrepancy").disabled = method !== "stiffness" || !(run.sample_count > 0) || ["queued", "running"].includes(run.status);
     $("discrepancy-link").hidden = true;
     $("discrepancy-result").textContent = "";
     $("apply-effects").hidden = true;
@@ -503,7 +557,7 @@
   function addDiscrepancyButtons() {
     for (const tr of $("history").tBodies[0].rows) {
       const id = tr.title;  // the row names its run by time; the id is its title
-      if (!id || tr.querySelector(".find-effects")) continue;
+      if (!id || tr.querySelector(".find-effects") || tr.dataset.method !== "stiffness") continue;  // the stiffness test's
       tr.cells[tr.cells.length - 1].appendChild(TcmsDiscrepancy.findEffectsButton(id, discrepancyOfStoredRun));
     }
   }
@@ -526,6 +580,7 @@
       const tr = document.createElement("tr");
       const id = encodeURIComponent(r.id);
       tr.title = r.id;  // the run's time names it here; its id is on hover and in the report
+      tr.dataset.method = r.request.method || "stiffness";
       tr.innerHTML = `<td>${escapeHtml((r.created_at || "").slice(5, 16).replace("T", " "))}</td><td>${escapeHtml(String(r.request.serial_number || "—"))}</td>` +
         `<td>${escapeHtml(t("state." + r.status))}</td>` +
         `<td class="${escapeHtml(r.verdict || "")}">${escapeHtml(r.verdict ? t("verdict." + r.verdict) : "—")}</td>` +
@@ -550,6 +605,13 @@
         }
       }
       applyBounds(bench.test_bounds || {});
+      state.clockSpeed = bench.clock === "simulated" && bench.sim_speed > 0 ? bench.sim_speed : 1;
+      // each method this bench can run; one it cannot is shown, disabled, with what it needs
+      for (const o of $("f-method").options) {
+        const why = (bench.methods || {})[o.value];
+        o.disabled = !!why;
+        o.title = why || "";
+      }
       if (bench.active_test) {
         const run = await api("GET", "/api/tests/" + encodeURIComponent(bench.active_test));
         setTestState(run.id, run.status);
@@ -589,8 +651,37 @@
     $("test-form").classList.toggle("stepped", $("f-profile").value === "stepped");
   });
 
+  // the method picker: the form shows the method's own fields (index.html: .stiffness-only, .for-te …)
+  function pickMethod() {
+    $("test-form").dataset.method = $("f-method").value;
+  }
+  $("f-method").addEventListener("change", () => { clearInvalid(); pickMethod(); });
+  // a turning test's request: the method and the parameters given (the others take the method's defaults)
+  const METHOD_INPUTS = {
+    "transmission-error": { input_speed_rpm: "f-input-speed", load_torque_nm: "f-load", revolutions: "f-revolutions" },
+    "starting-torque": { ramps: "f-ramps", creep_deg_per_s: "f-creep" },
+    "no-load-torque": { speeds_rpm: "f-speeds", dwell_s: "f-hold" },
+    "efficiency": { input_speed_rpm: "f-input-speed", load_torque_nm: "f-load", dwell_s: "f-hold" },
+  };
+  function methodRequest(method) {
+    const req = { reducer: $("f-reducer").value, method };
+    for (const [key, id] of Object.entries(METHOD_INPUTS[method])) {
+      const raw = $(id).value.trim();
+      if (!raw) continue;
+      req[key] = key === "speeds_rpm" ? raw.split(",").map(Number) : key === "ramps" ? parseInt(raw, 10) : parseFloat(raw);
+    }
+    return req;
+  }
+
   // the form as a test request (POST /api/tests; a saved plan keeps the same body)
   function formRequest() {
+    const method = $("f-method").value;
+    if (method !== "stiffness") {
+      const req = methodRequest(method);
+      if ($("f-serial").value.trim()) req.serial_number = $("f-serial").value.trim();
+      if ($("f-operator").value.trim()) req.operator = $("f-operator").value.trim();
+      return req;
+    }
     const req = {
       reducer: $("f-reducer").value,
       max_torque_nm: parseFloat($("f-torque").value),
@@ -618,18 +709,22 @@
   // ---- an error of the API shown in place: its text under the form or the plan editor, the field it names
   // outlined (the validation's loc, else a field's name in the one-line detail) ----
   // a plan's test fields (the picker fills them, a saved plan keeps them)
-  const PLAN_FIELDS = { reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles", profile: "f-profile",
-    rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions", rates: "f-rates",
-    move_velocity_deg_per_s: "f-move", decision_rule: "f-rule" };
+  const PLAN_FIELDS = { method: "f-method", reducer: "f-reducer", max_torque_nm: "f-torque", cycles: "f-cycles",
+    profile: "f-profile", rate_nm_per_s: "f-rate", step_nm: "f-step", dwell_s: "f-dwell", positions: "f-positions",
+    rates: "f-rates", move_velocity_deg_per_s: "f-move", decision_rule: "f-rule", input_speed_rpm: "f-input-speed",
+    load_torque_nm: "f-load", revolutions: "f-revolutions", ramps: "f-ramps", creep_deg_per_s: "f-creep",
+    speeds_rpm: "f-speeds" };
   const FIELD_IDS = { ...PLAN_FIELDS, serial_number: "f-serial", operator: "f-operator", name: "p-name", note: "p-note" };
+  // a field's input: dwell_s is the stepped profile's dwell, or a turning test's hold per speed
+  function fieldId(key) { return key === "dwell_s" && $("f-method").value !== "stiffness" ? "f-hold" : FIELD_IDS[key]; }
   function clearInvalid() {
     for (const el of document.querySelectorAll(".invalid")) { el.classList.remove("invalid"); el.removeAttribute("aria-invalid"); }
   }
   function fieldOf(error) {
     const loc = ((error.errors || [])[0] || {}).loc || [];
-    for (const part of [...loc].reverse()) if (FIELD_IDS[part]) return FIELD_IDS[part];
+    for (const part of [...loc].reverse()) if (FIELD_IDS[part]) return fieldId(part);
     const names = Object.keys(FIELD_IDS).filter((k) => k.includes("_")).sort((a, b) => b.length - a.length);
-    for (const name of names) if (String(error.detail || "").includes(name)) return FIELD_IDS[name];
+    for (const name of names) if (String(error.detail || "").includes(name)) return fieldId(name);
     return null;
   }
   function showError(error, where) {
@@ -654,6 +749,7 @@
         : await api("POST", "/api/tests", req);
       if (state.activeId !== res.id) {  // the event channel may already have reported this test
         resetLoop();
+        startMethod(planId ? (((state.plans || new Map()).get(planId) || {}).request || {}).method : req.method);
         setTestState(res.id, res.status);
       }
       message(t("dash.started", { id: res.id }));
@@ -687,15 +783,18 @@
     const plan = (state.plans || new Map()).get($("f-plan").value);
     const form = $("test-form");
     form.classList.toggle("from-plan", !!plan);
-    for (const [key, id] of Object.entries(PLAN_FIELDS)) {
+    const turning = plan && plan.request.method && plan.request.method !== "stiffness";
+    for (const [key, pick] of Object.entries(PLAN_FIELDS)) {
+      const id = key === "dwell_s" && turning ? "f-hold" : pick;
       const el = $(id);
       el.disabled = !!plan;
       el.closest("label").classList.toggle("plan-fixed", !!plan);
+      if (key === "dwell_s") { $("f-hold").disabled = !!plan; $("f-hold").closest("label").classList.toggle("plan-fixed", !!plan); }
       if (!plan) continue;
-      const v = plan.request[key];
+      const v = key === "method" ? plan.request.method || "stiffness" : plan.request[key];
       el.value = v === undefined || v === null ? "" : Array.isArray(v) ? v.join(",") : String(v);
     }
-    if (plan) form.classList.toggle("stepped", plan.request.profile === "stepped");
+    if (plan) { form.classList.toggle("stepped", plan.request.profile === "stepped"); pickMethod(); }
     $("edit-plan").hidden = !plan || !state.mayEditPlans;
   }
   $("f-plan").addEventListener("change", () => { clearInvalid(); $("plan-error").textContent = ""; showPlan(); });
