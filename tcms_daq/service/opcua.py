@@ -173,6 +173,55 @@ class _Users:
         return User(role=UserRole.User, name=username)
 
 
+class _QuantityNodes:
+    """The bench's AnalogUnitType nodes (a Double with its EngineeringUnits) and typed results (that value with its
+    ExpandedUncertainty in the same unit, CoverageFactor and Text), made under the bench's namespace (``node_id``:
+    path → NodeId) and kept in the bridge's map of nodes by path."""
+
+    def __init__(self, node_id: Callable[[str], Any], ns_bench: int, nodes: dict[str, Any]):
+        self.node_id = node_id
+        self.ns_bench = ns_bench
+        self.nodes = nodes
+
+    async def analog(self, parent: Any, path: str, name: str, unit: model.Unit) -> Any:
+        """An AnalogUnitType Double (NaN until written) with its EngineeringUnits."""
+        ua = _ua()
+
+        node = await model.add_variable(parent, self.node_id(path), ua.QualifiedName(name, self.ns_bench),
+                                        ua.Variant(math.nan, ua.VariantType.Double), ua.NodeId(ua.ObjectIds.Double),
+                                        ua.NodeId(ua.ObjectIds.AnalogUnitType))
+        await node.add_property(self.node_id(path + ".EngineeringUnits"), ua.QualifiedName("EngineeringUnits", 0),
+                                ua.Variant(model.eu_information(unit), ua.VariantType.ExtensionObject),
+                                datatype=ua.NodeId(ua.ObjectIds.EUInformation))
+        self.nodes[path] = node
+        return node
+
+    async def quantity(self, parent: Any, path: str, name: str, unit: model.Unit) -> Any:
+        """An AnalogUnitType result with its ExpandedUncertainty (same unit), CoverageFactor and Text."""
+        ua = _ua()
+
+        quantity = await self.analog(parent, path, name, unit)
+        await self.analog(quantity, f"{path}.ExpandedUncertainty", "ExpandedUncertainty", unit)
+        for child, kind, value in (("CoverageFactor", ua.ObjectIds.Double, math.nan), ("Text", ua.ObjectIds.String, "")):
+            variant = ua.Variant(value, ua.VariantType.Double if kind == ua.ObjectIds.Double else ua.VariantType.String)
+            self.nodes[f"{path}.{child}"] = await model.add_variable(
+                quantity, self.node_id(f"{path}.{child}"), ua.QualifiedName(child, self.ns_bench), variant,
+                ua.NodeId(kind))
+        return quantity
+
+    async def write(self, path: str, q: model.ResultQuantity | None) -> None:
+        """The result at ``path`` written from ``q`` (None: NaN and "—")."""
+        ua = _ua()
+
+        double, string = ua.VariantType.Double, ua.VariantType.String
+        for node, value, kind in (
+                (self.nodes[path], math.nan if q is None else q.value, double),
+                (self.nodes[f"{path}.ExpandedUncertainty"], math.nan if q is None else q.expanded, double),
+                (self.nodes[f"{path}.CoverageFactor"], math.nan if q is None else q.k, double),
+                (self.nodes[f"{path}.Text"], "—" if q is None else q.text, string)):
+            await node.write_value(ua.Variant(value, kind))
+
+
 class OpcUaBridge:
     """An asyncua server in its own thread, fed from the service (events, live batches) and the store."""
 
@@ -289,6 +338,7 @@ class OpcUaBridge:
             [ua.AnonymousIdentityToken] if self.config.anonymous else [])
         server.set_identity_tokens(tokens)
         self.ns, self.types = await model.build_types(server, self.application_uri)
+        self._quantities = _QuantityNodes(self._id, self.ns.bench, self._nodes)
         await self._build(server)
         await self._load_latest()
         try:
@@ -321,40 +371,6 @@ class OpcUaBridge:
     async def _relink(self, parent: Any, child: Any, old: int, new: int) -> None:
         await parent.delete_reference(child.nodeid, old, forward=True, bidirectional=True)
         await parent.add_reference(child.nodeid, new)
-
-    async def _quantity(self, parent: Any, path: str, name: str, unit: model.Unit) -> Any:
-        """An AnalogUnitType result with its ExpandedUncertainty (same unit), CoverageFactor and Text."""
-        ua = _ua()
-
-        quantity = await self._analog(parent, path, name, unit)
-        await self._analog(quantity, f"{path}.ExpandedUncertainty", "ExpandedUncertainty", unit)
-        for child, kind, value in (("CoverageFactor", ua.ObjectIds.Double, math.nan), ("Text", ua.ObjectIds.String, "")):
-            variant = ua.Variant(value, ua.VariantType.Double if kind == ua.ObjectIds.Double else ua.VariantType.String)
-            self._nodes[f"{path}.{child}"] = await model.add_variable(
-                quantity, self._id(f"{path}.{child}"), ua.QualifiedName(child, self.ns.bench), variant, ua.NodeId(kind))
-        return quantity
-
-    async def _write_quantity(self, path: str, q: model.ResultQuantity | None) -> None:
-        ua = _ua()
-
-        double = ua.VariantType.Double
-        await self._write(self._nodes[path], math.nan if q is None else q.value, double)
-        await self._write(self._nodes[f"{path}.ExpandedUncertainty"], math.nan if q is None else q.expanded, double)
-        await self._write(self._nodes[f"{path}.CoverageFactor"], math.nan if q is None else q.k, double)
-        await self._write(self._nodes[f"{path}.Text"], "—" if q is None else q.text, ua.VariantType.String)
-
-    async def _analog(self, parent: Any, path: str, name: str, unit: model.Unit) -> Any:
-        """An AnalogUnitType Double (NaN until written) with its EngineeringUnits."""
-        ua = _ua()
-
-        node = await model.add_variable(parent, self._id(path), ua.QualifiedName(name, self.ns.bench),
-                                        ua.Variant(math.nan, ua.VariantType.Double), ua.NodeId(ua.ObjectIds.Double),
-                                        ua.NodeId(ua.ObjectIds.AnalogUnitType))
-        await node.add_property(self._id(path + ".EngineeringUnits"), ua.QualifiedName("EngineeringUnits", 0),
-                                ua.Variant(model.eu_information(unit), ua.VariantType.ExtensionObject),
-                                datatype=ua.NodeId(ua.ObjectIds.EUInformation))
-        self._nodes[path] = node
-        return node
 
     async def _state_machine(self, parent: Any, path: str, name: str, type_id: int, states: Mapping[str, Any]
                              ) -> None:
@@ -415,8 +431,8 @@ class OpcUaBridge:
             self._nodes[name] = await model.add_variable(bench, self._id(name), ua.QualifiedName(name, ns.bench),
                                                          ua.Variant(value, ua.VariantType.String),
                                                          ua.NodeId(ua.ObjectIds.String))
-        await self._analog(bench, "Torque", "Torque", model.NEWTON_METRE)
-        await self._analog(bench, "Angle", "Angle", model.ARCSEC)
+        await self._quantities.analog(bench, "Torque", "Torque", model.NEWTON_METRE)
+        await self._quantities.analog(bench, "Angle", "Angle", model.ARCSEC)
 
         manager = await bench.add_object(self._id("ResultManagement"), ua.QualifiedName("ResultManagement", ns.result),
                                          objecttype=types["ResultManagementType"].nodeid)
@@ -431,7 +447,7 @@ class OpcUaBridge:
         self._nodes["LatestResult.ResultMetaData.ResultId"] = server.get_node(
             self._id("LatestResult.ResultMetaData.ResultId"))
         for key, name in QUANTITIES:
-            await self._quantity(latest, f"LatestResult.{name}", name,
+            await self._quantities.quantity(latest, f"LatestResult.{name}", name,
                                  model.UNITS_OF[next(h.unit for h in HEADLINES if h.key == key)])
         self._nodes["LatestResult.Quantities"] = await latest.add_object(
             self._id("LatestResult.Quantities"), ua.QualifiedName("Quantities", ns.bench),
@@ -588,8 +604,8 @@ class OpcUaBridge:
         folder = self._nodes["LatestResult.Quantities"]
         for q in typed:
             path = f"LatestResult.Quantities.{q.name}"
-            self._quantity_nodes.append(await self._quantity(folder, path, q.name, q.unit))
-            await self._write_quantity(path, q)
+            self._quantity_nodes.append(await self._quantities.quantity(folder, path, q.name, q.unit))
+            await self._quantities.write(path, q)
 
     async def _set_latest(self, record: StoredRun) -> None:
         ua = _ua()
@@ -599,7 +615,7 @@ class OpcUaBridge:
         string = ua.VariantType.String
         typed = {q.name: q for q in model.result_quantities(record.results)}
         for _, name in QUANTITIES:  # a turning test's result has none of them: NaN, "—"
-            await self._write_quantity(f"LatestResult.{name}", typed.get(name))
+            await self._quantities.write(f"LatestResult.{name}", typed.get(name))
         await self._set_quantities(list(typed.values()))
         await self._write(self._nodes["LatestResult.SerialNumber"], str(ident.get("serial_number") or ""), string)
         await self._write(self._nodes["LatestResult.Reducer"], str(ident.get("reducer") or ""), string)
