@@ -71,6 +71,8 @@ from tcms_daq.store import RunQuery, Store, StoredRun
 VALUE_PERIOD_S = 0.1
 STATUS_PERIOD_S = 1.0
 FINAL = ("completed", "aborted", "failed", "interrupted")
+#: ModelChangeStructureDataType verbs (OPC 10000-3 §9.32.1: a bit mask)
+MODEL_CHANGE_REFERENCE_ADDED, MODEL_CHANGE_REFERENCE_DELETED = 4, 8
 ACTIVE = ("queued", "running")
 CERT_DIRNAME = "opcua"
 CERT_FILE, KEY_FILE = "server-cert.der", "server-key.pem"
@@ -251,6 +253,7 @@ class OpcUaBridge:
         self._nodes: dict[str, Any] = {}
         self._active = False
         self._connected: bool | None = True
+        self._started = False  # the server is listening (a model change before it is not announced)
 
     def _endpoint_url(self, port: int) -> str:
         host = socket.gethostname() if self.host in ("0.0.0.0", "::", "") else self.host
@@ -346,6 +349,7 @@ class OpcUaBridge:
         except OSError as exc:
             raise OpcUaError(exc.strerror or str(exc)) from None
         self.server = server
+        self._started = True
         self._ready.set()
         try:
             next_status = 0.0
@@ -483,6 +487,9 @@ class OpcUaBridge:
         self._event.event.SourceNode = manager.nodeid
         self._event.event.SourceName = "ResultManagement"
         self._notifiers = [bench.nodeid, manager.nodeid]
+        # LatestResult/Quantities is remade for each result: a GeneralModelChangeEvent tells a client to browse again
+        self._model_change = await server.get_event_generator(ua.ObjectIds.GeneralModelChangeEventType,
+                                                              ua.ObjectIds.Server)
 
     @staticmethod
     def _argument(name: str, datatype: Any, text: str) -> Any:
@@ -606,6 +613,24 @@ class OpcUaBridge:
             path = f"LatestResult.Quantities.{q.name}"
             self._quantity_nodes.append(await self._quantities.quantity(folder, path, q.name, q.unit))
             await self._quantities.write(path, q)
+        if self._started:
+            await self._announce_model_change(folder)
+
+    async def _announce_model_change(self, folder: Any) -> None:
+        """A GeneralModelChangeEvent (OPC 10000-3 §9.32) from the Server object: the folder's references to its
+        quantities were deleted and added (verbs ReferenceAdded | ReferenceDeleted)."""
+        ua = _ua()
+
+        change = ua.ModelChangeStructureDataType(Affected=folder.nodeid,
+                                                 AffectedType=ua.NodeId(ua.ObjectIds.FolderType),
+                                                 Verb=MODEL_CHANGE_REFERENCE_ADDED | MODEL_CHANGE_REFERENCE_DELETED)
+        # the type's field is a structure asyncua cannot wrap by its DataType NodeId: declared as what it is encoded as
+        self._model_change.event.add_property("Changes", [change], ua.VariantType.ExtensionObject)
+        self._model_change.event.SourceNode = folder.nodeid
+        self._model_change.event.SourceName = "LatestResult/Quantities"
+        self._model_change.event.Severity = 1
+        self._model_change.event.Message = ua.LocalizedText("the latest result's quantities were replaced")
+        await self._model_change.trigger()
 
     async def _set_latest(self, record: StoredRun) -> None:
         ua = _ua()

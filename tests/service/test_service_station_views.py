@@ -264,12 +264,30 @@ def test_an_independent_opcua_client_reads_each_method_as_typed_results(station)
                                (await (await node.get_child("0:EngineeringUnits")).read_value()).UnitId)
             return by_method, shown
 
+    async def replaced(bridge: OpcUaBridge, run_id: str) -> tuple[Any, set[str]]:
+        """A client subscribed to model changes while a new result replaces LatestResult/Quantities."""
+        changes: asyncio.Queue = asyncio.Queue()
+
+        class Handler:
+            def event_notification(self, event: Any) -> None:
+                changes.put_nowait(event)
+
+        async with Client(bridge.endpoint, timeout=20) as client:
+            subscription = await client.create_subscription(20, Handler())
+            await subscription.subscribe_events(client.nodes.server,
+                                                client.get_node(ua.NodeId(ua.ObjectIds.GeneralModelChangeEventType)))
+            bridge.on_event({"type": "test_state", "status": "completed", "id": run_id})
+            event = await asyncio.wait_for(changes.get(), 20)
+            folder = client.get_node(event.Changes[0].Affected)
+            return event, {(await n.read_browse_name()).Name for n in await folder.get_children()}
+
     with open_store(None, data_dir) as store:
         bridge = OpcUaBridge(store, bench_id, "simulated station", 0,
                              config=OpcUaSection(anonymous=True, security_modes=["None"]))
         bridge.start()
         try:
             by_method, latest = asyncio.run(read(bridge.endpoint))
+            change, browsed = asyncio.run(replaced(bridge, records["transmission-error"].id))
         finally:
             bridge.stop()
     expected = {
@@ -294,6 +312,9 @@ def test_an_independent_opcua_client_reads_each_method_as_typed_results(station)
     assert "pin_ring" in by_method["transmission-error"]["TeOrder_39_Amplitude"].Text
     # LatestResult: the newest run's (the efficiency's) quantities as variables; the stiffness ones NaN
     assert latest["method"] == "efficiency" and np.isnan(latest["rigidity"])
+    # a new result remakes the quantities, and a client subscribed to model changes is told where to browse again
+    assert change.Changes[0].Verb == 4 | 8  # ReferenceAdded | ReferenceDeleted
+    assert "TransmissionError" in browsed and "EfficiencyForward" not in browsed
     res = records["efficiency"].results
     assert latest["EfficiencyForward"] == pytest.approx((res["forward_efficiency"],
                                                          res["uncertainty"]["forward_efficiency"]["U"], UNIT_ID["1"]))
