@@ -12,6 +12,7 @@ import io
 import json
 import shutil
 import subprocess
+from typing import Any
 
 import numpy as np
 import pyarrow.csv as pa_csv
