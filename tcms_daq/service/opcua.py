@@ -175,6 +175,23 @@ class _Users:
         return User(role=UserRole.User, name=username)
 
 
+async def announce_model_change(generator: Any, folder: Any) -> None:
+    """A GeneralModelChangeEvent (OPC 10000-3 §9.32) through ``generator`` (the Server object's): ``folder``'s
+    references to its children were deleted and added (verbs ReferenceAdded | ReferenceDeleted)."""
+    ua = _ua()
+
+    change = ua.ModelChangeStructureDataType(Affected=folder.nodeid, AffectedType=ua.NodeId(ua.ObjectIds.FolderType),
+                                             Verb=MODEL_CHANGE_REFERENCE_ADDED | MODEL_CHANGE_REFERENCE_DELETED)
+    event = generator.event
+    # the type's field is a structure asyncua cannot wrap by its DataType NodeId: declared as what it is encoded as
+    event.add_property("Changes", [change], ua.VariantType.ExtensionObject)
+    event.SourceNode = folder.nodeid
+    event.SourceName = (await folder.read_browse_name()).Name
+    event.Severity = 1
+    event.Message = ua.LocalizedText("the folder's children were replaced")
+    await generator.trigger()
+
+
 class _QuantityNodes:
     """The bench's AnalogUnitType nodes (a Double with its EngineeringUnits) and typed results (that value with its
     ExpandedUncertainty in the same unit, CoverageFactor and Text), made under the bench's namespace (``node_id``:
@@ -614,23 +631,7 @@ class OpcUaBridge:
             self._quantity_nodes.append(await self._quantities.quantity(folder, path, q.name, q.unit))
             await self._quantities.write(path, q)
         if self._started:
-            await self._announce_model_change(folder)
-
-    async def _announce_model_change(self, folder: Any) -> None:
-        """A GeneralModelChangeEvent (OPC 10000-3 §9.32) from the Server object: the folder's references to its
-        quantities were deleted and added (verbs ReferenceAdded | ReferenceDeleted)."""
-        ua = _ua()
-
-        change = ua.ModelChangeStructureDataType(Affected=folder.nodeid,
-                                                 AffectedType=ua.NodeId(ua.ObjectIds.FolderType),
-                                                 Verb=MODEL_CHANGE_REFERENCE_ADDED | MODEL_CHANGE_REFERENCE_DELETED)
-        # the type's field is a structure asyncua cannot wrap by its DataType NodeId: declared as what it is encoded as
-        self._model_change.event.add_property("Changes", [change], ua.VariantType.ExtensionObject)
-        self._model_change.event.SourceNode = folder.nodeid
-        self._model_change.event.SourceName = "LatestResult/Quantities"
-        self._model_change.event.Severity = 1
-        self._model_change.event.Message = ua.LocalizedText("the latest result's quantities were replaced")
-        await self._model_change.trigger()
+            await announce_model_change(self._model_change, folder)
 
     async def _set_latest(self, record: StoredRun) -> None:
         ua = _ua()
