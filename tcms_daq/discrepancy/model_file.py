@@ -28,7 +28,6 @@ discrepancy model has this file of its own. The same ``[[terms]]`` map one-to-on
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,6 +39,7 @@ from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import build_design
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples
+from tcms_daq.tomlfile import load_formatted_toml
 
 FORMAT = "tcms-discrepancy-model/1"
 
@@ -104,12 +104,7 @@ def model_from_result(result) -> DiscrepancyModel:
 
 def parse_model(text: str, source: str = "<model>") -> DiscrepancyModel:
     """Parse a model file; raises DataFormatError with a one-line message."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DataFormatError(f"{source}: not valid TOML ({exc})") from None
-    if doc.get("format") != FORMAT:
-        raise DataFormatError(f"{source}: format must be {FORMAT!r}")
+    doc = load_formatted_toml(text, source, FORMAT)
     terms = []
     for i, t in enumerate(doc.get("terms", [])):
         name = t.get("name")

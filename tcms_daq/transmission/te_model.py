@@ -40,7 +40,6 @@ component.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -52,6 +51,7 @@ import tomli_w
 from threadpoolctl import threadpool_limits
 
 from tcms_daq.errors import DataFormatError
+from tcms_daq.tomlfile import load_formatted_toml
 from tcms_daq.transmission.kinematics import Teeth, order_table
 from tcms_daq.transmission.te import (
     DIRECTIONS,
@@ -123,12 +123,7 @@ class TeModel:
 
 def parse_te_model(text: str, source: str = "<te model>") -> TeModel:
     """Parse a TE model file; DataFormatError with one line naming the problem."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise DataFormatError(f"{source}: not valid TOML ({exc})") from None
-    if doc.get("format") != FORMAT:
-        raise DataFormatError(f"{source}: format must be {FORMAT!r}")
+    doc = load_formatted_toml(text, source, FORMAT)
     ratio = doc.get("ratio")
     if not isinstance(ratio, int | float) or not ratio > 0:
         raise DataFormatError(f"{source}: ratio must be a number > 0")
