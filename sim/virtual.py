@@ -562,7 +562,31 @@ class VirtualTorqueSource:
         self.tare_nm = self._last_raw_nm
 
 
-class VirtualLoader:
+class _VirtualDrive:
+    """What the simulated loader and input drive share: the link (connect, close) and its check before a command
+    (``lost``: the simulated fault that silences the drive's heartbeat; ``lost_reason``: its words)."""
+
+    name: str
+    connected: bool
+    lost_reason = "no heartbeat from the drive"
+
+    def lost(self) -> bool:
+        raise NotImplementedError
+
+    def _check(self) -> None:
+        if self.lost():
+            raise Disconnected(self.name, self.lost_reason)
+        if not self.connected:
+            raise Disconnected(self.name, "not connected")
+
+    def connect(self) -> None:
+        self.connected = True
+
+    def close(self) -> None:
+        self.connected = False
+
+
+class VirtualLoader(_VirtualDrive):
     """CiA 402-like loader over the simulated drive: enable/disable, profile torque with a slope, FAULT."""
 
     def __init__(self, bench: VirtualBench, rated_torque_nm: float, max_torque_nm: float | None = None,
@@ -580,17 +604,8 @@ class VirtualLoader:
                                       else 0.01 * self.rated_torque_nm)
         self.commands: list[tuple[str, float, float]] = []  # (command, value, sim time) for tests
 
-    def _check(self) -> None:
-        if self.bench.faults.loader_lost:
-            raise Disconnected(self.name, "no heartbeat from the drive")
-        if not self.connected:
-            raise Disconnected(self.name, "not connected")
-
-    def connect(self) -> None:
-        self.connected = True
-
-    def close(self) -> None:
-        self.connected = False
+    def lost(self) -> bool:
+        return self.bench.faults.loader_lost
 
     def enable(self) -> None:
         self._check()
@@ -727,7 +742,7 @@ class VirtualInputTorque(VirtualTorqueSource):
         self.tare_nm = self._last_raw_nm
 
 
-class VirtualInputDrive:
+class VirtualInputDrive(_VirtualDrive):
     """The input drive of the second axis (``[instruments.input_drive]``): ``drivers.base.InputDrive`` over the
     in-process bench's :class:`InputDriveModel` (profile velocity at the input shaft, deg/s)."""
 
@@ -747,17 +762,10 @@ class VirtualInputDrive:
     def model(self) -> InputDriveModel:
         return self.axis.drive
 
-    def _check(self) -> None:
-        if self.bench.faults.input_drive_lost:
-            raise Disconnected(self.name, "no heartbeat from the input drive")
-        if not self.connected:
-            raise Disconnected(self.name, "not connected")
+    lost_reason = "no heartbeat from the input drive"
 
-    def connect(self) -> None:
-        self.connected = True
-
-    def close(self) -> None:
-        self.connected = False
+    def lost(self) -> bool:
+        return self.bench.faults.input_drive_lost
 
     def enable(self) -> None:
         self._check()
