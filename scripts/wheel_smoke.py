@@ -221,6 +221,14 @@ def main() -> int:
         if trials["naming_accuracy"] != 1.0 or trials["out_of_catalogue"]["honesty_rate"] != 1.0:
             sys.exit(f"wheel-smoke: FAILED: discrepancy trials from the wheel: {trials}")
         print("wheel-smoke: discrepancy trials named the hidden drift and did not explain the slip")
+        out = step("tcms run --config bench-station.toml --method transmission-error (the packaged station)",
+                   [str(tcms), "run", "--config", "bench-station.toml", "--method", "transmission-error", "--json"],
+                   elsewhere, env=env)
+        te = json.loads(out)
+        if not te["te_orders"] or not all(te["within_u"].values()):
+            sys.exit(f"wheel-smoke: FAILED: transmission error from the wheel: {te['within_u']}")
+        print(f"wheel-smoke: transmission error {te['transmission_error_arcsec']:.1f}″, orders "
+              + ", ".join(f"{line['order']:g} ({line.get('component') or 'no component'})" for line in te["te_orders"]))
         tour = None if args.no_tour else start_tour(vpy.parent, work / "tour", env)
         serve_one_test(tcms, elsewhere, env)
         loopback_run(tcms, elsewhere, env)
