@@ -305,11 +305,16 @@ def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAI
 
 
 def coverage_independent(kind: str, seed: int) -> dict[str, tuple[float, float]]:
-    """The transmission error of one unit of the independent generator (its errors drawn per seed) against the
-    generator's own truth, with the trials' declared chain: (error, U) per result."""
+    """The transmission error of one unit of the independent generator (its errors drawn per seed, and its output
+    encoder's error at orders 1–2 drawn from the trials' declared chain) against the generator's own truth, with
+    the trials' declared chain: (error, U) per result."""
     errors: RvErrors | HdErrors = RvErrors() if kind == "rv" else HdErrors()
     teeth = RV_TEETH if kind == "rv" else HD_TEETH
-    g = generate(errors, None, Recording(), seed=seed, unit_seed=seed)
+    # the output encoder's error at orders 1–2 drawn from the declared chain (u RMS over the revolution: each order's
+    # cosine and sine N(0, u²/2)), in the generator's own convention (amplitude, lag)
+    c1, s1, c2, s2 = CHAIN.output_encoder_u_arcsec / math.sqrt(2.0) * np.random.default_rng((seed, 12)).standard_normal(4)
+    encoder = (math.hypot(c1, s1), math.degrees(math.atan2(s1, c1)), math.hypot(c2, s2), math.degrees(math.atan2(s2, c2)))
+    g = generate(errors, None, Recording(output_encoder_error=encoder), seed=seed, unit_seed=seed)
     ev = evaluate_transmission_error(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ratio=g.ratio, teeth=teeth)
     budgets = te_budgets(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ev, CHAIN, teeth=teeth)
     out: dict[str, tuple[float, float]] = {}
@@ -356,6 +361,9 @@ def coverage(name: str, seeds: int, first_seed: int = 1) -> dict[str, dict[str, 
     return out
 
 
+COVERAGE_UNITS = ["RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tcms_daq.sim.station_trials", description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
@@ -364,10 +372,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--coverage", action="store_true",
                         help="the four methods' U against the truth on stations with drawn instrument errors")
+    parser.add_argument("--unit", action="append", choices=COVERAGE_UNITS,
+                        help="with --coverage: only these units (default all, in this order)")
     args = parser.parse_args(argv)
     if args.coverage:
         table = {}
-        for name in ("RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"):
+        for name in args.unit or COVERAGE_UNITS:
             start = time.perf_counter()
             table[name] = coverage(name, args.seeds, args.first_seed)
             if not args.json:
