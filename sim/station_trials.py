@@ -27,6 +27,7 @@ without a name and names nothing; ``quiet`` — (null) runs 1 and 2 ``consistent
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -361,6 +362,67 @@ def coverage(name: str, seeds: int, first_seed: int = 1) -> dict[str, dict[str, 
     return out
 
 
+# what the split switches off: each drawn instrument error of the transmission-error run in turn
+# (the sensors' fields set to none, the budget line that covers it)
+SPLIT: dict[str, tuple[dict[str, Any], str]] = {
+    "output encoder (orders 1–2)": ({"output_encoder_graduation_arcsec": (0.0, 0.0, 0.0, 0.0)},
+                                    "output encoder (orders 1–2)"),
+    "skew": ({"sync_skew_s": 0.0}, "synchronisation (skew of the angle readings)"),
+    "input encoder": ({"input_encoder_error_arcsec": 0.0}, "input encoder (once per input turn)"),
+    "speed ripple": ({"speed_ripple_pct": 0.0}, "speed ripple (resampling onto the angle grid)")}
+
+
+def te_error_split(name: str, seeds: int, first_seed: int = 1, chain: StationUncertainty = COVERAGE_CHAIN
+                   ) -> dict[str, dict[str, float]]:
+    """The transmission error's peak-to-peak on the coverage stations (the same draws as ``coverage_run``), per
+    result: its error against the truth (mean: the bias; sd), the error over U (mean, sd), the coverage, and for
+    each drawn instrument error what the error changes when that one is switched off (mean, RMS), against that
+    source's budget line (median contribution)."""
+    spec = load_reducer_catalogue()[name]
+    unit = unit_from_spec(spec)
+    assert spec.kinematics is not None
+    teeth = spec.kinematics.teeth(spec.kind)
+    keys = ("transmission_error_arcsec", "forward_transmission_error_arcsec", "reverse_transmission_error_arcsec")
+    rows: list[dict[str, Any]] = []
+    for seed in range(first_seed, first_seed + seeds):
+        sensors, start = _drawn_sensors(np.random.default_rng(seed), chain)
+
+        def errors(s: StationSensors, seed: int = seed, start: float = start) -> tuple[dict[str, float], Any, Any]:
+            c = record_speed_run(unit, te_profile(2000.0, unit.ratio, 1.15, 0.02 * spec.rated_torque_nm), s,
+                                 seed=seed, start_input_angle_arcsec=start).columns
+            ev = evaluate_transmission_error(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"],
+                                             ratio=unit.ratio, teeth=teeth)
+            truth = {d: te_peak_to_peak_truth(unit, x.phi_start_rad, x.phi_end_rad) for d, x in ev.per_direction.items()}
+            values = {keys[0]: ev.transmission_error_arcsec - max(truth.values())}
+            values.update({f"{d}_transmission_error_arcsec": x.peak_to_peak_arcsec - truth[d]
+                           for d, x in ev.per_direction.items()})
+            return values, c, ev
+
+        full, c, ev = errors(sensors)
+        budgets = te_budgets(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"], ev, chain, teeth=teeth)
+        row: dict[str, Any] = {"error": full, "U": {k: budgets[k].expanded for k in keys},
+                               "lines": {k: {ln.source: ln.contribution for ln in budgets[k].lines} for k in keys}}
+        for source, (change, _) in SPLIT.items():
+            off, _, _ = errors(dataclasses.replace(sensors, **change))
+            row[source] = {k: full[k] - off[k] for k in keys}
+        rows.append(row)
+    out: dict[str, dict[str, float]] = {}
+    for k in keys:
+        e = np.array([r["error"][k] for r in rows])
+        u = np.array([r["U"][k] for r in rows])
+        stats = {"mean_error": float(e.mean()), "sd_error": float(e.std(ddof=1)),
+                 "mean_error_over_U": float(np.mean(e / u)), "sd_error_over_U": float(np.std(e / u, ddof=1)),
+                 "covered": float(np.mean(np.abs(e) <= u)), "median_U": float(np.median(u))}
+        for source, (_, budget_line) in SPLIT.items():
+            d = np.array([r[source][k] for r in rows])
+            line = [r["lines"][k].get(budget_line, 0.0) for r in rows]
+            stats[f"{source}: mean"] = float(d.mean())
+            stats[f"{source}: RMS"] = float(np.sqrt(np.mean(d ** 2)))
+            stats[f"{source}: median line"] = float(np.median(line)) if line else 0.0
+        out[k] = stats
+    return out
+
+
 COVERAGE_UNITS = ["RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"]
 
 
@@ -374,7 +436,21 @@ def main(argv: list[str] | None = None) -> int:
                         help="the four methods' U against the truth on stations with drawn instrument errors")
     parser.add_argument("--unit", action="append", choices=COVERAGE_UNITS,
                         help="with --coverage: only these units (default all, in this order)")
+    parser.add_argument("--te-split", action="store_true",
+                        help="the TE peak-to-peak's error on the coverage stations split by drawn instrument error")
     args = parser.parse_args(argv)
+    if args.te_split:
+        split = {name: te_error_split(name, args.seeds, args.first_seed)
+                 for name in (args.unit or ["RV-110E", "HFUC-32-100"])}
+        if args.json:
+            json.dump(split, sys.stdout, indent=2)
+            print()
+        else:
+            for name, per_result in split.items():
+                print(f"{name} ({args.seeds} stations from seed {args.first_seed})")
+                for key, row in per_result.items():
+                    print(f"  {key}: " + "; ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
+        return 0
     if args.coverage:
         table = {}
         for name in args.unit or COVERAGE_UNITS:
