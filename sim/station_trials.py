@@ -67,8 +67,10 @@ from tcms_daq.transmission.torque import (
     evaluate_starting_torque,
 )
 from tcms_daq.uncertainty.station import (
+    MC_DRAWS,
     efficiency_budgets,
     no_load_torque_budgets,
+    standard_normal_draws,
     starting_torque_budgets,
     te_allowance,
     te_budgets,
@@ -423,6 +425,31 @@ def te_error_split(name: str, seeds: int, first_seed: int = 1, chain: StationUnc
     return out
 
 
+def te_encoder_on_lines(name: str, seeds: int, first_seed: int = 1, chain: StationUncertainty = COVERAGE_CHAIN,
+                        draws: int = MC_DRAWS, points: int = 20_000) -> dict[str, float]:
+    """The output encoder's order-1–2 error alone, on the unit's lines (no record, no fit): per coverage station's
+    draw (``_drawn_sensors``) the peak-to-peak of lines + error against the lines' (over one revolution), and the
+    RMS change a Monte Carlo of the declared error gives at that measured curve (what the budget's line does, here
+    apart from the evaluation): the error's mean and RMS, the median u, the share with |error| ≤ 1.96·u."""
+    unit = unit_from_spec(load_reducer_catalogue()[name])
+    phi = np.linspace(0.0, 2.0 * math.pi, points, endpoint=False)
+    truth = sum(h.amplitude_arcsec * np.sin(h.order_per_output_rev * phi + h.phase_rad) for h in unit.harmonics)
+    shapes = np.array([np.cos(phi), np.sin(phi), np.cos(2.0 * phi), np.sin(2.0 * phi)])
+    sigma = chain.output_encoder_u_arcsec / math.sqrt(2.0)
+    moves = sigma * standard_normal_draws(np.random.default_rng(0), draws, 4) @ shapes
+    errors, us = [], []
+    for seed in range(first_seed, first_seed + seeds):
+        sensors, _ = _drawn_sensors(np.random.default_rng(seed), chain)
+        measured = truth + np.array(sensors.output_encoder_graduation_arcsec) @ shapes
+        value = float(np.ptp(measured))
+        errors.append(value - float(np.ptp(truth)))
+        us.append(float(np.sqrt(np.mean((np.ptp(measured[None, :] + moves, axis=1) - value) ** 2))))
+    e, u = np.array(errors), np.array(us)
+    rms = float(np.sqrt(np.mean(e ** 2)))
+    return {"mean_error": float(e.mean()), "rms_error": rms, "median_u": float(np.median(u)),
+            "covered": float(np.mean(np.abs(e) <= 1.96 * u)), "U_over_needed": float(np.median(u)) / rms}
+
+
 COVERAGE_UNITS = ["RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"]
 
 
@@ -438,7 +465,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --coverage: only these units (default all, in this order)")
     parser.add_argument("--te-split", action="store_true",
                         help="the TE peak-to-peak's error on the coverage stations split by drawn instrument error")
+    parser.add_argument("--te-encoder-lines", action="store_true",
+                        help="the output encoder's order-1–2 error alone on the units' lines: its error and U")
     args = parser.parse_args(argv)
+    if args.te_encoder_lines:
+        for name in args.unit or ["RV-110E", "HFUC-32-100"]:
+            row = te_encoder_on_lines(name, args.seeds, args.first_seed)
+            print(f"{name} ({args.seeds} draws from seed {args.first_seed}): "
+                  + "; ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
+        return 0
     if args.te_split:
         split = {name: te_error_split(name, args.seeds, args.first_seed)
                  for name in (args.unit or ["RV-110E", "HFUC-32-100"])}
