@@ -27,6 +27,7 @@ without a name and names nothing; ``quiet`` — (null) runs 1 and 2 ``consistent
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -66,8 +67,10 @@ from tcms_daq.transmission.torque import (
     evaluate_starting_torque,
 )
 from tcms_daq.uncertainty.station import (
+    MC_DRAWS,
     efficiency_budgets,
     no_load_torque_budgets,
+    standard_normal_draws,
     starting_torque_budgets,
     te_allowance,
     te_budgets,
@@ -305,11 +308,16 @@ def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAI
 
 
 def coverage_independent(kind: str, seed: int) -> dict[str, tuple[float, float]]:
-    """The transmission error of one unit of the independent generator (its errors drawn per seed) against the
-    generator's own truth, with the trials' declared chain: (error, U) per result."""
+    """The transmission error of one unit of the independent generator (its errors drawn per seed, and its output
+    encoder's error at orders 1–2 drawn from the trials' declared chain) against the generator's own truth, with
+    the trials' declared chain: (error, U) per result."""
     errors: RvErrors | HdErrors = RvErrors() if kind == "rv" else HdErrors()
     teeth = RV_TEETH if kind == "rv" else HD_TEETH
-    g = generate(errors, None, Recording(), seed=seed, unit_seed=seed)
+    # the output encoder's error at orders 1–2 drawn from the declared chain (u RMS over the revolution: each order's
+    # cosine and sine N(0, u²/2)), in the generator's own convention (amplitude, lag)
+    c1, s1, c2, s2 = CHAIN.output_encoder_u_arcsec / math.sqrt(2.0) * np.random.default_rng((seed, 12)).standard_normal(4)
+    encoder = (math.hypot(c1, s1), math.degrees(math.atan2(s1, c1)), math.hypot(c2, s2), math.degrees(math.atan2(s2, c2)))
+    g = generate(errors, None, Recording(output_encoder_error=encoder), seed=seed, unit_seed=seed)
     ev = evaluate_transmission_error(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ratio=g.ratio, teeth=teeth)
     budgets = te_budgets(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ev, CHAIN, teeth=teeth)
     out: dict[str, tuple[float, float]] = {}
@@ -356,6 +364,95 @@ def coverage(name: str, seeds: int, first_seed: int = 1) -> dict[str, dict[str, 
     return out
 
 
+# what the split switches off: each drawn instrument error of the transmission-error run in turn
+# (the sensors' fields set to none, the budget line that covers it)
+SPLIT: dict[str, tuple[dict[str, Any], str]] = {
+    "output encoder (orders 1–2)": ({"output_encoder_graduation_arcsec": (0.0, 0.0, 0.0, 0.0)},
+                                    "output encoder (orders 1–2)"),
+    "skew": ({"sync_skew_s": 0.0}, "synchronisation (skew of the angle readings)"),
+    "input encoder": ({"input_encoder_error_arcsec": 0.0}, "input encoder (once per input turn)"),
+    "speed ripple": ({"speed_ripple_pct": 0.0}, "speed ripple (resampling onto the angle grid)")}
+
+
+def te_error_split(name: str, seeds: int, first_seed: int = 1, chain: StationUncertainty = COVERAGE_CHAIN
+                   ) -> dict[str, dict[str, float]]:
+    """The transmission error's peak-to-peak on the coverage stations (the same draws as ``coverage_run``), per
+    result: its error against the truth (mean: the bias; sd), the error over U (mean, sd), the coverage, and for
+    each drawn instrument error what the error changes when that one is switched off (mean, RMS), against that
+    source's budget line (median contribution)."""
+    spec = load_reducer_catalogue()[name]
+    unit = unit_from_spec(spec)
+    assert spec.kinematics is not None
+    teeth = spec.kinematics.teeth(spec.kind)
+    keys = ("transmission_error_arcsec", "forward_transmission_error_arcsec", "reverse_transmission_error_arcsec")
+    rows: list[dict[str, Any]] = []
+    for seed in range(first_seed, first_seed + seeds):
+        sensors, start = _drawn_sensors(np.random.default_rng(seed), chain)
+
+        def errors(s: StationSensors, seed: int = seed, start: float = start) -> tuple[dict[str, float], Any, Any]:
+            c = record_speed_run(unit, te_profile(2000.0, unit.ratio, 1.15, 0.02 * spec.rated_torque_nm), s,
+                                 seed=seed, start_input_angle_arcsec=start).columns
+            ev = evaluate_transmission_error(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"],
+                                             ratio=unit.ratio, teeth=teeth)
+            truth = {d: te_peak_to_peak_truth(unit, x.phi_start_rad, x.phi_end_rad) for d, x in ev.per_direction.items()}
+            values = {keys[0]: ev.transmission_error_arcsec - max(truth.values())}
+            values.update({f"{d}_transmission_error_arcsec": x.peak_to_peak_arcsec - truth[d]
+                           for d, x in ev.per_direction.items()})
+            return values, c, ev
+
+        full, c, ev = errors(sensors)
+        budgets = te_budgets(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"], ev, chain, teeth=teeth)
+        row: dict[str, Any] = {"error": full, "U": {k: budgets[k].expanded for k in keys},
+                               "lines": {k: {ln.source: ln.contribution for ln in budgets[k].lines} for k in keys}}
+        for source, (change, _) in SPLIT.items():
+            off, _, _ = errors(dataclasses.replace(sensors, **change))
+            row[source] = {k: full[k] - off[k] for k in keys}
+        rows.append(row)
+    out: dict[str, dict[str, float]] = {}
+    for k in keys:
+        e = np.array([r["error"][k] for r in rows])
+        u = np.array([r["U"][k] for r in rows])
+        stats = {"mean_error": float(e.mean()), "sd_error": float(e.std(ddof=1)),
+                 "mean_error_over_U": float(np.mean(e / u)), "sd_error_over_U": float(np.std(e / u, ddof=1)),
+                 "covered": float(np.mean(np.abs(e) <= u)), "median_U": float(np.median(u))}
+        for source, (_, budget_line) in SPLIT.items():
+            d = np.array([r[source][k] for r in rows])
+            line = [r["lines"][k].get(budget_line, 0.0) for r in rows]
+            stats[f"{source}: mean"] = float(d.mean())
+            stats[f"{source}: RMS"] = float(np.sqrt(np.mean(d ** 2)))
+            stats[f"{source}: median line"] = float(np.median(line)) if line else 0.0
+        out[k] = stats
+    return out
+
+
+def te_encoder_on_lines(name: str, seeds: int, first_seed: int = 1, chain: StationUncertainty = COVERAGE_CHAIN,
+                        draws: int = MC_DRAWS, points: int = 20_000) -> dict[str, float]:
+    """The output encoder's order-1–2 error alone, on the unit's lines (no record, no fit): per coverage station's
+    draw (``_drawn_sensors``) the peak-to-peak of lines + error against the lines' (over one revolution), and the
+    RMS change a Monte Carlo of the declared error gives at that measured curve (what the budget's line does, here
+    apart from the evaluation): the error's mean and RMS, the median u, the share with |error| ≤ 1.96·u."""
+    unit = unit_from_spec(load_reducer_catalogue()[name])
+    phi = np.linspace(0.0, 2.0 * math.pi, points, endpoint=False)
+    truth = sum(h.amplitude_arcsec * np.sin(h.order_per_output_rev * phi + h.phase_rad) for h in unit.harmonics)
+    shapes = np.array([np.cos(phi), np.sin(phi), np.cos(2.0 * phi), np.sin(2.0 * phi)])
+    sigma = chain.output_encoder_u_arcsec / math.sqrt(2.0)
+    moves = sigma * standard_normal_draws(np.random.default_rng(0), draws, 4) @ shapes
+    errors, us = [], []
+    for seed in range(first_seed, first_seed + seeds):
+        sensors, _ = _drawn_sensors(np.random.default_rng(seed), chain)
+        measured = truth + np.array(sensors.output_encoder_graduation_arcsec) @ shapes
+        value = float(np.ptp(measured))
+        errors.append(value - float(np.ptp(truth)))
+        us.append(float(np.sqrt(np.mean((np.ptp(measured[None, :] + moves, axis=1) - value) ** 2))))
+    e, u = np.array(errors), np.array(us)
+    rms = float(np.sqrt(np.mean(e ** 2)))
+    return {"mean_error": float(e.mean()), "rms_error": rms, "median_u": float(np.median(u)),
+            "covered": float(np.mean(np.abs(e) <= 1.96 * u)), "U_over_needed": float(np.median(u)) / rms}
+
+
+COVERAGE_UNITS = ["RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tcms_daq.sim.station_trials", description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=10)
@@ -364,10 +461,34 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--coverage", action="store_true",
                         help="the four methods' U against the truth on stations with drawn instrument errors")
+    parser.add_argument("--unit", action="append", choices=COVERAGE_UNITS,
+                        help="with --coverage: only these units (default all, in this order)")
+    parser.add_argument("--te-split", action="store_true",
+                        help="the TE peak-to-peak's error on the coverage stations split by drawn instrument error")
+    parser.add_argument("--te-encoder-lines", action="store_true",
+                        help="the output encoder's order-1–2 error alone on the units' lines: its error and U")
     args = parser.parse_args(argv)
+    if args.te_encoder_lines:
+        for name in args.unit or ["RV-110E", "HFUC-32-100"]:
+            row = te_encoder_on_lines(name, args.seeds, args.first_seed)
+            print(f"{name} ({args.seeds} draws from seed {args.first_seed}): "
+                  + "; ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
+        return 0
+    if args.te_split:
+        split = {name: te_error_split(name, args.seeds, args.first_seed)
+                 for name in (args.unit or ["RV-110E", "HFUC-32-100"])}
+        if args.json:
+            json.dump(split, sys.stdout, indent=2)
+            print()
+        else:
+            for name, per_result in split.items():
+                print(f"{name} ({args.seeds} stations from seed {args.first_seed})")
+                for key, row in per_result.items():
+                    print(f"  {key}: " + "; ".join(f"{k} {v:.3g}" for k, v in row.items()), flush=True)
+        return 0
     if args.coverage:
         table = {}
-        for name in ("RV-110E", "HFUC-32-100", "indep-rv", "indep-hd"):
+        for name in args.unit or COVERAGE_UNITS:
             start = time.perf_counter()
             table[name] = coverage(name, args.seeds, args.first_seed)
             if not args.json:

@@ -15,7 +15,8 @@ It shares no code with them (numpy only) and makes its own choices where they ma
 * **sampled encoders**: the output angle in counts of an 18 000-line encoder interpolated 4096-fold, with its
   interpolation error over the 72″ signal period and electrical noise; the input angle in counts of a 2^17-count
   motor encoder with its once-per-turn eccentricity error; the input latched a fixed skew after the output and
-  every latch with a time jitter;
+  every latch with a time jitter; optionally the output encoder's own error at orders 1 and 2 of its reading
+  (``Recording.output_encoder_error``);
 * **speed ripple in time**: the drive's speed has a ripple at a frequency in Hz (not locked to the angle) plus one
   per input turn, integrated on a fine grid and sampled at its own rate;
 * the twist under the light load is a plain compliance with a lost-motion jump between the directions.
@@ -144,6 +145,9 @@ class Recording:
     load_nm: float = 20.0
     lost_motion_arcsec: float = 12.0
     pause_s: float = 0.3
+    # the output encoder's own error over its revolution (mounting and graduation): (a1, λ1, a2, λ2), a_m·cos(m·θ −
+    # λ_m) with θ the encoder's reading (rad), a in arcsec, λ in degrees; none by default
+    output_encoder_error: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -206,6 +210,10 @@ def generate(errors: RvErrors | HdErrors, hidden: list[Source] | None = None, re
     t_in = t + rec.skew_s + rec.jitter_s * rng.standard_normal(t.size)
     out = np.interp(t_out, t_fine, theta_out)
     out = out + rec.output_interpolation_arcsec * np.sin(2 * math.pi * out / 72.0 + 0.3)
+    a1, lag1, a2, lag2 = rec.output_encoder_error
+    if a1 or a2:
+        theta = out / ARCSEC_PER_RAD
+        out = out + a1 * np.cos(theta - math.radians(lag1)) + a2 * np.cos(2.0 * theta - math.radians(lag2))
     out = out + rec.output_noise_arcsec * rng.standard_normal(t.size)
     count_out = ARCSEC_PER_TURN / (18000 * 4096)
     out = np.floor(out / count_out) * count_out

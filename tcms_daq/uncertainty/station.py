@@ -5,13 +5,15 @@ k for 95 %), the lines as there: Type A from the record (the scatter of ramps or
 transmission error the noise around each line of the spectrum), Type B from the declared chain
 (``[uncertainty.station]``, ``StationUncertainty``) with sensitivities through the evaluation itself where the error
 enters the record in a known way (a torque scale or zero, the skew between the two angle readings: the record is
-perturbed by ± the step and evaluated again, central differences).
+perturbed by ± the step and evaluated again; central differences for the torques, the skew's into the transmission
+error's Monte Carlo below).
 
-Transmission error (per direction's peak-to-peak, the larger of the two, and each order's amplitude). The noise
-and the encoders' errors move the fitted lines' coefficients linearly, but an amplitude or a peak-to-peak is not
+Transmission error (per direction's peak-to-peak, the larger of the two, and each order's amplitude). The noise,
+the encoders' errors and the skew move the fitted lines' coefficients linearly, but an amplitude or a peak-to-peak is not
 linear in them (a small line's amplitude grows with any error across it): their lines are a Monte Carlo over the
-coefficients (JCGM 101 on the fitted model, 400 draws): the RMS change of each result, its spread and its mean
-shift together.
+coefficients (JCGM 101 on the fitted model, 400 draws whose sample covariance is made exactly the declared one, so
+that the part linear in them is exact and only the non-linear part is sampled): the RMS change of each result, its
+spread and its mean shift together.
 
 * noise — each line's coefficients with the noise around it (√(E|A|²/2) from ~130 bins; Type A, 100 dof);
 * output encoder (orders 1–2) — its error over the revolution (``output_encoder_u_arcsec``, RMS: mounting and
@@ -23,8 +25,11 @@ shift together.
   line's order (sensitivity 1), on the peak-to-peak √2 (at the maximum and the minimum);
 * lines below the detection threshold — a line of at most the threshold amplitude A_th may have been left out; it
   moves the peak-to-peak by at most 2·A_th (rectangular);
-* synchronisation — the input angle latched ±``sync_skew_u_s`` later, evaluated again with the same orders: it
-  carries the measured speed and its ripple (a constant skew at a constant speed only shifts the TE);
+* synchronisation — the input angle latched ±``sync_skew_u_s`` later, evaluated again with the same orders (it
+  carries the measured speed and its ripple; a constant skew at a constant speed only shifts the TE): the change
+  of each direction's coefficients per unit skew, one skew drawn for both directions in the Monte Carlo (it moves
+  them in opposite senses, so the larger direction's peak-to-peak rises for a skew of either sign: a central
+  difference through that maximum gave almost nothing);
 * speed ripple — the record resampled onto the angle grid linearly instead of by a cubic spline, evaluated again:
   half the difference, rectangular (the samples are uneven in angle by the speed ripple).
 """
@@ -155,17 +160,32 @@ def _results_of(ev: TeEvaluation, per: dict[str, _Lines], coefs: dict[str, np.nd
     return out
 
 
+def standard_normal_draws(rng: np.random.Generator, draws: int, dims: int) -> np.ndarray:
+    """``draws`` × ``dims`` draws of N(0, 1) moved so that their sample mean is 0 and their sample covariance is
+    exactly the identity (centred, then whitened by the Cholesky factor of their covariance): a result linear in
+    them gets its variance exactly, and only its non-linear part is left to the sampling. Fewer than 2·dims draws
+    are centred only (their covariance is too poorly conditioned to whiten)."""
+    x = rng.standard_normal((draws, dims))
+    x -= x.mean(axis=0)
+    if draws < 2 * dims:
+        return x
+    factor = np.linalg.cholesky(x.T @ x / draws)
+    return np.linalg.solve(factor, x.T).T
+
+
 def _line_monte_carlo(ev: TeEvaluation, per: dict[str, _Lines], sources: dict[str, np.ndarray],
                       sigma: float, draws: int, shared: bool, rng: np.random.Generator) -> dict[str, float]:
     """RMS change of each result (its spread and its mean shift: an amplitude or a peak-to-peak is not linear in the
     coefficients, and a small line's amplitude grows with any error across it) when the coefficients move by
     ``sources[direction]`` (shapes × 2L) times draws of N(0, σ²) per shape, the same draw in both directions when
-    ``shared`` (one encoder's error), else independent."""
+    ``shared`` (one encoder's error), else independent. The draws' sample covariance is exactly σ²·I
+    (``standard_normal_draws``): with a few hundred plain draws the same set for every record (a fixed seed) is
+    a few per cent off in RMS, and every record's line with it."""
     nominal = {k: v[0] for k, v in _results_of(ev, per, {n: ln.coef[None, :] for n, ln in per.items()}).items()}
-    common = sigma * rng.standard_normal((draws, next(iter(sources.values())).shape[0]))
+    common = sigma * standard_normal_draws(rng, draws, next(iter(sources.values())).shape[0])
     coefs = {}
     for name, lines in per.items():
-        x = common if shared else sigma * rng.standard_normal((draws, sources[name].shape[0]))
+        x = common if shared else sigma * standard_normal_draws(rng, draws, sources[name].shape[0])
         coefs[name] = lines.coef[None, :] + x @ sources[name]
     moved = _results_of(ev, per, coefs)
     return {k: float(np.sqrt(np.mean((v - nominal[k]) ** 2))) for k, v in moved.items() if k in nominal}
@@ -184,25 +204,16 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
     known = {d: [ln.order_per_output_rev for ln in v.lines] for d, v in nominal.per_direction.items()}
 
     def again(angle_in: np.ndarray, angle_out: np.ndarray = a_out, resample: str = "cubic") -> dict[str, float]:
-        moved = evaluate_transmission_error(t, angle_in, angle_out, ratio=nominal.ratio, teeth=teeth,
-                                            max_order_per_output_rev=max_order_per_output_rev, known_orders=known,
-                                            detect=False, resample=resample)
-        return _match(values, moved)
+        return _match(values, _moved(t, angle_in, angle_out, nominal, teeth, max_order_per_output_rev, known,
+                                     resample))
 
     lines: dict[str, list[Contribution]] = {name: [] for name in values}
-
-    def through(source: str, unit: str, u: float, moved: Callable[[float], tuple[np.ndarray, np.ndarray]]) -> None:
-        """A line whose sensitivity is the change of every result with the record moved by ±u."""
-        if u <= 0:
-            return
-        plus, minus = again(*moved(u)), again(*moved(-u))
-        for name in values:
-            if name in plus and name in minus:
-                lines[name].append(Contribution(source, unit, u, (plus[name] - minus[name]) / (2 * u),
-                                                source.split(",")[0]))
-
-    through("synchronisation (skew of the angle readings)", "s", chain.sync_skew_u_s,
-            lambda x: (np.interp(t - x, t, a_in), a_out))
+    u_skew = chain.sync_skew_u_s
+    # the skew: each direction's lines re-fitted with the input latched ±u later (it carries the measured speed and
+    # its ripple); the change of their coefficients per unit skew goes into the Monte Carlo below, one skew shared
+    # by both directions (it moves them in opposite senses: the larger direction's peak-to-peak is not linear in it)
+    skewed = ([_moved(t, np.interp(t - x, t, a_in), a_out, nominal, teeth, max_order_per_output_rev, known)
+               for x in (u_skew, -u_skew)] if u_skew > 0 else [])
     linear = again(a_in, a_out, "linear")
     for name in values:
         if name in linear:
@@ -233,6 +244,14 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
                     shapes[name] = -_shape_response(ln, np.column_stack([np.cos(theta_in), np.sin(theta_in)])) / i
                 mc["input encoder (once per input turn)"] = _line_monte_carlo(
                     nominal, per, shapes, chain.input_encoder_u_arcsec, MC_DRAWS, True, rng)
+            if skewed:
+                shapes = {name: ((_coefficients_at(skewed[0].per_direction[name], ln.orders)
+                                  - _coefficients_at(skewed[1].per_direction[name], ln.orders)) / (2.0 * u_skew))[None, :]
+                          for name, ln in per.items()}
+                skew = _line_monte_carlo(nominal, per, shapes, u_skew, MC_DRAWS, True, rng)
+                for name, u in skew.items():
+                    if name in lines and u > 0:
+                        lines[name].append(Contribution(SKEW_SOURCE, "s", u_skew, u / u_skew))
     for source, changes in mc.items():
         if source == "noise":
             continue
@@ -254,6 +273,28 @@ def te_budgets(time_s: npt.ArrayLike, input_angle_arcsec: npt.ArrayLike, output_
         type_a_u[name] = mc.get("noise", {}).get(name, 0.0)
     return {name: combine(values[name], "arcsec", type_a_u[name], NOISE_DOF, _type_a_source(name),
                           [c for c in lines[name] if c.u > 0]) for name in values}
+
+
+SKEW_SOURCE = "synchronisation (skew of the angle readings)"
+
+
+def _moved(t: np.ndarray, angle_in: np.ndarray, angle_out: np.ndarray, nominal: TeEvaluation, teeth: Teeth | None,
+           max_order_per_output_rev: float | None, known: dict[str, list[float]], resample: str = "cubic"
+           ) -> TeEvaluation:
+    """The record evaluated again with the nominal evaluation's orders (no detection)."""
+    return evaluate_transmission_error(t, angle_in, angle_out, ratio=nominal.ratio, teeth=teeth,
+                                       max_order_per_output_rev=max_order_per_output_rev, known_orders=known,
+                                       detect=False, resample=resample)
+
+
+def _coefficients_at(d: TeDirection, orders: np.ndarray) -> np.ndarray:
+    """[c1, s1, c2, s2 …] (TE = Σ c·cos kφ + s·sin kφ) of a direction's lines nearest to each of ``orders``."""
+    out = []
+    for k in orders:
+        line = min(d.lines, key=lambda ln: abs(ln.order_per_output_rev - k))
+        phase = math.radians(line.phase_deg)
+        out += [line.amplitude_arcsec * math.sin(phase), line.amplitude_arcsec * math.cos(phase)]
+    return np.array(out)
 
 
 def _type_a_source(name: str) -> str:
