@@ -115,6 +115,40 @@ def table(summary: dict[str, dict[str, float | int | str]]) -> str:
     return "\n".join(lines)
 
 
+def _row_column(r: CoverageRun) -> tuple[str, str]:
+    """(row, column) of a run in :func:`matrix`: the effect (with its companion in a combined trial case) and the
+    data it came from (the trials at a size, or the independent generator's grid and rate)."""
+    if r.source == "trials":
+        case, _, scale = r.label.partition("×")
+        row = r.effect if case == r.effect else f"{r.effect} (in {case})"
+        return row, f"trials ×{scale or '1'}"
+    _family, grid, rate = r.label.split("@")
+    return r.effect, f"{rate.replace('Hz', ' Hz')}, {grid.replace('_', ' ')}"
+
+
+def matrix(runs: list[CoverageRun]) -> str:
+    """A Markdown table, an effect per row and a source per column: "≤ 1u / ≤ 2u / ≤ U" (shares of the runs that
+    named it, U = k·u the workflow's expanded uncertainty) and n."""
+    cells: dict[tuple[str, str], list[CoverageRun]] = {}
+    for r in runs:
+        cells.setdefault(_row_column(r), []).append(r)
+    rows = list(dict.fromkeys(k[0] for k in cells))
+    columns = list(dict.fromkeys(k[1] for k in cells))
+    lines = ["| effect | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+    for row in rows:
+        out = []
+        for col in columns:
+            named = [r for r in cells.get((row, col), []) if r.z is not None]
+            if not named:
+                out.append("")
+                continue
+            z = np.array([abs(r.z or 0.0) for r in named])
+            k = np.array([coverage_factor(r.groups - 1) or np.nan for r in named])
+            out.append(f"{np.mean(z <= 1):.0%} / {np.mean(z <= 2):.0%} / {np.mean(z <= k):.0%} ({len(named)})")
+        lines.append(f"| {row} | " + " | ".join(out) + " |")
+    return "\n".join(lines)
+
+
 def _diagnose(result: object, name: str) -> float | None:
     """The delete-one-group jackknife's bias estimate of ``name``'s primary parameter, (g − 1)(θ̄₍ᵢ₎ − θ̂)."""
     from tcms_daq.discrepancy.selection import Columns
@@ -222,12 +256,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grid", choices=[*GRIDS, "both"], default="same_rows")
     parser.add_argument("--diagnose", action="store_true",
                         help="also the jackknife's bias estimate and (trials) the terms fitted with nothing hidden")
+    parser.add_argument("--matrix", action="store_true",
+                        help="an effect per row, a source per column: within 1u / 2u / U (docs/discrepancy.md)")
     parser.add_argument("--json", action="store_true", help="the summary and every run as one JSON object")
-    parser.add_argument("--from-jsonl", metavar="FILE", help="summarise runs printed earlier (stderr lines)")
+    parser.add_argument("--from-jsonl", metavar="FILE", action="append",
+                        help="summarise runs printed earlier (their stderr lines; repeatable)")
     args = parser.parse_args(argv)
     if args.from_jsonl:
-        with open(args.from_jsonl) as fh:
-            runs = [CoverageRun(**json.loads(line)) for line in fh if line.startswith("{")]
+        runs = []
+        for path in args.from_jsonl:
+            with open(path) as fh:
+                runs += [CoverageRun(**json.loads(line)) for line in fh if line.startswith("{")]
     elif args.source == "trials":
         first = 100 if args.first_seed is None else args.first_seed
         cases = args.case or [c for c in CASES if CASES[c]]
@@ -239,7 +278,9 @@ def main(argv: list[str] | None = None) -> int:
         runs = independent_runs(families, list(range(first, first + args.seeds)), args.rate_hz or [50.0], grids,
                                 args.diagnose)
     summary = summarise(runs)
-    if args.json:
+    if args.matrix:
+        print(matrix(runs))
+    elif args.json:
         print(json.dumps({"summary": summary, "runs": [asdict(r) for r in runs]}, indent=1))
     else:
         print(table(summary))
