@@ -4,7 +4,7 @@ For every run where the hidden effect is named, the named primary parameter x, i
 ``result.uncertainties``) and the truth x₀ give z = (x − x₀)/u. Over seeds, per effect (hidden-effect trials) or
 family, grid and rate (independent-physics generator), the table gives n (runs where it was named / runs), the share
 of |z| ≤ 1 and ≤ 2, the same with the Student t-factor for the g − 1 degrees of freedom of the delete-one-group
-jackknife (t₆₈ and t₉₅), the median |z|, the number of groups g, and what the under-coverage is made of: the mean
+jackknife (t₆₈, and U = t₉₅·u as the workflow states it), the median |z|, the number of groups g, and what the under-coverage is made of: the mean
 error over seeds against the RMS u (a bias common to every group, which no jackknife over the groups can see) and
 the standard deviation of the errors over seeds against the RMS u (the jackknife's own accuracy).
 
@@ -17,10 +17,12 @@ Sources:
   a sin/cos gain imbalance g → the half-period sinusoid's amplitude |g/(2+g)|·P/2π (first order); a transport
   delay τ → ``skew_s`` = τ; a torque reading offset T0 → ``offset_nm`` = T0.
 
-    python -m tcms_daq.sim.coverage --source trials --seeds 20 [--case NAME] [--json]
+    python -m tcms_daq.sim.coverage --source trials --seeds 30 [--amplitude-scale 0.5] [--case NAME] [--diagnose]
     python -m tcms_daq.sim.coverage --source independent --seeds 10 --rate-hz 50 --rate-hz 1000 --grid both
+    python -m tcms_daq.sim.coverage --matrix --from-jsonl RUNS.jsonl [--from-jsonl …]
 
-Long: minutes per source. Each run is printed to stderr as it ends (one JSON line).
+Long (the workflow 0.5–1.5 s a run at 50 Hz, 2–15 s at 1 kHz, at load 3–9, plus making the data): not a test. Each run is printed to
+stderr as it ends (one JSON line), which ``--from-jsonl`` reads back. docs/discrepancy.md has the measured table.
 """
 
 from __future__ import annotations
