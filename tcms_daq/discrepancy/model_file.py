@@ -14,10 +14,10 @@ Format ``tcms-discrepancy-model/1``::
     [[terms]]                        # in order of addition
     name = "time_skew"               # a catalogue name (tcms_daq.discrepancy.catalogue)
     aliased_with = []                # other catalogue effects that fit these data equally well
+    uncertainty_dof = 7              # degrees of freedom of u: the jackknife's groups g − 1 (absent: not estimated)
+    coverage_factor = 2.365          # k of U: Student's t for uncertainty_dof, about 95 % (written for the reader)
     [terms.parameters]
     skew_s = 0.0201
-    uncertainty_dof = 7              # degrees of freedom of u: the jackknife's groups g − 1 (absent: not estimated)
-    coverage_factor = 2.36           # k of U: Student's t for uncertainty_dof, about 95 % (written for the reader)
     [terms.standard_uncertainty]     # k = 1, delete-one-loop jackknife (absent: not estimated)
     skew_s = 0.0003
     [terms.expanded_uncertainty]     # U = k·u (written for the reader; derived from u and uncertainty_dof)
