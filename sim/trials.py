@@ -226,6 +226,7 @@ class ClosedLoop:
     first: str  # run 1's verdict
     named: dict[str, dict[str, float]]  # run 1's named effects and parameters
     uncertainty: dict[str, dict[str, float]]  # their standard uncertainties (k = 1), carried by the model file
+    expanded: dict[str, dict[str, float]]  # their expanded uncertainties U = k·u (about 95 %, Student's t)
     second: str  # run 2's verdict against the applied model
     second_named: list[str]
     second_cv_rms_arcsec: float
@@ -238,7 +239,7 @@ class ClosedLoop:
 
     def to_dict(self) -> dict:
         return {"case": self.case, "size": self.size, "first": self.first, "named": self.named,
-                "uncertainty": self.uncertainty, "second": self.second, "second_named": self.second_named,
+                "uncertainty": self.uncertainty, "expanded_uncertainty": self.expanded, "second": self.second, "second_named": self.second_named,
                 "second_cv_rms_arcsec": self.second_cv_rms_arcsec, "noise_floor_arcsec": self.noise_floor_arcsec,
                 "apply_refused": self.apply_refused, "closed": self.closed}
 
@@ -317,17 +318,21 @@ def closed_loop(case: str, size: float, seed: int, design: TrialDesign = TrialDe
         second = bench.analyse(second_design, seed + 1)
     return ClosedLoop(case, size, first.verdict, {t.name: t.parameters for t in first.model.terms},
                       {t.name: t.standard_uncertainty for t in first.model.terms},
+                      {t.name: t.expanded_uncertainty for t in first.model.terms},
                       second.verdict, second.names, second.cv_rms_after_arcsec, first.noise_floor_arcsec,
                       apply_refused=refused)
 
 
 def closed_loop_table(loops: list[ClosedLoop]) -> str:
     """A Markdown table of closed loops (the README's demonstration)."""
-    lines = ["| hidden effect | size | run 1 | named (primary parameter ± u) | run 2 against the applied model |",
+    lines = ["| hidden effect | size | run 1 | named (primary parameter ± u; U, about 95 %) | "
+             "run 2 against the applied model |",
              "|---|---|---|---|---|"]
+    nan = float("nan")
     for lp in loops:
         named = "; ".join(
-            f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, float('nan')):.2g}"
+            f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, nan):.2g}; "
+            f"U {lp.expanded.get(n, {}).get(fx.REGISTRY[n].primary, nan):.2g}"
             for n, p in lp.named.items()) or "-"
         hidden = "; ".join(f"{n} {v[fx.REGISTRY[n].primary]:.4g}" for n, v in scaled(CASES[lp.case], lp.size).items())
         refused = f"apply refused ({lp.apply_refused.split(':')[0]}); " if lp.apply_refused else ""

@@ -65,6 +65,7 @@ def run_stored(args: argparse.Namespace) -> int:
     """``tcms discrepancy --run ID [--apply]``: the stored run against the bench model in use, kept in the
     data directory's archive of analyses (as ``POST /api/discrepancy``); ``--apply`` adds what it names to the
     bench model as its next version (as ``POST /api/discrepancy/{id}/apply``)."""
+    from tcms_daq.discrepancy.report import parameters_text
     from tcms_daq.sim.physics import catalogue_model
     from tcms_daq.store import STORE_FILENAME, RunStore
     from tcms_daq.store.discrepancy import ANALYSES_DIRNAME, AnalysisArchive
@@ -92,7 +93,7 @@ def run_stored(args: argparse.Namespace) -> int:
     print(f"analysis {doc['id']} of run {args.run} against bench model version {doc['model_version']}")
     print(f"verdict: {doc['verdict']} — {doc['verdict_words']}")
     for e in doc["effects"]:
-        params = ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items())
+        params = parameters_text(e["parameters"], e.get("expanded_uncertainty") or {}, e.get("coverage_factor"))
         print(f"named{' (provisional)' if e.get('provisional') else ''}: {e['name']} ({params})")
     print(f"held-out RMS {doc['cv_rms_before_arcsec']:.3f}″ → {doc['cv_rms_after_arcsec']:.3f}″")
     if added is not None:

@@ -14,10 +14,14 @@ Format ``tcms-discrepancy-model/1``::
     [[terms]]                        # in order of addition
     name = "time_skew"               # a catalogue name (tcms_daq.discrepancy.catalogue)
     aliased_with = []                # other catalogue effects that fit these data equally well
+    uncertainty_dof = 7              # degrees of freedom of u: the jackknife's groups g − 1 (absent: not estimated)
+    coverage_factor = 2.365          # k of U: Student's t for uncertainty_dof, about 95 % (written for the reader)
     [terms.parameters]
     skew_s = 0.0201
     [terms.standard_uncertainty]     # k = 1, delete-one-loop jackknife (absent: not estimated)
     skew_s = 0.0003
+    [terms.expanded_uncertainty]     # U = k·u (written for the reader; derived from u and uncertainty_dof)
+    skew_s = 0.0007
 
 The re-simulated angle is θ_sim + offset + Σ signature(term). The compensator's term registry
 (``tcms_daq.compensation.terms``) models encoder errors as functions of (θ, T, t) only; ``time_skew``,
@@ -37,6 +41,7 @@ import tomli_w
 
 from tcms_daq.discrepancy import catalogue as cat
 from tcms_daq.discrepancy.design import build_design
+from tcms_daq.discrepancy.workflow import coverage_factor
 from tcms_daq.errors import DataFormatError
 from tcms_daq.samples import Samples
 from tcms_daq.tomlfile import load_formatted_toml
@@ -50,6 +55,29 @@ class ModelTerm:
     parameters: dict[str, float]
     aliased_with: list[str] = field(default_factory=list)
     standard_uncertainty: dict[str, float] = field(default_factory=dict)
+    uncertainty_dof: int | None = None  # of standard_uncertainty: the jackknife's groups g − 1
+
+    @property
+    def coverage_factor(self) -> float | None:
+        return coverage_factor(self.uncertainty_dof) if self.standard_uncertainty else None
+
+    @property
+    def expanded_uncertainty(self) -> dict[str, float]:
+        """U = k·u (about 95 %) of every parameter with a u; empty without u or degrees of freedom."""
+        k = self.coverage_factor
+        return {key: k * u for key, u in self.standard_uncertainty.items()} if k is not None else {}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The term as the file and the service's ``GET /api/model`` give it."""
+        out: dict[str, Any] = {"name": self.name, "aliased_with": list(self.aliased_with),
+                               "parameters": {k: float(v) for k, v in self.parameters.items()}}
+        if self.standard_uncertainty:
+            out["standard_uncertainty"] = {k: float(v) for k, v in self.standard_uncertainty.items()}
+        if self.expanded_uncertainty:
+            out["uncertainty_dof"] = int(self.uncertainty_dof or 0)
+            out["coverage_factor"] = round(float(self.coverage_factor or 0.0), 3)
+            out["expanded_uncertainty"] = self.expanded_uncertainty
+        return out
 
 
 @dataclass
@@ -70,10 +98,7 @@ class DiscrepancyModel:
             doc["drift_reference_time_s"] = float(self.drift_reference_time_s)
         if self.fit_range:
             doc["fit_range"] = {k: [float(x) for x in v] for k, v in self.fit_range.items()}
-        doc["terms"] = [{"name": t.name, "aliased_with": list(t.aliased_with),
-                         "parameters": {k: float(v) for k, v in t.parameters.items()},
-                         **({"standard_uncertainty": {k: float(v) for k, v in t.standard_uncertainty.items()}}
-                            if t.standard_uncertainty else {})} for t in self.terms]
+        doc["terms"] = [t.to_dict() for t in self.terms]
         head = "# TCMS-DAQ discrepancy model: terms added to the simulated angle (arcsec), see docs/discrepancy.md\n"
         return head + tomli_w.dumps(doc)
 
@@ -95,7 +120,8 @@ def model_from_result(result) -> DiscrepancyModel:
     representatives)."""
     alias_of = {a.representative: [n for n in a.names if n != a.representative] for a in result.aliases
                 if a.in_model}
-    terms = [ModelTerm(name, dict(params), alias_of.get(name, []), dict(result.uncertainties.get(name, {})))
+    terms = [ModelTerm(name, dict(params), alias_of.get(name, []), dict(result.uncertainties.get(name, {})),
+                       result.uncertainty_dof if name in result.uncertainties else None)
              for name, params in result.model_terms]
     fit_range = {k: list(v) for k, v in result.fit_range.items() if v is not None}
     return DiscrepancyModel(result.offset_arcsec, result.signal_period_arcsec, terms, fit_range,
@@ -115,7 +141,8 @@ def parse_model(text: str, source: str = "<model>") -> DiscrepancyModel:
         if missing:
             raise DataFormatError(f"{source}: terms[{i}] ({name}): missing parameter {missing[0]!r}")
         terms.append(ModelTerm(name, {k: float(v) for k, v in params.items()}, list(t.get("aliased_with", [])),
-                               {k: float(v) for k, v in t.get("standard_uncertainty", {}).items()}))
+                               {k: float(v) for k, v in t.get("standard_uncertainty", {}).items()},
+                               None if t.get("uncertainty_dof") is None else int(t["uncertainty_dof"])))
     fit_range = {k: [float(x) for x in v] for k, v in doc.get("fit_range", {}).items()}
     t0 = doc.get("drift_reference_time_s")
     return DiscrepancyModel(float(doc.get("offset_arcsec", 0.0)), float(doc.get("signal_period_arcsec", 72.0)), terms,

@@ -197,6 +197,12 @@ def _remainder_table(r) -> str:
     return _table(rows, ["what remains", ""])
 
 
+def parameters_text(parameters: dict[str, float], expanded: dict[str, float], k: float | None) -> str:
+    """"name=value ± U" per parameter (U = k·u, about 95 %; k said at the end), "name=value" without U."""
+    parts = [f"{key}={v:.4g}" + (f" ± {expanded[key]:#.2g}" if key in expanded else "") for key, v in parameters.items()]
+    return ", ".join(parts) + (f"; ± U, k = {k:.2f}, about 95 %" if expanded and k is not None else "")
+
+
 def format_text(result) -> str:
     """The result as plain text lines: the verdict, named effects, aliases, rejected candidates, RMS before →
     after."""
@@ -213,7 +219,7 @@ def format_text(result) -> str:
     if result.effects:
         label = "named (provisional)" if result.verdict.provisional else "named"
         for e in result.effects:
-            params = ", ".join(f"{k}={v:.4g}" for k, v in e.parameters.items())
+            params = parameters_text(e.parameters, e.expanded_uncertainty, e.coverage_factor)
             lines.append(f"{label}: {e.name} ({params}); held-out RMS {e.cv_rms_before_arcsec:.3f}″ → "
                          f"{e.cv_rms_after_arcsec:.3f}″")
     else:

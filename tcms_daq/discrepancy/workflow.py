@@ -40,6 +40,9 @@ from tcms_daq.samples import Samples
 
 STABILITY = 0.8
 SIGNIFICANCE = 2.0  # a named parameter is identified when |value| ≥ 2 u (jackknife, k = 1)
+# the expanded uncertainty U = k·u covers about 95 % (as tcms_daq.uncertainty.budget.COVERAGE_PROBABILITY), k from
+# Student's t for the jackknife's g − 1 degrees of freedom
+EXPANDED_COVERAGE = 0.95
 
 
 @dataclass
@@ -50,12 +53,27 @@ class NamedEffect:
     cv_rms_after_arcsec: float
     inclusion: float  # share of outer folds whose selection included it
     standard_uncertainty: dict[str, float] = field(default_factory=dict)  # k = 1, jackknife over the groups
+    degrees_of_freedom: int | None = None  # of u: the jackknife's groups g − 1 (None: no estimate)
+
+    @property
+    def coverage_factor(self) -> float | None:
+        """k of the expanded uncertainty (about 95 %): Student's t for ``degrees_of_freedom``."""
+        return coverage_factor(self.degrees_of_freedom)
+
+    @property
+    def expanded_uncertainty(self) -> dict[str, float]:
+        """U = k·u of every parameter (about 95 %, :data:`EXPANDED_COVERAGE`); empty without u."""
+        k = self.coverage_factor
+        return {key: k * u for key, u in self.standard_uncertainty.items()} if k is not None else {}
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "parameters": dict(self.parameters),
             "standard_uncertainty": dict(self.standard_uncertainty),
+            "degrees_of_freedom": self.degrees_of_freedom,
+            "coverage_factor": self.coverage_factor,
+            "expanded_uncertainty": self.expanded_uncertainty,
             "cv_rms_before_arcsec": self.cv_rms_before_arcsec,
             "cv_rms_after_arcsec": self.cv_rms_after_arcsec,
             "inclusion": self.inclusion,
@@ -105,6 +123,7 @@ class DiscrepancyResult:
     signal_period_arcsec: float
     verdict: Verdict
     uncertainties: dict[str, dict[str, float]]  # per model term: standard uncertainty of each parameter (k = 1)
+    uncertainty_dof: int | None  # degrees of freedom of every u: the jackknife's groups g − 1 (None: no u)
     fit_range: dict[str, list[float] | None]  # the data the terms were fitted on: time, torque, angle spans
     data: DesignData = field(repr=False)
     residual_before_arcsec: np.ndarray = field(repr=False)
@@ -188,17 +207,40 @@ def run_discrepancy(measured: Samples, simulated: Samples, *, signal_period_arcs
     return result
 
 
+def coverage_factor(dof: int | None, coverage: float = EXPANDED_COVERAGE) -> float | None:
+    """k for which ±k·u covers ``coverage`` when u has ``dof`` degrees of freedom (two-sided Student t); None
+    without u."""
+    if dof is None or dof < 1:
+        return None
+    from scipy.stats import t
+
+    return float(t.ppf(0.5 + coverage / 2.0, dof))
+
+
+def jackknife_fits(cols: Columns, y: np.ndarray, groups: np.ndarray, names: list[str]
+                   ) -> list[dict[str, dict[str, float]]]:
+    """The parameters of ``names`` refitted with each group (run, loop or block) left out, nonlinear values scanned
+    again, in the order of ``np.unique(groups)``. Fewer than three groups, or no names: empty."""
+    labels = np.unique(groups)
+    if not names or len(labels) < 3:
+        return []
+    rows = np.arange(len(y))
+    return [fit_model(cols, y, rows[groups != g], names, rescan=tuple(names)).parameters() for g in labels]
+
+
 def jackknife_uncertainties(cols: Columns, y: np.ndarray, groups: np.ndarray, names: list[str],
                             params: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
     """Standard uncertainty (k = 1) of every parameter of ``names``: the delete-one-group jackknife over the
     groups (runs, loops or blocks), so the serial correlation inside a loop does not make it look smaller.
-    Fewer than three groups: no estimate (empty)."""
-    labels = np.unique(groups)
-    if not names or len(labels) < 3:
+    Fewer than three groups: no estimate (empty). Each u has g − 1 degrees of freedom: with the few loops of a test
+    error/u has Student's tails, not a normal distribution's, and ±2u covers well under 95 % (U = k·u with
+    :func:`coverage_factor`). A bias common to every group — a form that differs from the physics, an estimator's
+    bias — is not in u (``python -m tcms_daq.sim.coverage``, docs/discrepancy.md).
+    """
+    fits = jackknife_fits(cols, y, groups, names)
+    if not fits:
         return {}
-    rows = np.arange(len(y))
-    fits = [fit_model(cols, y, rows[groups != g], names, rescan=tuple(names)).parameters() for g in labels]
-    g = len(labels)
+    g = len(fits)
     out: dict[str, dict[str, float]] = {}
     for name in names:
         out[name] = {}
@@ -267,6 +309,8 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
         final = fit_model(cols, y, rows, model_names, rescan=tuple(model_names))
         params = final.parameters()
     uncertainties = jackknife_uncertainties(cols, y, data.groups, model_names, params)
+    n_groups = int(len(np.unique(data.groups)))
+    dof = n_groups - 1 if uncertainties else None
     path = sel.path()
     index = {s.name: i for i, s in enumerate(sel.steps)}
     named: list[NamedEffect] = []
@@ -279,7 +323,8 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
                                       True))
         else:
             named.append(NamedEffect(step.name, params[step.name], path[i].rms, path[i + 1].rms,
-                                     nested.inclusion.get(step.name, 0.0), uncertainties.get(step.name, {})))
+                                     nested.inclusion.get(step.name, 0.0), uncertainties.get(step.name, {}),
+                                     dof if step.name in uncertainties else None))
     aliases.extend(cancelled)
     # aliases among candidates that were not accepted are still worth reporting when they tied at a step
     for step in sel.steps[sel.chosen:]:
@@ -304,7 +349,6 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
         cv_after = nested.rms
     else:
         cv_after = cv_score(cols, y, make_folds(rows, data.groups), model_names).rms
-    n_groups = int(len(np.unique(data.groups)))
     return DiscrepancyResult(
         effects=named,
         aliases=aliases,
@@ -327,6 +371,7 @@ def analyse(data: DesignData, effects: list[str] | None = None) -> DiscrepancyRe
         verdict=judge(data, y, after, any_named=bool(model_names), not_identified=not_identified,
                       after_identified=after_identified),
         uncertainties=uncertainties,
+        uncertainty_dof=dof,
         fit_range={"time_s": [float(data.time_s[0]), float(data.time_s[-1])] if data.has_time else None,
                    "torque_nm": [float(data.torque_nm.min()), float(data.torque_nm.max())],
                    "angle_arcsec": [float(data.sim_angle_arcsec.min()), float(data.sim_angle_arcsec.max())]},

@@ -88,8 +88,7 @@ class DiscrepancyRuns:
         """The bench model in use: its version, its accepted effects and its history (newest first)."""
         version, model = bench_model(self.store)
         return {"version": version,
-                "terms": [{"name": t.name, "parameters": t.parameters, "aliased_with": t.aliased_with,
-                           "standard_uncertainty": t.standard_uncertainty} for t in model.terms],
+                "terms": [{"standard_uncertainty": {}, **t.to_dict()} for t in model.terms],
                 "toml": model.to_toml() if version else None,
                 "history": [v.summary() for v in self.store.bench_model_history()]}
 

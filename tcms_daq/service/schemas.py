@@ -586,6 +586,10 @@ class BenchModelTerm(BaseModel):
     parameters: dict[str, float]
     aliased_with: list[str]
     standard_uncertainty: dict[str, float] = Field(default_factory=dict, description="k = 1 (jackknife over loops)")
+    uncertainty_dof: int | None = Field(None, description="degrees of freedom of the standard uncertainties: the "
+                                        "jackknife's groups g − 1")
+    coverage_factor: float | None = Field(None, description="k of the expanded uncertainty (Student's t, about 95 %)")
+    expanded_uncertainty: dict[str, float] = Field(default_factory=dict, description="U = k·u, about 95 %")
 
 
 class BenchModelVersionView(BaseModel):
