@@ -331,8 +331,8 @@ def closed_loop_table(loops: list[ClosedLoop]) -> str:
     nan = float("nan")
     for lp in loops:
         named = "; ".join(
-            f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, nan):.2g}; "
-            f"U {lp.expanded.get(n, {}).get(fx.REGISTRY[n].primary, nan):.2g}"
+            f"{n} {p[fx.REGISTRY[n].primary]:.4g} ± {lp.uncertainty.get(n, {}).get(fx.REGISTRY[n].primary, nan):#.2g}; "
+            f"U {lp.expanded.get(n, {}).get(fx.REGISTRY[n].primary, nan):#.2g}"
             for n, p in lp.named.items()) or "-"
         hidden = "; ".join(f"{n} {v[fx.REGISTRY[n].primary]:.4g}" for n, v in scaled(CASES[lp.case], lp.size).items())
         refused = f"apply refused ({lp.apply_refused.split(':')[0]}); " if lp.apply_refused else ""
