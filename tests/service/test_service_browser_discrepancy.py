@@ -96,7 +96,11 @@ def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
     from tcms_daq.discrepancy import effects as fx
     from tcms_daq.discrepancy.stored import separating_request
 
+    from tcms_daq.discrepancy.workflow import NamedEffect
+
     names = [fx.TIME_SKEW, fx.BACKLASH]
+    named = NamedEffect("thermal_drift", {"rate_arcsec_per_s": 0.030123}, 0.75, 0.21, 1.0,
+                        standard_uncertainty={"rate_arcsec_per_s": 0.000217}, degrees_of_freedom=7)
     suggested = separating_request(fx.SECOND_RATE, REQUEST, reducer=REQUEST["reducer"],
                                    max_torque_nm=REQUEST["max_torque_nm"], rate_nm_per_s=REQUEST["rate_nm_per_s"],
                                    max_rate_nm_per_s=2000.0)
@@ -111,6 +115,7 @@ def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
         doc["aliases"] = [{"names": names, "in_model": False, "separating_experiment": "a second loading rate"}]
         doc["suggested_runs"] = [{"names": names, "kind": fx.SECOND_RATE, "why": "a skew grows with the rate",
                                   "request": suggested}]
+        doc["effects"] = [named.to_dict()]  # a named effect with its U, as the workflow writes it
         route.fulfill(response=response, json=doc)
 
     with _service_with_a_stored_run(settings_factory, sim_config) as (srv, c, browser, run_id):
@@ -123,7 +128,10 @@ def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
         rates = " / ".join(f"{r:g}" for r in suggested["rates"])
         assert button.text_content() == \
             f"Start the run that separates time_skew / backlash: the same test at {rates} N·m/s"
-        assert "cannot be told apart: time_skew / backlash" in page.text_content("#discrepancy-result")
+        said = page.text_content("#discrepancy-result")
+        assert "cannot be told apart: time_skew / backlash" in said
+        # a named parameter with its expanded uncertainty (Student's k for 7 degrees of freedom: 2.36)
+        assert "thermal_drift (rate_arcsec_per_s = 0.03012 ± 0.00051 (k = 2.36))" in said, said
         button.click()
         started = page.wait_for_selector(".suggested-started", timeout=20_000)
         new_id = started.get_attribute("data-run")

@@ -7,6 +7,11 @@ const TcmsDiscrepancy = (() => {
   const { withToken, escapeHtml } = TcmsSession;
   const fmt = (v) => (typeof v === "number"
     ? (Math.abs(v) >= 1e5 || (v !== 0 && Math.abs(v) < 1e-3) ? v.toExponential(4) : +v.toPrecision(6)) : String(v));
+  // a named parameter as "value ± U (k = …)" with its expanded uncertainty (Student's k for the jackknife's groups)
+  const parameter = (e, k, v) => {
+    const U = e.expanded_uncertainty && e.expanded_uncertainty[k];
+    return typeof U === "number" && U > 0 ? TcmsRounding.withU(v, U, e.coverage_factor) : fmt(v);
+  };
   const rms = (v) => (typeof v === "number" ? v.toFixed(3) + "″" : "–");
 
   async function api(method, path, body) { return (await TcmsSession.request(method, path, body)).data; }
@@ -17,7 +22,7 @@ const TcmsDiscrepancy = (() => {
     const { t, notice } = TcmsI18n;
     const named = d.effects.length
       ? t("disc.named", { names: d.effects.map((e) => e.name + " (" + Object.entries(e.parameters)
-        .map(([k, v]) => k + " = " + fmt(v)).join(", ") + ")").join("; ") })
+        .map(([k, v]) => k + " = " + parameter(e, k, v)).join(", ") + ")").join("; ") })
       : t("disc.named_nothing");
     const then = t("list_separator");
     const aliases = d.aliases.map((a) => then + t("disc.aliases", { names: a.names.join(" / ") }) +
