@@ -95,7 +95,6 @@ def test_a_suggested_run_starts_from_its_button(settings_factory, sim_config):
     (``separating_request``) added on its way to the page: the default bench hides no such pair."""
     from tcms_daq.discrepancy import effects as fx
     from tcms_daq.discrepancy.stored import separating_request
-
     from tcms_daq.discrepancy.workflow import NamedEffect
 
     names = [fx.TIME_SKEW, fx.BACKLASH]
