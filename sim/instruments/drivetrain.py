@@ -57,6 +57,14 @@ class DriveTrainPhysics(Protocol):
         """The torque the input drive delivers into the reducer's input (N·m)."""
         ...
 
+    def input_angles_deg(self, time_s: np.ndarray) -> np.ndarray:
+        """``input_angle_deg`` at many times at once (a counter card's latches)."""
+        ...
+
+    def output_angles_arcsec(self, time_s: np.ndarray) -> np.ndarray:
+        """``output_angle_arcsec`` at many times at once."""
+        ...
+
 
 @dataclass(frozen=True)
 class _Segment:
@@ -116,6 +124,17 @@ class RigidDriveTrain:
 
     def output_angle_arcsec(self, time_s: float) -> float:
         return self.input_angle_deg(time_s) / self.ratio * ARCSEC_PER_DEG
+
+    def input_angles_deg(self, time_s: np.ndarray) -> np.ndarray:
+        t = np.asarray(time_s, dtype=float)
+        with self._lock:
+            starts = np.array(self._times)
+            segments = np.array([(s.angle_deg, s.velocity_deg_per_s) for s in self._segments])
+        index = np.maximum(np.searchsorted(starts, t, side="right") - 1, 0)  # bisect_right, as _segment
+        return segments[index, 0] + segments[index, 1] * (t - starts[index])
+
+    def output_angles_arcsec(self, time_s: np.ndarray) -> np.ndarray:
+        return self.input_angles_deg(time_s) / self.ratio * ARCSEC_PER_DEG
 
     def input_velocity_deg_per_s(self, time_s: float) -> float:
         return self._segment(time_s).velocity_deg_per_s
@@ -362,6 +381,12 @@ class UnitDriveTrain:
 
     def output_angle_arcsec(self, time_s: float) -> float:
         return float(self.state_at(time_s)["output_rotation_arcsec"][0])
+
+    def input_angles_deg(self, time_s: np.ndarray) -> np.ndarray:
+        return self.state_at(time_s)["input_angle_deg"]
+
+    def output_angles_arcsec(self, time_s: np.ndarray) -> np.ndarray:
+        return self.state_at(time_s)["output_rotation_arcsec"]
 
     def input_torque_nm(self, time_s: float) -> float:
         return float(self.state_at(time_s)["input_torque_nm"][0])

@@ -132,7 +132,7 @@ class SecondAxisReadings:
             return np.full(t.shape, latest.angle_arcsec)
         state_at = getattr(drivetrain, "state_at", None)
         if state_at is None:
-            return latest.angle_arcsec + np.array([drivetrain.output_angle_arcsec(x) for x in t.tolist()])
+            return latest.angle_arcsec + drivetrain.output_angles_arcsec(t)
         rotation = state_at(t)["output_rotation_arcsec"]
         chain = getattr(self.physics.bench, "measuring_chain", None)
         if chain is None:
@@ -152,7 +152,7 @@ class SecondAxisReadings:
             return np.zeros(t.shape)
         state_at = getattr(drivetrain, "state_at", None)
         if state_at is None:
-            return np.array([drivetrain.input_angle_deg(x) for x in t.tolist()])
+            return drivetrain.input_angles_deg(t)
         tr = self._transmission()
         skew, error = (tr.sync_skew_s, tr.input_encoder_error_arcsec) if tr is not None else (0.0, 0.0)
         angle = state_at(t - skew)["input_angle_deg"]
