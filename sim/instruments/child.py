@@ -17,7 +17,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-SERVERS = ("nd287", "aed", "modbus", "socketcand", "control")  # each has a --<name>-port option
+#: each has a --<name>-port option (underscores as hyphens); the second axis's are used with --second-axis
+SERVERS = ("nd287", "aed", "modbus", "socketcand", "control", "input_aed", "nd287_coupled", "counter")
 
 
 READY_CEILING_S = 300.0  # a generous ceiling: the wait ends when the child reports its ports or exits
@@ -33,7 +34,7 @@ def start_simulators(*args: str, ports: Mapping[str, int] | None = None,
     ``timeout_s`` is only a ceiling for a child that hangs (a loaded machine takes long to import and bind).
     RuntimeError with the simulator's error output when it exits or hangs without reporting its ports."""
     chosen = {name: 0 for name in SERVERS} | dict(ports or {})
-    port_args = [arg for name, port in chosen.items() for arg in (f"--{name}-port", str(port))]
+    port_args = [arg for name, port in chosen.items() for arg in (f"--{name.replace('_', '-')}-port", str(port))]
     proc = subprocess.Popen([*command, "sim", "serve", *port_args, *args], cwd=cwd, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stderr is not None

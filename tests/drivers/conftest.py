@@ -7,7 +7,7 @@ import uuid
 
 import pytest
 from tcms_daq.sim.instruments.physics import SharedPhysics
-from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+from tcms_daq.sim.instruments.serve import DEFAULT_PORTS, InstrumentSimulators, SimulatorOptions
 from tcms_daq.sim.testing import SpringBench
 
 
@@ -20,7 +20,7 @@ def spring_physics():
 
 def _sims(physics, **options):
     opts = SimulatorOptions.from_mapping(
-        {"ports": {"nd287": 0, "aed": 0, "modbus": 0, "socketcand": 0}}, **options
+        {"ports": dict.fromkeys(DEFAULT_PORTS, 0)}, **options
     )
     sims = InstrumentSimulators(physics, opts)
     sims.start()

@@ -14,7 +14,7 @@ from tcms_daq.drivers.cia402_modbus import CiA402Modbus
 from tcms_daq.drivers.testing import driver_for, wait_until
 from tcms_daq.sim.bench import SimulatedBench
 from tcms_daq.sim.instruments.physics import SharedPhysics
-from tcms_daq.sim.instruments.serve import InstrumentSimulators, SimulatorOptions
+from tcms_daq.sim.instruments.serve import DEFAULT_PORTS, InstrumentSimulators, SimulatorOptions
 
 from tcms_daq.config import BenchConfig, SimConfig
 
@@ -23,7 +23,7 @@ from tcms_daq.config import BenchConfig, SimConfig
 def sims():
     physics = SharedPhysics(SimulatedBench.from_config(
         BenchConfig(sim=SimConfig(torque_noise_nm=0.0, encoder_noise_arcsec=0.0))))
-    opts = SimulatorOptions.from_mapping({"ports": {"nd287": 0, "aed": 0, "modbus": 0, "socketcand": 0}},
+    opts = SimulatorOptions.from_mapping({"ports": dict.fromkeys(DEFAULT_PORTS, 0)},
                                          instruments=("canopen", "modbus"), can_interface="virtual",
                                          can_channel=f"t-{uuid.uuid4().hex[:10]}", heartbeat_ms=50)
     simulators = InstrumentSimulators(physics, opts)
