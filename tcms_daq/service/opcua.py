@@ -270,7 +270,6 @@ class OpcUaBridge:
         self._nodes: dict[str, Any] = {}
         self._active = False
         self._connected: bool | None = True
-        self._started = False  # the server is listening (a model change before it is not announced)
 
     def _endpoint_url(self, port: int) -> str:
         host = socket.gethostname() if self.host in ("0.0.0.0", "::", "") else self.host
@@ -366,7 +365,6 @@ class OpcUaBridge:
         except OSError as exc:
             raise OpcUaError(exc.strerror or str(exc)) from None
         self.server = server
-        self._started = True
         self._ready.set()
         try:
             next_status = 0.0
@@ -630,7 +628,7 @@ class OpcUaBridge:
             path = f"LatestResult.Quantities.{q.name}"
             self._quantity_nodes.append(await self._quantities.quantity(folder, path, q.name, q.unit))
             await self._quantities.write(path, q)
-        if self._started:
+        if self.server is not None:  # listening: a model change before it is not announced
             await announce_model_change(self._model_change, folder)
 
     async def _set_latest(self, record: StoredRun) -> None:
