@@ -259,26 +259,14 @@ def coverage_run(name: str, seed: int, chain: StationUncertainty = COVERAGE_CHAI
     teeth = spec.kinematics.teeth(spec.kind)
     rng = np.random.default_rng(seed)
     sensors, start = _drawn_sensors(rng, chain)
-    out: dict[str, tuple[float, float]] = {}
     c = record_speed_run(unit, te_profile(2000.0, unit.ratio, 1.15, 0.02 * spec.rated_torque_nm), sensors,
                          seed=seed, start_input_angle_arcsec=start).columns
     ev = evaluate_transmission_error(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"], ratio=unit.ratio,
                                      teeth=teeth)
     budgets = te_budgets(c["time_s"], c["input_angle_arcsec"], c["output_angle_arcsec"], ev, chain, teeth=teeth)
-    truth_orders = {round(h.order_per_output_rev, 3): h for h in unit.harmonics}
-    for key, b in budgets.items():
-        if key.startswith("te_order_"):
-            h = truth_orders.get(round(float(key.split("_")[2]), 3))
-            if h is not None:
-                out[f"te_order_{h.component}"] = (b.value - h.amplitude_arcsec, b.expanded)
-        else:
-            d = ev.per_direction["reverse" if key.startswith("reverse") else "forward"]
-            truths = [te_peak_to_peak_truth(unit, x.phi_start_rad, x.phi_end_rad) for x in ev.per_direction.values()]
-            truth = max(truths) if key == "transmission_error_arcsec" else te_peak_to_peak_truth(
-                unit, d.phi_start_rad, d.phi_end_rad)
-            out[key] = (b.value - truth, b.expanded)
-    for h in unit.harmonics:  # an order of the unit that was not found is a miss (counted as not covered)
-        out.setdefault(f"te_order_{h.component}", (math.inf, 0.0))
+    out: dict[str, tuple[float, float]] = _te_errors(
+        budgets, ev.per_direction, lambda d: te_peak_to_peak_truth(unit, d.phi_start_rad, d.phi_end_rad),
+        [(h.order_per_output_rev, h.component, h.amplitude_arcsec) for h in unit.harmonics])
     c = record_torque_run(unit, starting_profile(1.4 * sim.breakaway_torque_nm, 0.25 * sim.breakaway_torque_nm, 3),
                           sensors, seed=seed).columns
     st = evaluate_starting_torque(c["time_s"], c["input_torque_nm"], c["input_angle_arcsec"])
@@ -320,7 +308,6 @@ def coverage_independent(kind: str, seed: int) -> dict[str, tuple[float, float]]
     g = generate(errors, None, Recording(output_encoder_error=encoder), seed=seed, unit_seed=seed)
     ev = evaluate_transmission_error(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ratio=g.ratio, teeth=teeth)
     budgets = te_budgets(g.time_s, g.input_angle_arcsec, g.output_angle_arcsec, ev, CHAIN, teeth=teeth)
-    out: dict[str, tuple[float, float]] = {}
 
     def truth_pp(d: Any) -> float:
         phi = np.linspace(d.phi_start_rad, d.phi_end_rad, 400_001)
@@ -328,19 +315,30 @@ def coverage_independent(kind: str, seed: int) -> dict[str, tuple[float, float]]
                  for src in g.sources)
         return float(np.ptp(te))
 
-    truths = {name: truth_pp(d) for name, d in ev.per_direction.items()}
-    by_order = {round(src.order, 3): src for src in g.sources}
+    return _te_errors(budgets, ev.per_direction, truth_pp,
+                      [(src.order, src.component, src.amplitude_arcsec) for src in g.sources])
+
+
+def _te_errors(budgets: dict[str, Any], per_direction: dict[str, Any], peak_to_peak_truth: Callable[[Any], float],
+               lines: list[tuple[float, str | None, float]]) -> dict[str, tuple[float, float]]:
+    """(error, U) of each transmission-error result against the truth: a line found at one of ``lines``' orders
+    (order per output revolution, component, amplitude ″) against its amplitude; each direction's peak-to-peak
+    against ``peak_to_peak_truth`` of that direction's evaluation (its angle span), the larger direction's against
+    the larger truth. An order of the unit that was not found is a miss (inf, 0: counted as not covered)."""
+    truths = {name: peak_to_peak_truth(d) for name, d in per_direction.items()}
+    by_order = {round(order, 3): (component, amplitude) for order, component, amplitude in lines}
+    out: dict[str, tuple[float, float]] = {}
     for key, b in budgets.items():
         if key.startswith("te_order_"):
-            src = by_order.get(round(float(key.split("_")[2]), 3))
-            if src is not None:
-                out[f"te_order_{src.component}"] = (b.value - src.amplitude_arcsec, b.expanded)
+            line = by_order.get(round(float(key.split("_")[2]), 3))
+            if line is not None:
+                out[f"te_order_{line[0]}"] = (b.value - line[1], b.expanded)
         elif key == "transmission_error_arcsec":
             out[key] = (b.value - max(truths.values()), b.expanded)
         else:
             out[key] = (b.value - truths[key.split("_")[0]], b.expanded)
-    for src in g.sources:
-        out.setdefault(f"te_order_{src.component}", (math.inf, 0.0))
+    for _, component, _ in lines:
+        out.setdefault(f"te_order_{component}", (math.inf, 0.0))
     return out
 
 
